@@ -1,0 +1,44 @@
+"""Pydantic models shared by the API (``service``) and the workers (``workers``).
+
+This package is the only code both sides import. It holds the wire format: requests, the job
+record, the analysis result and RFC 9457 problem details.
+"""
+
+from api_schemas.clip import CameraIntrinsicsModel, ClipInfoModel
+from api_schemas.job import (
+    AnalysisParameters,
+    Excitation,
+    ImpulseExcitation,
+    JobCreate,
+    JobList,
+    JobModel,
+    JobStatus,
+    StepReleaseExcitation,
+)
+from api_schemas.problem import Problem
+from api_schemas.result import (
+    AnalysisResult,
+    Artifacts,
+    ObjectResult,
+    QualityFlag,
+    Spectrum,
+)
+
+__all__ = [
+    "AnalysisParameters",
+    "AnalysisResult",
+    "Artifacts",
+    "CameraIntrinsicsModel",
+    "ClipInfoModel",
+    "Excitation",
+    "ImpulseExcitation",
+    "JobCreate",
+    "JobList",
+    "JobModel",
+    "JobStatus",
+    "ObjectResult",
+    "Problem",
+    "QualityFlag",
+    "Spectrum",
+    "StepReleaseExcitation",
+]

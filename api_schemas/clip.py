@@ -1,0 +1,40 @@
+"""Clip resource as stored and served."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class CameraIntrinsicsModel(BaseModel):
+    """Pinhole intrinsics in pixels."""
+
+    model_config = ConfigDict(title="CameraIntrinsics")
+
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+
+
+class ClipInfoModel(BaseModel):
+    """What was detected in an uploaded clip (the same as ``eigenscope probe`` prints)."""
+
+    model_config = ConfigDict(title="Clip")
+
+    id: str
+    format: str = Field(description="Detected container/layout, e.g. `npz`, `zip-frames`, `tum`, `video`.")
+    frames: int = Field(ge=0)
+    fps: float | None = Field(description="Frame rate used for analysis, in Hz.")
+    fps_source: str | None = Field(default=None, description="Where `fps` came from: bundle, container, ...")
+    width: int
+    height: int
+    has_depth: bool
+    depth_scale: float | None = Field(default=None, description="Metres per depth unit.")
+    intrinsics: CameraIntrinsicsModel | None = None
+    duration_s: float | None = None
+    dropped_frames: int = 0
+    streams: list[str] = Field(default_factory=list, description="Streams or topics found in the file.")
+    size_bytes: int
+    created_at: datetime

@@ -1,0 +1,106 @@
+"""Job requests and records."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from enum import StrEnum
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from api_schemas.problem import Problem
+from api_schemas.result import AnalysisResult
+
+
+class StepReleaseExcitation(BaseModel):
+    """Object held by a known force, then released: A = F/k."""
+
+    model_config = ConfigDict(title="StepReleaseExcitation", extra="forbid")
+
+    type: Literal["step_release"]
+    force_n: float = Field(gt=0, description="Holding force, newtons.")
+    force_uncertainty_n: float = Field(default=0.0, ge=0)
+    object_id: int | None = Field(default=None, ge=1, description="Which object; default the main one.")
+
+
+class ImpulseExcitation(BaseModel):
+    """Object struck by a known impulse: v0 = J/m."""
+
+    model_config = ConfigDict(title="ImpulseExcitation", extra="forbid")
+
+    type: Literal["impulse"]
+    impulse_ns: float = Field(gt=0, description="Impulse, newton-seconds.")
+    impulse_uncertainty_ns: float = Field(default=0.0, ge=0)
+    object_id: int | None = Field(default=None, ge=1, description="Which object; default the main one.")
+
+
+Excitation = Annotated[StepReleaseExcitation | ImpulseExcitation, Field(discriminator="type")]
+
+
+class AnalysisParameters(BaseModel):
+    """Analysis options; every field has a default that works without tuning."""
+
+    model_config = ConfigDict(title="AnalysisParameters", extra="forbid")
+
+    method: Literal["default", "paper"] = "default"
+    flow: Literal["farneback", "dis"] | None = Field(
+        default=None, description="Optical flow; default depends on the method."
+    )
+    frames: int | None = Field(default=None, ge=8, le=100_000, description="Analysis window length N.")
+    start_frame: int | None = Field(default=None, ge=0)
+    fps: float | None = Field(default=None, gt=0, le=100_000, description="True recording rate, Hz.")
+    fx: float | None = Field(default=None, gt=0)
+    fy: float | None = Field(default=None, gt=0)
+    cx: float | None = None
+    cy: float | None = None
+    depth_scale: float | None = Field(default=None, gt=0, description="Metres per depth unit.")
+    depth_m: float | None = Field(default=None, gt=0, description="Object distance when the clip has no depth.")
+    min_frequency_hz: float | None = Field(default=None, ge=0)
+    max_frequency_hz: float | None = Field(default=None, gt=0)
+
+
+class JobCreate(BaseModel):
+    """Request body of ``POST /v1/jobs``."""
+
+    model_config = ConfigDict(title="JobCreate", extra="forbid")
+
+    clip_id: str = Field(min_length=1, max_length=64)
+    excitation: Excitation | None = None
+    parameters: AnalysisParameters = Field(default_factory=AnalysisParameters)
+
+
+class JobStatus(StrEnum):
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+class JobModel(BaseModel):
+    """A job record."""
+
+    model_config = ConfigDict(title="Job")
+
+    id: str
+    clip_id: str
+    status: JobStatus
+    progress: float = Field(ge=0, le=1)
+    stage: str | None = None
+    attempts: int = 0
+    excitation: Excitation | None = None
+    parameters: AnalysisParameters
+    created_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+    error: Problem | None = None
+    result: AnalysisResult | None = None
+
+
+class JobList(BaseModel):
+    """A page of jobs, newest first."""
+
+    model_config = ConfigDict(title="JobList")
+
+    items: list[JobModel]
+    next_cursor: str | None = None

@@ -1,0 +1,24 @@
+"""RFC 9457 problem details."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class Problem(BaseModel):
+    """An RFC 9457 ``application/problem+json`` document.
+
+    Extra members are allowed (RFC 9457 section 3.2); ``errors`` carries field-level
+    validation failures.
+    """
+
+    model_config = ConfigDict(extra="allow", title="Problem")
+
+    type: str = Field(default="about:blank", description="URI identifying the problem type.")
+    title: str = Field(description="Short, human-readable summary of the problem type.")
+    status: int = Field(ge=100, le=599, description="HTTP status code.")
+    detail: str | None = Field(default=None, description="Explanation specific to this occurrence.")
+    instance: str | None = Field(default=None, description="URI of this occurrence (usually the request path).")
+    errors: list[dict[str, object]] | None = Field(
+        default=None, description="Field-level errors, each with `loc` and `msg`."
+    )

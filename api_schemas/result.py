@@ -1,0 +1,85 @@
+"""The analysis result: written by the CLI as ``result.json`` and served by the API."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class QualityFlag(BaseModel):
+    """A reason why (part of) a result may be unreliable."""
+
+    model_config = ConfigDict(title="QualityFlag")
+
+    code: str = Field(description="Stable machine-readable code, e.g. `possibly_aliased`, `no_depth`.")
+    message: str = Field(description="What was seen and what to do about it.")
+    severity: str = Field(default="warning", description="`info`, `warning` or `error`.")
+
+
+class ObjectResult(BaseModel):
+    """One vibrating object found in the clip."""
+
+    model_config = ConfigDict(title="ObjectResult")
+
+    id: int = Field(ge=1, description="The object's value in `mask.png`.")
+    eigenfrequency_hz: float = Field(description="Damped eigenfrequency, Hz.")
+    eigenfrequency_uncertainty_hz: float | None = Field(default=None, description="Standard uncertainty, Hz.")
+    natural_frequency_hz: float | None = Field(default=None, description="Undamped natural frequency, Hz.")
+    angular_frequency_rad_s: float = Field(description="2π times the undamped natural frequency, rad/s.")
+    damping_ratio: float | None = None
+    damping_ratio_uncertainty: float | None = None
+    amplitude_px: float | None = Field(default=None, description="Amplitude at release, image pixels.")
+    amplitude_m: float | None = Field(default=None, description="Amplitude at release, metres.")
+    amplitude_uncertainty_m: float | None = None
+    depth_m: float | None = Field(default=None, description="Median distance of the object from the camera.")
+    motion_direction: list[float] | None = Field(
+        default=None, description="Unit vector of the main motion in camera coordinates [x, y, z]."
+    )
+    stiffness_n_per_m: float | None = None
+    stiffness_uncertainty_n_per_m: float | None = None
+    mass_kg: float | None = None
+    mass_uncertainty_kg: float | None = None
+    pixel_count: int = Field(ge=0)
+    bbox_px: list[int] = Field(description="[x, y, w, h] of the object's mask, pixels.")
+    harmonics_hz: list[float] = Field(default_factory=list)
+    release_time_s: float | None = Field(default=None, description="When the object was released.")
+    snr_db: float | None = None
+    null_reasons: list[str] = Field(
+        default_factory=list, description="Why a quantity above is null (e.g. no excitation, no depth)."
+    )
+
+
+class Spectrum(BaseModel):
+    """Summed motion power spectrum of the clip."""
+
+    model_config = ConfigDict(title="Spectrum")
+
+    frequencies_hz: list[float]
+    power: list[float]
+
+
+class Artifacts(BaseModel):
+    """Files produced by the analysis: names relative to the output directory, or URLs when served."""
+
+    model_config = ConfigDict(title="Artifacts", extra="allow")
+
+    mask: str = "mask.png"
+
+
+class AnalysisResult(BaseModel):
+    """Everything one analysis measured."""
+
+    model_config = ConfigDict(title="AnalysisResult")
+
+    eigenfrequency_hz: float | None = Field(description="The main object's eigenfrequency, Hz.")
+    objects: list[ObjectResult]
+    spectrum: Spectrum
+    artifacts: Artifacts = Field(default_factory=Artifacts)
+    quality: list[QualityFlag] = Field(default_factory=list)
+    method: str
+    parameters: dict[str, object] = Field(description="Every parameter used, defaults included.")
+    fps: float
+    fps_source: str
+    frames_used: list[int] = Field(description="[first, last) frame indices of the analysed window.")
+    frame_size_px: list[int] = Field(description="[width, height] of the input frames.")
+    timings_s: dict[str, float] = Field(default_factory=dict)
+    version: str

@@ -1,0 +1,3 @@
+from eigenscope.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,81 @@
+"""The ``eigenscope`` console script.
+
+Each subcommand lives in its own module under :mod:`eigenscope.commands` and exposes
+``register(subparsers)``; heavy imports (OpenCV, FastAPI, Celery) happen inside the command handlers, so
+``eigenscope --help`` is fast and ``serve`` never loads the pipeline into the API process.
+
+Errors the user can fix print one line to stderr and exit with status 2; no traceback reaches the user
+unless ``EIGENSCOPE_DEBUG=1``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from collections.abc import Callable, Sequence
+
+from eigenscope import __version__
+
+#: Modules under eigenscope.commands, in help order.
+COMMAND_MODULES = ("analyze", "synth", "probe", "serve", "worker", "submit", "export_openapi")
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+class UsageError(Exception):
+    """A mistake in the command line or its input that the user can fix; printed as one line."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="eigenscope",
+        description="Measure eigenfrequency, damping, stiffness and mass of objects from RGB-D clips.",
+    )
+    parser.add_argument("--version", action="version", version=f"eigenscope {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"eigenscope.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"eigenscope.commands.{name}":
+                continue  # command not built yet in this tree
+            raise
+        module.register(sub)
+    return parser
+
+
+def _user_error_types() -> tuple[type[BaseException], ...]:
+    types: list[type[BaseException]] = [UsageError, FileNotFoundError, IsADirectoryError, PermissionError]
+    # Only look the domain errors up if the pipeline was loaded by the command: no import cost otherwise.
+    errors = sys.modules.get("workers.pipeline.errors")
+    if errors is not None:
+        types.append(errors.EigenscopeError)
+    return tuple(types)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    handler: Handler = args.handler
+    try:
+        return handler(args)
+    except KeyboardInterrupt:
+        print("eigenscope: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if os.environ.get("EIGENSCOPE_DEBUG") == "1":
+            raise
+        if isinstance(exc, _user_error_types()):
+            message = str(exc) if not isinstance(exc, OSError) or not exc.filename else (
+                f"{exc.filename}: {exc.strerror}"
+            )
+            print(f"eigenscope {args.command}: error: {message}", file=sys.stderr)
+            return 2
+        print(
+            f"eigenscope {args.command}: internal error: {type(exc).__name__}: {exc} "
+            "(set EIGENSCOPE_DEBUG=1 for the traceback and report it)",
+            file=sys.stderr,
+        )
+        return 70

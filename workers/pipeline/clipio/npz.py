@@ -1,0 +1,318 @@
+"""The native clip bundle: an ``.npz`` archive.
+
+Keys
+----
+rgb : uint8, (T, H, W, 3)
+depth : uint16 (T, H, W) in depth units, or float32 metres -- optional
+fps : scalar
+intrinsics : [fx, fy, cx, cy] -- optional
+depth_scale : metres per unit, default 0.001 -- optional
+timestamps : float seconds, (T,) -- optional
+
+Frames are streamed straight out of the archive member (stored or deflated), so memory stays at a frame
+or two whatever the clip length.
+"""
+
+from __future__ import annotations
+
+import math
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, Self
+
+import numpy as np
+from numpy.lib import format as npy_format
+from numpy.typing import NDArray
+
+from workers.pipeline.clipio.types import (
+    ClipInfo,
+    ClipOverrides,
+    Frame,
+    Intrinsics,
+    ReadLimits,
+    depth_to_metres,
+    uniform_fps_from_timestamps,
+)
+from workers.pipeline.errors import ClipError, ClipTooLargeError
+
+DEFAULT_DEPTH_SCALE = 0.001
+MIN_FRAMES = 8
+_SMALL_KEYS = ("fps", "intrinsics", "depth_scale", "timestamps")
+_KNOWN_KEYS = {"rgb", "depth", *_SMALL_KEYS}
+
+
+class _Member:
+    """An array inside the archive, read lazily as a stream of leading-axis slices."""
+
+    def __init__(self, archive: zipfile.ZipFile, name: str, key: str) -> None:
+        self.archive = archive
+        self.name = name
+        self.key = key
+        with archive.open(name) as fh:
+            self.shape, self.fortran, self.dtype = _read_header(fh, key)
+
+    def small(self, limit_bytes: int = 1 << 20) -> NDArray[Any]:
+        nbytes = int(np.prod(self.shape, dtype=np.int64)) * self.dtype.itemsize
+        if nbytes > limit_bytes:
+            raise ClipError(f"npz: '{self.key}' holds {nbytes} bytes; expected a small metadata array")
+        if self.dtype.hasobject:
+            raise ClipError(f"npz: '{self.key}' holds Python objects; store plain numbers")
+        with self.archive.open(self.name) as fh:
+            _read_header(fh, self.key)
+            data = fh.read(nbytes)
+        if len(data) != nbytes:
+            raise ClipError(f"npz: '{self.key}' is truncated ({len(data)} of {nbytes} bytes); re-export the clip")
+        order = "F" if self.fortran else "C"
+        return np.frombuffer(data, dtype=self.dtype).reshape(self.shape, order=order)
+
+    def slices(self, start: int, stop: int) -> Iterator[NDArray[Any]]:
+        """Yield ``array[i]`` for ``start <= i < stop`` without loading the whole array."""
+        if self.fortran:
+            raise ClipError(
+                f"npz: '{self.key}' is stored in Fortran order, which cannot be streamed; "
+                "save it with np.ascontiguousarray"
+            )
+        per = int(np.prod(self.shape[1:], dtype=np.int64)) * self.dtype.itemsize
+        with self.archive.open(self.name) as fh:
+            _read_header(fh, self.key)
+            _skip(fh, per * start)
+            for index in range(start, stop):
+                buf = fh.read(per)
+                if len(buf) != per:
+                    raise ClipError(
+                        f"npz: '{self.key}' is truncated at frame {index} of {self.shape[0]}; re-export the clip"
+                    )
+                yield np.frombuffer(buf, dtype=self.dtype).reshape(self.shape[1:])
+
+
+def _skip(fh: IO[bytes], nbytes: int) -> None:
+    chunk = 1 << 22
+    while nbytes > 0:
+        got = fh.read(min(chunk, nbytes))
+        if not got:
+            raise ClipError("npz: archive member ends early; the file is truncated")
+        nbytes -= len(got)
+
+
+def _read_header(fh: IO[bytes], key: str) -> tuple[tuple[int, ...], bool, np.dtype[Any]]:
+    try:
+        version = npy_format.read_magic(fh)
+        if version == (1, 0):
+            shape, fortran, dtype = npy_format.read_array_header_1_0(fh)
+        else:
+            shape, fortran, dtype = npy_format.read_array_header_2_0(fh)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise ClipError(f"npz: '{key}' is not a readable .npy array ({exc}); re-export the clip") from exc
+    return tuple(int(s) for s in shape), bool(fortran), np.dtype(dtype)
+
+
+def _scalar(member: _Member, what: str) -> float:
+    arr = member.small()
+    if arr.size != 1 or not np.issubdtype(arr.dtype, np.number):
+        raise ClipError(f"npz: '{member.key}' must be a single number ({what}), got shape {arr.shape}")
+    return float(arr.reshape(()))
+
+
+class NpzClip:
+    """Reader of the native ``.npz`` bundle. See the module docstring for the layout."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        overrides: ClipOverrides | None = None,
+        limits: ReadLimits | None = None,
+    ) -> None:
+        self.path = Path(path)
+        overrides = overrides or ClipOverrides()
+        limits = limits or ReadLimits()
+        try:
+            self._zip = zipfile.ZipFile(self.path)
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise ClipError(f"npz: {self.path.name} is not a readable .npz archive ({exc})") from exc
+        try:
+            self._info, self._rgb, self._depth = self._validate(overrides, limits)
+        except Exception:
+            self._zip.close()
+            raise
+
+    def _validate(
+        self, overrides: ClipOverrides, limits: ReadLimits
+    ) -> tuple[ClipInfo, _Member, _Member | None]:
+        members: dict[str, _Member] = {}
+        names = self._zip.namelist()
+        if len(names) > 64:
+            raise ClipError(f"npz: {len(names)} entries; a clip bundle has at most {len(_KNOWN_KEYS)}")
+        for name in names:
+            key = name[:-4] if name.endswith(".npy") else name
+            if key in _KNOWN_KEYS:
+                members[key] = _Member(self._zip, name, key)
+        if "rgb" not in members:
+            found = ", ".join(sorted(n.removesuffix(".npy") for n in names)) or "nothing"
+            raise ClipError(
+                f"npz: missing key 'rgb' (found: {found}); save the colour frames as rgb=(T, H, W, 3) uint8"
+            )
+        rgb = members["rgb"]
+        if len(rgb.shape) != 4 or rgb.shape[3] != 3:
+            raise ClipError(f"npz: 'rgb' must have shape (T, H, W, 3), got {rgb.shape}")
+        if rgb.dtype != np.uint8:
+            raise ClipError(f"npz: 'rgb' must be uint8, got {rgb.dtype}; scale to 0..255 and cast to uint8")
+        frames, height, width = rgb.shape[:3]
+        if frames > limits.max_frames:
+            raise ClipTooLargeError(f"npz: {frames} frames exceed the cap of {limits.max_frames}")
+        if height * width > limits.max_pixels_per_frame:
+            raise ClipTooLargeError(
+                f"npz: {width}x{height} frames exceed the cap of {limits.max_pixels_per_frame} pixels"
+            )
+        if frames < MIN_FRAMES:
+            raise ClipError(f"npz: only {frames} frames; at least {MIN_FRAMES} are needed (64 or more is better)")
+        if height < 16 or width < 16:
+            raise ClipError(f"npz: frames of {width}x{height} pixels are too small; at least 16x16 is needed")
+
+        depth = members.get("depth")
+        if depth is not None:
+            if depth.shape != (frames, height, width):
+                raise ClipError(
+                    f"npz: 'depth' has shape {depth.shape} but 'rgb' implies {(frames, height, width)}; "
+                    "depth must be aligned to the colour frames, one map per frame"
+                )
+            if not (depth.dtype == np.uint16 or np.issubdtype(depth.dtype, np.floating)):
+                raise ClipError(
+                    f"npz: 'depth' must be uint16 (depth units) or float32 (metres), got {depth.dtype}"
+                )
+
+        depth_scale = DEFAULT_DEPTH_SCALE
+        if "depth_scale" in members:
+            depth_scale = _scalar(members["depth_scale"], "metres per depth unit")
+            if not (math.isfinite(depth_scale) and depth_scale > 0):
+                raise ClipError(f"npz: depth_scale={depth_scale} must be a positive number of metres per unit")
+        if overrides.depth_scale is not None:
+            depth_scale = overrides.depth_scale
+
+        timestamps: NDArray[np.float64] | None = None
+        dropped = 0
+        if "timestamps" in members:
+            ts = members["timestamps"].small(limit_bytes=64 * frames + 1024).astype(np.float64).ravel()
+            if ts.shape != (frames,):
+                raise ClipError(f"npz: 'timestamps' has {ts.size} values for {frames} frames")
+            if not np.all(np.isfinite(ts)):
+                raise ClipError("npz: 'timestamps' contains NaN or infinite values")
+            timestamps = ts - ts[0]
+
+        fps: float | None = None
+        fps_source: str | None = None
+        if overrides.fps is not None:
+            fps, fps_source = overrides.fps, "user"
+        elif "fps" in members:
+            fps = _scalar(members["fps"], "frames per second")
+            if not (math.isfinite(fps) and fps > 0):
+                raise ClipError(f"npz: fps={fps} must be a positive finite number; fix it or pass --fps")
+            fps_source = "bundle"
+        elif timestamps is not None:
+            fps, dropped = uniform_fps_from_timestamps(timestamps)
+            fps_source = "timestamps"
+        if timestamps is not None and fps_source != "timestamps":
+            _, dropped = uniform_fps_from_timestamps(timestamps)
+
+        base: Intrinsics | None = None
+        if "intrinsics" in members:
+            k = members["intrinsics"].small().astype(np.float64).ravel()
+            if k.shape != (4,):
+                raise ClipError(f"npz: 'intrinsics' must be [fx, fy, cx, cy], got {k.size} values")
+            base = Intrinsics(fx=float(k[0]), fy=float(k[1]), cx=float(k[2]), cy=float(k[3]))
+        intrinsics = overrides.intrinsics_over(base, width, height)
+
+        streams = tuple(sorted(members))
+        info = ClipInfo(
+            format="npz",
+            frames=frames,
+            width=width,
+            height=height,
+            fps=fps,
+            fps_source=fps_source,
+            has_depth=depth is not None,
+            depth_scale=depth_scale if depth is not None else None,
+            intrinsics=intrinsics,
+            timestamps_s=timestamps,
+            dropped_frames=dropped,
+            streams=streams,
+        )
+        return info, rgb, depth
+
+    @property
+    def info(self) -> ClipInfo:
+        return self._info
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield frames ``start <= index < stop``; see :class:`~workers.pipeline.clipio.types.Frame`."""
+        total = self._info.frames
+        stop = total if stop is None else min(stop, total)
+        if not 0 <= start <= stop:
+            raise ClipError(f"npz: frame range [{start}, {stop}) is outside the clip's {total} frames")
+        fps = self._info.fps or 1.0
+        ts = self._info.timestamps_s
+        rgb_iter = self._rgb.slices(start, stop)
+        depth_iter = self._depth.slices(start, stop) if self._depth is not None else None
+        scale = self._info.depth_scale or DEFAULT_DEPTH_SCALE
+        for index, rgb in enumerate(rgb_iter, start=start):
+            depth = depth_to_metres(next(depth_iter), scale) if depth_iter is not None else None
+            t = float(ts[index]) if ts is not None else index / fps
+            yield Frame(index=index, rgb=rgb, depth_m=depth, timestamp_s=t)
+
+    def close(self) -> None:
+        self._zip.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def write_npz(
+    path: str | Path,
+    rgb: NDArray[np.uint8],
+    *,
+    fps: float,
+    depth: NDArray[np.generic] | None = None,
+    intrinsics: tuple[float, float, float, float] | None = None,
+    depth_scale: float | None = None,
+    timestamps: NDArray[np.float64] | None = None,
+    compress: bool = False,
+) -> Path:
+    """Write a native clip bundle.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination, conventionally ending in ``.npz``.
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    fps : float
+    depth : ndarray of uint16 (T, H, W) in units of ``depth_scale``, or float32 metres, optional
+    intrinsics : (fx, fy, cx, cy), optional
+    depth_scale : float, optional
+        Metres per depth unit (default 0.001 when depth is integer).
+    timestamps : ndarray of float64, shape (T,), optional
+    compress : bool
+        Deflate the members (smaller file, slower to read).
+    """
+    arrays: dict[str, NDArray[Any]] = {"rgb": np.ascontiguousarray(rgb), "fps": np.float64(fps)}
+    if depth is not None:
+        arrays["depth"] = np.ascontiguousarray(depth)
+    if intrinsics is not None:
+        arrays["intrinsics"] = np.asarray(intrinsics, dtype=np.float64)
+    if depth_scale is not None:
+        arrays["depth_scale"] = np.float64(depth_scale)
+    if timestamps is not None:
+        arrays["timestamps"] = np.asarray(timestamps, dtype=np.float64)
+    path = Path(path)
+    with path.open("wb") as fh:
+        (np.savez_compressed if compress else np.savez)(fh, **arrays)
+    return path

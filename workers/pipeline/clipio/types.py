@@ -1,0 +1,221 @@
+"""Data types of clip I/O: what a reader tells about a clip and the frames it streams."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Protocol, Self
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.errors import ClipError, ParameterError
+
+
+@dataclass(frozen=True, slots=True)
+class Intrinsics:
+    """Pinhole camera intrinsics, pixels."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy"):
+            value = getattr(self, name)
+            if not math.isfinite(value):
+                raise ClipError(f"intrinsics: {name}={value} is not finite; give --{name} with a real value")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ClipError(
+                f"intrinsics: focal lengths must be positive, got fx={self.fx}, fy={self.fy}; "
+                "give the camera's --fx/--fy in pixels"
+            )
+
+
+@dataclass(frozen=True, slots=True)
+class ClipOverrides:
+    """Metadata the user supplies; each given field wins over what the file says."""
+
+    fps: float | None = None
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    depth_scale: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.fps is not None and not (math.isfinite(self.fps) and self.fps > 0):
+            raise ParameterError(f"fps={self.fps} must be a positive finite number (frames per second)")
+        if self.depth_scale is not None and not (math.isfinite(self.depth_scale) and self.depth_scale > 0):
+            raise ParameterError(f"depth_scale={self.depth_scale} must be positive (metres per depth unit)")
+        for name in ("fx", "fy"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ParameterError(f"{name}={value} must be a positive focal length in pixels")
+
+    def intrinsics_over(self, base: Intrinsics | None, width: int, height: int) -> Intrinsics | None:
+        """Intrinsics with these overrides applied over ``base``.
+
+        Missing principal point defaults to the image centre; a missing ``fy`` defaults to ``fx``.
+        Returns None when no focal length is known at all.
+        """
+        fx = self.fx if self.fx is not None else (base.fx if base else None)
+        fy = self.fy if self.fy is not None else (base.fy if base else None)
+        if fx is None and fy is None:
+            return None
+        fx = fx if fx is not None else fy
+        fy = fy if fy is not None else fx
+        assert fx is not None and fy is not None
+        cx = self.cx if self.cx is not None else (base.cx if base else (width - 1) / 2.0)
+        cy = self.cy if self.cy is not None else (base.cy if base else (height - 1) / 2.0)
+        return Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy)
+
+
+@dataclass(frozen=True, slots=True)
+class ReadLimits:
+    """Caps that keep hostile or oversized files from exhausting memory or disk."""
+
+    max_frames: int = 100_000
+    max_pixels_per_frame: int = 4096 * 4096
+    max_uncompressed_bytes: int = 32 * 1024**3
+    max_entries: int = 200_000
+
+
+@dataclass(frozen=True)
+class ClipInfo:
+    """What a reader found in a clip.
+
+    Attributes
+    ----------
+    format : str
+        Detected format (``npz``, ``zip-frames``, ``tum``, ``video``, ``ros1-bag``, ``ros2-bag``).
+    frames, width, height : int
+        Frame count and frame size in pixels.
+    fps : float or None
+        Frame rate that will be used, Hz; None when neither the file nor the user gives one.
+    fps_source : str or None
+        ``user``, ``bundle``, ``timestamps`` or ``container``.
+    has_depth : bool
+        Whether frames carry a depth map.
+    depth_scale : float or None
+        Metres per stored depth unit (informational; frames are delivered in metres).
+    intrinsics : Intrinsics or None
+    timestamps_s : ndarray of float64, shape (T,), or None
+        Per-frame capture times when the format carries them.
+    dropped_frames : int
+        Frames missing from a uniform timeline, estimated from timestamps.
+    streams : tuple of str
+        Streams, arrays or topics found.
+    """
+
+    format: str
+    frames: int
+    width: int
+    height: int
+    fps: float | None
+    fps_source: str | None
+    has_depth: bool
+    depth_scale: float | None
+    intrinsics: Intrinsics | None
+    timestamps_s: NDArray[np.float64] | None = None
+    dropped_frames: int = 0
+    streams: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def duration_s(self) -> float | None:
+        if self.timestamps_s is not None and len(self.timestamps_s) > 1:
+            return float(self.timestamps_s[-1] - self.timestamps_s[0])
+        if self.fps:
+            return self.frames / self.fps
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One decoded frame.
+
+    Attributes
+    ----------
+    index : int
+        Position in the clip, from 0.
+    rgb : ndarray of uint8, shape (H, W, 3)
+        Colour image, RGB order.
+    depth_m : ndarray of float32, shape (H, W), or None
+        Depth in metres; NaN where the sensor gave no reading.
+    timestamp_s : float
+        Capture time, seconds from the first frame.
+    """
+
+    index: int
+    rgb: NDArray[np.uint8]
+    depth_m: NDArray[np.float32] | None
+    timestamp_s: float
+
+
+class ClipReader(Protocol):
+    """A clip opened for streaming. Readers are context managers and hold at most a few frames."""
+
+    @property
+    def info(self) -> ClipInfo: ...
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield frames ``start <= index < stop`` in order."""
+        ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Self: ...
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None: ...
+
+
+def depth_to_metres(raw: NDArray[np.generic], depth_scale: float) -> NDArray[np.float32]:
+    """Convert a stored depth map to metres.
+
+    Parameters
+    ----------
+    raw : ndarray, shape (H, W)
+        Integer depth in sensor units (0 = no reading) or float metres (NaN or <= 0 = no reading).
+    depth_scale : float
+        Metres per unit for integer input; ignored for float input.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        Depth in metres, NaN where invalid.
+    """
+    if np.issubdtype(raw.dtype, np.floating):
+        out = raw.astype(np.float32, copy=True)
+    else:
+        out = raw.astype(np.float32) * np.float32(depth_scale)
+    out[~(out > 0)] = np.nan
+    return out
+
+
+def uniform_fps_from_timestamps(timestamps_s: NDArray[np.float64]) -> tuple[float, int]:
+    """Estimate the nominal frame rate and dropped-frame count from capture times.
+
+    The nominal period is the median frame interval; gaps of k periods count as k - 1 drops.
+
+    Returns
+    -------
+    fps : float
+    dropped : int
+    """
+    if len(timestamps_s) < 2:
+        raise ClipError("timestamps: need at least two frames to measure a frame rate")
+    dt = np.diff(timestamps_s)
+    if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
+        raise ClipError("timestamps: must be finite and strictly increasing; fix the recording or give --fps")
+    period = float(np.median(dt))
+    steps = np.rint(dt / period).astype(np.int64)
+    dropped = int(np.sum(np.maximum(steps - 1, 0)))
+    return 1.0 / period, dropped
