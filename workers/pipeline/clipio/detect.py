@@ -1,47 +1,155 @@
-"""Format detection from file content (magic bytes and archive layout), not only the extension."""
+"""Format detection from file content (magic bytes, archive layout, container probe), not the extension.
+
+==============  ==================================================================================
+format          recognised by
+==============  ==================================================================================
+``npz``         zip whose top level holds ``rgb.npy``
+``zip-frames``  zip (or folder) with ``rgb/*.png|jpg`` (optionally ``depth/*.png``, ``camera.json``)
+``tum``         zip (or folder) with ``rgb.txt`` (TUM RGB-D layout), possibly in one top folder
+``video``       any file FFmpeg demuxes with a video stream; or a zip holding one video file
+``ros1-bag``    ``#ROSBAG V2.0`` magic
+``ros2-bag``    MCAP magic, SQLite magic (``.db3``), a bag folder or a zip with ``metadata.yaml`` /
+                ``*.mcap`` / ``*.db3``
+==============  ==================================================================================
+"""
 
 from __future__ import annotations
 
 import zipfile
 from pathlib import Path
 
-from workers.pipeline.clipio.npz import NpzClip
+from workers.pipeline.clipio._archive import Archive, common_root, visible
 from workers.pipeline.clipio.types import ClipOverrides, ClipReader, ReadLimits
-from workers.pipeline.errors import ClipError, UnsupportedFormatError
+from workers.pipeline.errors import ClipError, ParameterError, UnsupportedFormatError
+
+FORMATS = ("npz", "zip-frames", "tum", "video", "ros1-bag", "ros2-bag")
+_SUPPORTED = (
+    "supported: .npz bundle, zip of rgb/ (+depth/) frames, TUM RGB-D zip, video (mp4/avi/mkv/mov), "
+    "ROS 1 .bag, ROS 2 .mcap/.db3 or zipped bag folder"
+)
+_VIDEO_EXTS = (".mp4", ".m4v", ".avi", ".mkv", ".mov", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts")
+_IMAGE_EXTS = (".png", ".jpg", ".jpeg")
+
+
+def _zip_layout(names: list[str]) -> str | None:
+    names = visible(names)
+    if any(n.removesuffix(".npy") == "rgb" for n in names):
+        return "npz"
+    root = common_root(names)
+    rel = [n[len(root) :] for n in names if n.startswith(root)]
+    if "metadata.yaml" in rel or any(n.endswith((".mcap", ".db3")) for n in rel):
+        return "ros2-bag"
+    if "rgb.txt" in rel:
+        return "tum"
+    if any(n.startswith("rgb/") and n.lower().endswith(_IMAGE_EXTS) for n in rel):
+        return "zip-frames"
+    if any(n.lower().endswith(_VIDEO_EXTS) for n in rel):
+        return "video"
+    return None
+
+
+def _is_zip(path: Path) -> bool:
+    if not path.is_file():
+        return False
+    with path.open("rb") as fh:
+        return fh.read(2) == b"PK"
+
+
+def _probe_video(path: Path) -> bool:
+    import av
+
+    try:
+        with av.open(str(path), mode="r", metadata_errors="ignore") as container:
+            return bool(container.streams.video) and container.format.name not in ("tty", "image2")
+    except (av.error.FFmpegError, OSError, ValueError, EOFError):
+        return False
 
 
 def detect_format(path: str | Path) -> str:
-    """Name the clip format of the file at ``path``.
+    """Name the clip format of the file (or folder) at ``path`` from its content.
+
+    Parameters
+    ----------
+    path : path-like
+        A clip file, or a folder holding a ROS 2 bag, a TUM sequence or ``rgb/`` frames.
 
     Returns
     -------
     str
-        One of ``npz``.
+        One of ``npz``, ``zip-frames``, ``tum``, ``video``, ``ros1-bag``, ``ros2-bag``.
 
     Raises
     ------
+    ClipError
+        When the file is empty, unreadable, or looks like a format (by magic or extension) but is broken.
     UnsupportedFormatError
         When the content matches no supported format.
     """
     path = Path(path)
+    if path.is_dir():
+        names = [p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file()]
+        layout = _zip_layout(names)
+        if layout in ("ros2-bag", "tum", "zip-frames"):
+            return layout
+        raise UnsupportedFormatError(f"{path.name}/: folder holds no clip ({_SUPPORTED})")
     try:
         with path.open("rb") as fh:
-            head = fh.read(16)
+            head = fh.read(64)
     except OSError as exc:
         raise ClipError(f"cannot read {path.name}: {exc.strerror or exc}") from exc
     if not head:
-        raise ClipError(f"{path.name} is empty")
-    if head.startswith(b"PK"):
+        raise ClipError(f"{path.name} is empty (0 bytes); upload the clip again")
+    ext = path.suffix.lower()
+    if head.startswith(b"#ROSBAG V2.0"):
+        return "ros1-bag"
+    if head.startswith(b"#ROSBAG V"):
+        version = head[9:12].decode("ascii", "replace")
+        raise UnsupportedFormatError(
+            f"{path.name}: ROS bag format version {version} is not supported; migrate it to v2.0 with "
+            "`rosbag fix`"
+        )
+    if head.startswith(b"\x89MCAP0\r\n"):
+        return "ros2-bag"
+    if head.startswith(b"SQLite format 3\x00"):
+        return "ros2-bag"
+    if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
         try:
             with zipfile.ZipFile(path) as zf:
                 names = zf.namelist()
-        except zipfile.BadZipFile as exc:
-            raise ClipError(f"{path.name} looks like a zip archive but is corrupt or truncated ({exc})") from exc
-        if any(n.removesuffix(".npy") == "rgb" for n in names):
-            return "npz"
-    raise UnsupportedFormatError(
-        f"{path.name}: not a clip format Eigenscope reads (supported: .npz bundle with an 'rgb' array)"
-    )
+        except (zipfile.BadZipFile, OSError, ValueError) as exc:
+            kind = "npz" if ext == ".npz" else "zip"
+            raise ClipError(
+                f"{kind}: {path.name} is a zip archive but is corrupt or truncated ({exc}); upload it again"
+            ) from exc
+        layout = _zip_layout(names)
+        if layout is None:
+            listing = ", ".join(sorted({n.split("/", 1)[0] for n in visible(names)})[:8]) or "nothing"
+            raise UnsupportedFormatError(
+                f"{path.name}: zip holds no clip layout (found: {listing}); {_SUPPORTED}"
+            )
+        return layout
+    if head.startswith(b"\x93NUMPY"):
+        raise UnsupportedFormatError(
+            f"{path.name}: a single .npy array is not a clip; save an .npz with rgb=(T, H, W, 3) and fps"
+        )
+    if ext == ".bag":
+        raise ClipError(f"ros1-bag: {path.name} does not start with '#ROSBAG V2.0'; it is not a ROS 1 bag")
+    if ext in (".mcap", ".db3"):
+        raise ClipError(f"ros2-bag: {path.name} has no MCAP or SQLite header; it is not a ROS 2 bag")
+    if ext in (".npz", ".zip"):
+        raise ClipError(f"{ext[1:]}: {path.name} is not a zip archive (it starts with {head[:8]!r})")
+    if head.startswith((b"\x89PNG", b"\xff\xd8\xff")):
+        raise UnsupportedFormatError(
+            f"{path.name}: a single image is not a clip; zip the frames as rgb/*.png (and depth/*.png)"
+        )
+    if _probe_video(path):
+        return "video"
+    if ext in _VIDEO_EXTS:
+        raise ClipError(
+            f"video: {path.name} has a video extension but its content is not a readable video "
+            f"(starts with {head[:12]!r}); upload the camera's original file"
+        )
+    raise UnsupportedFormatError(f"{path.name}: not a clip format Eigenscope reads ({_SUPPORTED})")
 
 
 def open_clip(
@@ -49,23 +157,54 @@ def open_clip(
     *,
     overrides: ClipOverrides | None = None,
     limits: ReadLimits | None = None,
+    depth: str | Path | None = None,
+    scratch_dir: str | Path | None = None,
 ) -> ClipReader:
     """Open a clip of any supported format for streaming.
 
     Parameters
     ----------
     path : path-like
+        The clip (see :func:`detect_format` for formats).
     overrides : ClipOverrides, optional
-        User-given metadata (fps, intrinsics, depth scale); each given field wins over the file.
+        User-given metadata (fps, intrinsics, depth scale, bag topics); each given field wins over the file.
     limits : ReadLimits, optional
-        Caps on frames, pixels and decompressed size.
+        Caps on frames, pixels, archive entries and decompressed size.
+    depth : path-like, optional
+        Depth companion of a video: an ``.npz`` with ``depth`` (T, H, W) or a zip/folder of 16-bit depth
+        PNGs, one per video frame. Only for videos.
+    scratch_dir : path-like, optional
+        Where a zipped ROS 2 bag is unpacked (a private subfolder removed on close); default: the system
+        temporary folder.
 
     Returns
     -------
     ClipReader
-        Use as a context manager; ``reader.info`` describes the clip, ``reader.frames()`` streams it.
+        Use as a context manager; ``reader.info`` describes the clip, ``reader.frames()`` streams
+        :class:`~workers.pipeline.clipio.types.Frame` objects (RGB uint8 (H, W, 3), depth float32 metres
+        (H, W) or None, timestamp in seconds).
     """
+    from workers.pipeline.clipio.frames import FramesClip
+    from workers.pipeline.clipio.npz import NpzClip
+    from workers.pipeline.clipio.rosbag import BagClip
+    from workers.pipeline.clipio.video import VideoClip
+
+    limits = limits or ReadLimits()
     fmt = detect_format(path)
+    if depth is not None and fmt != "video":
+        raise ParameterError(
+            f"a depth companion applies only to video clips; {Path(path).name} is {fmt}, which carries "
+            "its own depth"
+        )
     if fmt == "npz":
         return NpzClip(path, overrides=overrides, limits=limits)
+    if fmt in ("zip-frames", "tum"):
+        return FramesClip(path, overrides=overrides, limits=limits)
+    if fmt == "video":
+        archive = None
+        if _is_zip(Path(path)):
+            archive = Archive(path, "video", limits)
+        return VideoClip(path, overrides=overrides, limits=limits, depth=depth, archive=archive)
+    if fmt in ("ros1-bag", "ros2-bag"):
+        return BagClip(path, fmt=fmt, overrides=overrides, limits=limits, scratch_dir=scratch_dir)
     raise UnsupportedFormatError(f"{Path(path).name}: format {fmt!r} has no reader")  # pragma: no cover

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.lib import format as npy_format
 from numpy.typing import NDArray
 
+from workers.pipeline.clipio._common import check_frames, check_size, resolve_timing
 from workers.pipeline.clipio.types import (
     ClipInfo,
     ClipOverrides,
@@ -33,12 +34,10 @@ from workers.pipeline.clipio.types import (
     Intrinsics,
     ReadLimits,
     depth_to_metres,
-    uniform_fps_from_timestamps,
 )
-from workers.pipeline.errors import ClipError, ClipTooLargeError
+from workers.pipeline.errors import ClipError
 
 DEFAULT_DEPTH_SCALE = 0.001
-MIN_FRAMES = 8
 _SMALL_KEYS = ("fps", "intrinsics", "depth_scale", "timestamps")
 _KNOWN_KEYS = {"rgb", "depth", *_SMALL_KEYS}
 
@@ -63,9 +62,12 @@ class _Member:
             _read_header(fh, self.key)
             data = fh.read(nbytes)
         if len(data) != nbytes:
-            raise ClipError(f"npz: '{self.key}' is truncated ({len(data)} of {nbytes} bytes); re-export the clip")
+            raise ClipError(
+                f"npz: '{self.key}' is truncated ({len(data)} of {nbytes} bytes); re-export the clip"
+            )
         order = "F" if self.fortran else "C"
-        return np.frombuffer(data, dtype=self.dtype).reshape(self.shape, order=order)
+        flat: NDArray[Any] = np.frombuffer(data, dtype=self.dtype)
+        return flat.reshape(self.shape, order="F" if order == "F" else "C")
 
     def slices(self, start: int, stop: int) -> Iterator[NDArray[Any]]:
         """Yield ``array[i]`` for ``start <= i < stop`` without loading the whole array."""
@@ -82,7 +84,8 @@ class _Member:
                 buf = fh.read(per)
                 if len(buf) != per:
                     raise ClipError(
-                        f"npz: '{self.key}' is truncated at frame {index} of {self.shape[0]}; re-export the clip"
+                        f"npz: '{self.key}' is truncated at frame {index} of {self.shape[0]}; "
+                        "re-export the clip"
                     )
                 yield np.frombuffer(buf, dtype=self.dtype).reshape(self.shape[1:])
 
@@ -160,16 +163,8 @@ class NpzClip:
         if rgb.dtype != np.uint8:
             raise ClipError(f"npz: 'rgb' must be uint8, got {rgb.dtype}; scale to 0..255 and cast to uint8")
         frames, height, width = rgb.shape[:3]
-        if frames > limits.max_frames:
-            raise ClipTooLargeError(f"npz: {frames} frames exceed the cap of {limits.max_frames}")
-        if height * width > limits.max_pixels_per_frame:
-            raise ClipTooLargeError(
-                f"npz: {width}x{height} frames exceed the cap of {limits.max_pixels_per_frame} pixels"
-            )
-        if frames < MIN_FRAMES:
-            raise ClipError(f"npz: only {frames} frames; at least {MIN_FRAMES} are needed (64 or more is better)")
-        if height < 16 or width < 16:
-            raise ClipError(f"npz: frames of {width}x{height} pixels are too small; at least 16x16 is needed")
+        check_frames("npz", frames, limits)
+        check_size("npz", width, height, limits)
 
         depth = members.get("depth")
         if depth is not None:
@@ -187,12 +182,13 @@ class NpzClip:
         if "depth_scale" in members:
             depth_scale = _scalar(members["depth_scale"], "metres per depth unit")
             if not (math.isfinite(depth_scale) and depth_scale > 0):
-                raise ClipError(f"npz: depth_scale={depth_scale} must be a positive number of metres per unit")
+                raise ClipError(
+                    f"npz: depth_scale={depth_scale} must be a positive number of metres per unit"
+                )
         if overrides.depth_scale is not None:
             depth_scale = overrides.depth_scale
 
         timestamps: NDArray[np.float64] | None = None
-        dropped = 0
         if "timestamps" in members:
             ts = members["timestamps"].small(limit_bytes=64 * frames + 1024).astype(np.float64).ravel()
             if ts.shape != (frames,):
@@ -201,20 +197,16 @@ class NpzClip:
                 raise ClipError("npz: 'timestamps' contains NaN or infinite values")
             timestamps = ts - ts[0]
 
-        fps: float | None = None
-        fps_source: str | None = None
-        if overrides.fps is not None:
-            fps, fps_source = overrides.fps, "user"
-        elif "fps" in members:
-            fps = _scalar(members["fps"], "frames per second")
-            if not (math.isfinite(fps) and fps > 0):
-                raise ClipError(f"npz: fps={fps} must be a positive finite number; fix it or pass --fps")
-            fps_source = "bundle"
-        elif timestamps is not None:
-            fps, dropped = uniform_fps_from_timestamps(timestamps)
-            fps_source = "timestamps"
-        if timestamps is not None and fps_source != "timestamps":
-            _, dropped = uniform_fps_from_timestamps(timestamps)
+        declared: float | None = None
+        if "fps" in members:
+            declared = _scalar(members["fps"], "frames per second")
+        timing = resolve_timing(
+            "npz",
+            user_fps=overrides.fps,
+            declared_fps=declared,
+            declared_source="bundle",
+            timestamps_s=timestamps,
+        )
 
         base: Intrinsics | None = None
         if "intrinsics" in members:
@@ -230,14 +222,19 @@ class NpzClip:
             frames=frames,
             width=width,
             height=height,
-            fps=fps,
-            fps_source=fps_source,
+            fps=timing.fps,
+            fps_source=timing.fps_source,
             has_depth=depth is not None,
             depth_scale=depth_scale if depth is not None else None,
             intrinsics=intrinsics,
-            timestamps_s=timestamps,
-            dropped_frames=dropped,
+            timestamps_s=timing.timestamps_s if timestamps is not None else None,
+            dropped_frames=timing.dropped_frames,
             streams=streams,
+            measured_fps=timing.measured_fps,
+            container_fps=declared,
+            size_bytes=self.path.stat().st_size,
+            depth_source="depth" if depth is not None else None,
+            notes=timing.notes,
         )
         return info, rgb, depth
 
@@ -276,6 +273,51 @@ class NpzClip:
         self.close()
 
 
+class NpzDepth:
+    """The ``depth`` array of an ``.npz`` used as a depth companion of a video, streamed in metres."""
+
+    def __init__(self, path: str | Path, *, overrides: ClipOverrides | None = None) -> None:
+        self.path = Path(path)
+        overrides = overrides or ClipOverrides()
+        try:
+            self._zip = zipfile.ZipFile(self.path)
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise ClipError(f"npz: {self.path.name} is not a readable .npz archive ({exc})") from exc
+        try:
+            members = {
+                n.removesuffix(".npy"): _Member(self._zip, n, n.removesuffix(".npy"))
+                for n in self._zip.namelist()
+                if n.removesuffix(".npy") in ("depth", "depth_scale")
+            }
+            if "depth" not in members:
+                raise ClipError(f"npz: {self.path.name} has no 'depth' array (T, H, W)")
+            self._depth = members["depth"]
+            if len(self._depth.shape) != 3:
+                raise ClipError(f"npz: 'depth' must have shape (T, H, W), got {self._depth.shape}")
+            if not (self._depth.dtype == np.uint16 or np.issubdtype(self._depth.dtype, np.floating)):
+                raise ClipError(
+                    f"npz: 'depth' must be uint16 (depth units) or float32 (metres), got {self._depth.dtype}"
+                )
+            scale = DEFAULT_DEPTH_SCALE
+            if "depth_scale" in members:
+                scale = _scalar(members["depth_scale"], "metres per depth unit")
+                if not (math.isfinite(scale) and scale > 0):
+                    raise ClipError(f"npz: depth_scale={scale} must be a positive number of metres per unit")
+            self.depth_scale = overrides.depth_scale if overrides.depth_scale is not None else scale
+            self.frames, self.height, self.width = self._depth.shape
+        except Exception:
+            self._zip.close()
+            raise
+
+    def slices(self, start: int, stop: int) -> Iterator[NDArray[np.float32]]:
+        """Yield depth maps ``start <= i < stop`` as float32 metres, shape (H, W), NaN where invalid."""
+        for raw in self._depth.slices(start, stop):
+            yield depth_to_metres(raw, self.depth_scale)
+
+    def close(self) -> None:
+        self._zip.close()
+
+
 def write_npz(
     path: str | Path,
     rgb: NDArray[np.uint8],
@@ -303,7 +345,7 @@ def write_npz(
     compress : bool
         Deflate the members (smaller file, slower to read).
     """
-    arrays: dict[str, NDArray[Any]] = {"rgb": np.ascontiguousarray(rgb), "fps": np.float64(fps)}
+    arrays: dict[str, Any] = {"rgb": np.ascontiguousarray(rgb), "fps": np.float64(fps)}
     if depth is not None:
         arrays["depth"] = np.ascontiguousarray(depth)
     if intrinsics is not None:

@@ -45,6 +45,8 @@ class ClipOverrides:
     cx: float | None = None
     cy: float | None = None
     depth_scale: float | None = None
+    color_topic: str | None = None
+    depth_topic: str | None = None
 
     def __post_init__(self) -> None:
         if self.fps is not None and not (math.isfinite(self.fps) and self.fps > 0):
@@ -68,7 +70,8 @@ class ClipOverrides:
             return None
         fx = fx if fx is not None else fy
         fy = fy if fy is not None else fx
-        assert fx is not None and fy is not None
+        assert fx is not None
+        assert fy is not None
         cx = self.cx if self.cx is not None else (base.cx if base else (width - 1) / 2.0)
         cy = self.cy if self.cy is not None else (base.cy if base else (height - 1) / 2.0)
         return Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy)
@@ -76,12 +79,31 @@ class ClipOverrides:
 
 @dataclass(frozen=True, slots=True)
 class ReadLimits:
-    """Caps that keep hostile or oversized files from exhausting memory or disk."""
+    """Caps that keep hostile or oversized files from exhausting memory or disk.
+
+    Attributes
+    ----------
+    max_frames : int
+        Most frames a clip may hold.
+    max_pixels_per_frame : int
+        Largest frame, width x height.
+    max_uncompressed_bytes : int
+        Largest total a zip archive may expand to (declared sizes, enforced while reading), and the most
+        bytes written when a zipped ROS 2 bag is unpacked to a scratch folder.
+    max_entries : int
+        Most entries a zip archive may list.
+    """
 
     max_frames: int = 100_000
     max_pixels_per_frame: int = 4096 * 4096
     max_uncompressed_bytes: int = 32 * 1024**3
     max_entries: int = 200_000
+
+    def __post_init__(self) -> None:
+        for name in ("max_frames", "max_pixels_per_frame", "max_uncompressed_bytes", "max_entries"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value <= 0:
+                raise ParameterError(f"read limit {name}={value!r} must be a positive integer")
 
 
 @dataclass(frozen=True)
@@ -109,6 +131,16 @@ class ClipInfo:
         Frames missing from a uniform timeline, estimated from timestamps.
     streams : tuple of str
         Streams, arrays or topics found.
+    measured_fps : float or None
+        Frame rate measured from the timestamps the file carries (median interval), Hz.
+    container_fps : float or None
+        Frame rate the container or bundle declares, Hz.
+    size_bytes : int
+        Size of the clip file on disk.
+    depth_source : str or None
+        Where the depth frames come from (array, folder, topic or companion file).
+    notes : tuple of str
+        How the reader aligned or adjusted the streams (for example dropped unpaired frames).
     """
 
     format: str
@@ -123,9 +155,15 @@ class ClipInfo:
     timestamps_s: NDArray[np.float64] | None = None
     dropped_frames: int = 0
     streams: tuple[str, ...] = field(default_factory=tuple)
+    measured_fps: float | None = None
+    container_fps: float | None = None
+    size_bytes: int = 0
+    depth_source: str | None = None
+    notes: tuple[str, ...] = field(default_factory=tuple)
 
     @property
     def duration_s(self) -> float | None:
+        """Time spanned by the clip, seconds (last timestamp minus first, else frames / fps)."""
         if self.timestamps_s is not None and len(self.timestamps_s) > 1:
             return float(self.timestamps_s[-1] - self.timestamps_s[0])
         if self.fps:

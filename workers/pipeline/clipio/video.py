@@ -1,0 +1,364 @@
+"""Video clips (mp4, avi, mkv, mov, ... anything FFmpeg demuxes) decoded with PyAV, RGB only.
+
+Depth, when there is any, comes from a companion:
+
+* ``open_clip(video, depth=path)`` with ``path`` an ``.npz`` holding ``depth`` (T, H, W) (uint16 depth
+  units, ``depth_scale`` optional, default 0.001 m; or float32 metres), or a zip / folder of 16-bit depth
+  PNGs (``depth/*.png`` or ``*.png`` at its top level), in natural name order;
+* or a single zip holding the video file, ``depth/*.png`` and optionally ``camera.json`` (format
+  ``video``, layout ``zip``).
+
+The companion must hold exactly one depth map per video frame, of the video's size.
+
+Probing demuxes the packets (no decoding) to count frames and read their presentation times; the
+container's declared rate is ``container_fps``, the presentation times give ``measured_fps`` and the
+dropped-frame count, and ``--fps`` rescales the timeline (for high-speed cameras that write 30 fps).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, Self
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.clipio._archive import Archive, common_root, visible
+from workers.pipeline.clipio._common import (
+    check_frames,
+    check_size,
+    decode_depth_png,
+    image_header,
+    natural_key,
+    resolve_timing,
+)
+from workers.pipeline.clipio.frames import camera_depth_scale, camera_intrinsics, read_camera_json
+from workers.pipeline.clipio.npz import NpzDepth
+from workers.pipeline.clipio.types import ClipInfo, ClipOverrides, Frame, ReadLimits, depth_to_metres
+from workers.pipeline.errors import ClipError
+
+VIDEO_EXTS = (".mp4", ".m4v", ".avi", ".mkv", ".mov", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts")
+DEFAULT_DEPTH_SCALE = 0.001
+
+
+def _av_error_types() -> tuple[type[BaseException], ...]:
+    import av
+
+    return (av.error.FFmpegError, OSError, ValueError, EOFError)
+
+
+@dataclass
+class _DepthSource:
+    """Depth maps, one per video frame, streamed in metres by ``slices(start, stop)``."""
+
+    label: str
+    frames: int
+    width: int
+    height: int
+    scale: float
+    slices: Callable[[int, int], Iterator[NDArray[np.float32]]]
+    closer: Callable[[], None] | None = None
+
+    def close(self) -> None:
+        if self.closer is not None:
+            self.closer()
+            self.closer = None
+
+
+def _png_depth_source(
+    archive: Archive, names: list[str], scale: float, label: str, *, owns_archive: bool
+) -> _DepthSource:
+    h = image_header(archive.read(names[0], head=4096), f"video depth: {names[0]}")
+    if h.kind != "png" or h.bit_depth != 16 or h.channels != 1:
+        raise ClipError(
+            f"video: depth frame {names[0]!r} must be a 16-bit single-channel PNG "
+            f"(got {h.kind}, {h.bit_depth}-bit, {h.channels} channel(s))"
+        )
+    width, height = h.width, h.height
+    cap = width * height * 8 + (1 << 20)
+
+    def slices(start: int, stop: int) -> Iterator[NDArray[np.float32]]:
+        for name in names[start:stop]:
+            raw = decode_depth_png(archive.read(name, cap), f"video depth: {name}")
+            if raw.shape != (height, width):
+                raise ClipError(
+                    f"video: depth frame {name!r} is {raw.shape[1]}x{raw.shape[0]}; expected {width}x{height}"
+                )
+            yield depth_to_metres(raw, scale)
+
+    return _DepthSource(
+        label, len(names), width, height, scale, slices, archive.close if owns_archive else None
+    )
+
+
+def _open_depth_companion(
+    path: Path, overrides: ClipOverrides, limits: ReadLimits
+) -> tuple[_DepthSource, dict[str, float]]:
+    """Open a ``depth=`` companion: npz with a depth array, or zip/folder of 16-bit PNGs."""
+    if not path.exists():
+        raise ClipError(f"video: depth companion {path.name} does not exist")
+    if path.is_file():
+        with path.open("rb") as fh:
+            if not fh.read(4).startswith(b"PK"):
+                raise ClipError(
+                    f"video: depth companion {path.name} is neither an .npz with a 'depth' array nor a "
+                    "zip of depth PNGs"
+                )
+    archive = Archive(path, "video depth", limits)
+    try:
+        names = visible(archive.names)
+        if path.is_file() and any(n.removesuffix(".npy") == "depth" for n in names):
+            archive.close()
+            npz = NpzDepth(path, overrides=overrides)
+            return _DepthSource(
+                f"{path.name}:depth",
+                npz.frames,
+                npz.width,
+                npz.height,
+                npz.depth_scale,
+                npz.slices,
+                npz.close,
+            ), {}
+        root = common_root(names)
+        pngs = [n for n in names if n.lower().endswith(".png") and n.startswith(root)]
+        sub = [n for n in pngs if n[len(root) :].startswith("depth/")]
+        chosen = sorted(sub or [n for n in pngs if "/" not in n[len(root) :]], key=natural_key)
+        if not chosen:
+            raise ClipError(f"video: depth companion {path.name} holds no depth PNGs (depth/*.png)")
+        camera: dict[str, float] = {}
+        if root + "camera.json" in names:
+            camera = read_camera_json(archive, root + "camera.json", "video depth")
+        scale = camera_depth_scale(camera, overrides, DEFAULT_DEPTH_SCALE, "video")
+        label = f"{path.name}:{'depth/' if sub else '*.png'}"
+        return _png_depth_source(archive, chosen, scale, label, owns_archive=True), camera
+    except Exception:
+        archive.close()
+        raise
+
+
+class VideoClip:
+    """Reader of video files (optionally with companion depth); see the module docstring."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        overrides: ClipOverrides | None = None,
+        limits: ReadLimits | None = None,
+        depth: str | Path | None = None,
+        archive: Archive | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self._overrides = overrides or ClipOverrides()
+        self._limits = limits or ReadLimits()
+        self._archive = archive
+        self._depth: _DepthSource | None = None
+        self._member: str | None = None
+        try:
+            self._setup(depth)
+        except Exception:
+            self.close()
+            raise
+
+    def _open_container(self) -> Any:
+        import av
+
+        src: str | IO[bytes]
+        if self._archive is not None:
+            assert self._member is not None
+            src = self._archive.open(self._member)
+        else:
+            src = str(self.path)
+        try:
+            return av.open(src, mode="r", metadata_errors="ignore")
+        except _av_error_types() as exc:
+            name = self._member or self.path.name
+            raise ClipError(
+                f"video: {name} is not a readable video ({_msg(exc)}); upload the camera's original file"
+            ) from exc
+
+    def _setup(self, depth: str | Path | None) -> None:
+        overrides, limits = self._overrides, self._limits
+        camera: dict[str, float] = {}
+        layout = "file"
+        if self._archive is not None:
+            names = visible(self._archive.names)
+            root = common_root(names)
+            videos = [n for n in names if n.lower().endswith(VIDEO_EXTS)]
+            if len(videos) != 1:
+                raise ClipError(f"video: the zip must hold exactly one video file, found {len(videos)}")
+            self._member = videos[0]
+            if root + "camera.json" in names:
+                camera = read_camera_json(self._archive, root + "camera.json", "video")
+            dpng = sorted(
+                (n for n in names if n.startswith(root + "depth/") and n.lower().endswith(".png")),
+                key=natural_key,
+            )
+            if dpng and depth is None:
+                scale = camera_depth_scale(camera, overrides, DEFAULT_DEPTH_SCALE, "video")
+                self._depth = _png_depth_source(
+                    self._archive, dpng, scale, root + "depth/", owns_archive=False
+                )
+            layout = "zip"
+        if depth is not None:
+            self._depth, cam2 = _open_depth_companion(Path(depth), overrides, limits)
+            camera = {**cam2, **camera}
+
+        container = self._open_container()
+        try:
+            if not container.streams.video:
+                raise ClipError(f"video: {self._member or self.path.name} has no video stream")
+            stream = container.streams.video[0]
+            width, height = int(stream.codec_context.width), int(stream.codec_context.height)
+            check_size("video", width, height, limits)
+            rate = stream.average_rate or stream.guessed_rate or stream.base_rate
+            declared = float(rate) if rate else None
+            tb: Fraction | None = stream.time_base
+            pts: list[int] = []
+            count = 0
+            for packet in container.demux(stream):
+                if packet.size == 0 and packet.pts is None:
+                    continue  # flush packet
+                count += 1
+                if count > limits.max_frames:
+                    check_frames("video", count, limits)
+                if packet.pts is not None:
+                    pts.append(int(packet.pts))
+            codec = stream.codec_context.name
+        except _av_error_types() as exc:
+            raise ClipError(
+                f"video: {self._member or self.path.name} is corrupt or truncated ({_msg(exc)})"
+            ) from exc
+        finally:
+            container.close()
+        check_frames("video", count, limits)
+        stamps: NDArray[np.float64] | None = None
+        if tb is not None and len(pts) == count and len(set(pts)) == count:
+            arr = np.sort(np.asarray(pts, dtype=np.int64))
+            stamps = (arr - arr[0]).astype(np.float64) * float(tb)
+        if declared is not None and not math.isfinite(declared):
+            declared = None
+        timing = resolve_timing(
+            "video",
+            user_fps=overrides.fps,
+            declared_fps=declared,
+            declared_source="container",
+            timestamps_s=stamps,
+        )
+        if self._depth is not None:
+            d = self._depth
+            if d.frames != count:
+                raise ClipError(
+                    f"video: {count} video frames but {d.frames} depth maps in {d.label}; the depth "
+                    "companion must hold one map per video frame"
+                )
+            if (d.width, d.height) != (width, height):
+                raise ClipError(
+                    f"video: depth maps are {d.width}x{d.height} but the video is {width}x{height}; "
+                    "depth must be aligned to the video frames"
+                )
+        self._frames = count
+        self._info = ClipInfo(
+            format="video",
+            frames=count,
+            width=width,
+            height=height,
+            fps=timing.fps,
+            fps_source=timing.fps_source,
+            has_depth=self._depth is not None,
+            depth_scale=self._depth.scale if self._depth is not None else None,
+            intrinsics=camera_intrinsics(camera, overrides, width, height, "video"),
+            timestamps_s=timing.timestamps_s,
+            dropped_frames=timing.dropped_frames,
+            streams=(f"video:{codec}", *((self._depth.label,) if self._depth is not None else ())),
+            measured_fps=timing.measured_fps,
+            container_fps=declared,
+            size_bytes=self.path.stat().st_size,
+            depth_source=self._depth.label if self._depth is not None else None,
+            notes=(f"layout: {layout}", *timing.notes),
+        )
+
+    @property
+    def info(self) -> ClipInfo:
+        return self._info
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield frames ``start <= index < stop``; see :class:`~workers.pipeline.clipio.types.Frame`."""
+        info = self._info
+        stop = info.frames if stop is None else min(stop, info.frames)
+        if not 0 <= start <= stop:
+            raise ClipError(
+                f"video: frame range [{start}, {stop}) is outside the clip's {info.frames} frames"
+            )
+        if start == stop:
+            return
+        depth_iter = self._depth.slices(start, stop) if self._depth is not None else None
+        fps = info.fps or 1.0
+        container = self._open_container()
+        errors = _av_error_types()
+        index = 0
+        try:
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            decoded = container.decode(stream)
+            while index < stop:
+                try:
+                    frame = next(decoded)
+                except StopIteration:
+                    break
+                except errors as exc:
+                    raise ClipError(
+                        f"video: decoding failed at frame {index} ({_msg(exc)}); the file is corrupt"
+                    ) from exc
+                if index >= start:
+                    rgb = frame.to_ndarray(format="rgb24")
+                    if rgb.shape[:2] != (info.height, info.width):
+                        raise ClipError(
+                            f"video: frame {index} is {rgb.shape[1]}x{rgb.shape[0]}, the stream changed size "
+                            f"from {info.width}x{info.height}; re-encode at one size"
+                        )
+                    depth = next(depth_iter) if depth_iter is not None else None
+                    ts = info.timestamps_s
+                    t = float(ts[index]) if ts is not None else index / fps
+                    yield Frame(
+                        index=index,
+                        rgb=np.ascontiguousarray(rgb, dtype=np.uint8),
+                        depth_m=depth,
+                        timestamp_s=t,
+                    )
+                index += 1
+        finally:
+            container.close()
+        if index < stop:
+            raise ClipError(
+                f"video: the stream ends after {index} decodable frames but {info.frames} were listed; "
+                "the file is truncated or corrupt"
+            )
+
+    def close(self) -> None:
+        if self._depth is not None:
+            self._depth.close()
+            self._depth = None
+        if self._archive is not None:
+            self._archive.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _msg(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0][:200]

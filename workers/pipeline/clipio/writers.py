@@ -1,0 +1,410 @@
+"""Write a clip held in memory into each format the readers accept, with the formats' own writer libraries.
+
+Used to make sample and test clips: ``zipfile`` + OpenCV PNG/JPEG for frame zips and TUM, PyAV (or
+OpenCV) for video, ``rosbags`` writers for ROS 1 and ROS 2 bags. Arrays follow the clip conventions:
+``rgb`` uint8 (T, H, W, 3), ``depth`` uint16 (T, H, W) in units of ``depth_scale`` metres.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+Intr = tuple[float, float, float, float]
+
+
+def _png(img: NDArray[Any]) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", img)
+    assert ok
+    return bytes(buf)
+
+
+def _jpg(img: NDArray[Any], quality: int = 95) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    assert ok
+    return bytes(buf)
+
+
+def _bgr(rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    return np.ascontiguousarray(rgb[:, :, ::-1])
+
+
+def _camera(fps: float | None, intrinsics: Intr | None, depth_scale: float | None) -> dict[str, float]:
+    cam: dict[str, float] = {}
+    if fps is not None:
+        cam["fps"] = fps
+    if intrinsics is not None:
+        cam.update(zip(("fx", "fy", "cx", "cy"), intrinsics, strict=True))
+    if depth_scale is not None:
+        cam["depth_scale"] = depth_scale
+    return cam
+
+
+def write_zip_frames(
+    path: str | Path,
+    rgb: NDArray[np.uint8],
+    *,
+    depth: NDArray[np.uint16] | None = None,
+    fps: float | None = None,
+    intrinsics: Intr | None = None,
+    depth_scale: float | None = None,
+    image_format: Literal["png", "jpg"] = "png",
+    root: str = "",
+) -> Path:
+    """Write a zip of ``rgb/NNNNNN.png|jpg`` (+ ``depth/NNNNNN.png``) and ``camera.json``.
+
+    Parameters
+    ----------
+    path : path-like
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    depth : ndarray of uint16, shape (T, H, W), optional
+    fps, intrinsics, depth_scale : optional
+        Written to ``camera.json`` when given.
+    image_format : ``"png"`` or ``"jpg"``
+    root : str
+        Folder inside the archive that holds everything (e.g. ``"clip/"``), default the top level.
+    """
+    path = Path(path)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
+        for i, frame in enumerate(rgb):
+            data = _png(_bgr(frame)) if image_format == "png" else _jpg(_bgr(frame))
+            zf.writestr(f"{root}rgb/{i:06d}.{image_format}", data)
+            if depth is not None:
+                zf.writestr(f"{root}depth/{i:06d}.png", _png(depth[i]))
+        cam = _camera(fps, intrinsics, depth_scale)
+        if cam:
+            zf.writestr(f"{root}camera.json", json.dumps(cam))
+    return path
+
+
+def write_tum(
+    path: str | Path,
+    rgb: NDArray[np.uint8],
+    depth: NDArray[np.uint16] | None,
+    *,
+    rgb_times_s: Sequence[float] | NDArray[np.float64],
+    depth_times_s: Sequence[float] | NDArray[np.float64] | None = None,
+    intrinsics: Intr | None = None,
+    root: str = "rgbd_dataset_synthetic/",
+) -> Path:
+    """Write a zipped TUM RGB-D sequence: ``rgb.txt``, ``depth.txt``, ``rgb/``, ``depth/``, ``camera.json``.
+
+    Depth must already be in TUM units (1/5000 m). Files are named by their timestamps, as in TUM.
+
+    Parameters
+    ----------
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    depth : ndarray of uint16, shape (Td, H, W), or None
+    rgb_times_s : sequence of float, length T
+        Absolute timestamps (seconds since the epoch in TUM; any origin works).
+    depth_times_s : sequence of float, length Td, optional
+        Defaults to ``rgb_times_s``.
+    """
+    path = Path(path)
+    depth_times = rgb_times_s if depth_times_s is None else depth_times_s
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
+        lines = ["# color images", "# file: 'synthetic'", "# timestamp filename"]
+        for t, frame in zip(rgb_times_s, rgb, strict=True):
+            name = f"rgb/{t:.6f}.png"
+            lines.append(f"{t:.6f} {name}")
+            zf.writestr(root + name, _png(_bgr(frame)))
+        zf.writestr(root + "rgb.txt", "\n".join(lines) + "\n")
+        if depth is not None:
+            lines = ["# depth maps", "# file: 'synthetic'", "# timestamp filename"]
+            for t, d in zip(depth_times, depth, strict=True):
+                name = f"depth/{t:.6f}.png"
+                lines.append(f"{t:.6f} {name}")
+                zf.writestr(root + name, _png(d))
+            zf.writestr(root + "depth.txt", "\n".join(lines) + "\n")
+        if intrinsics is not None:
+            zf.writestr(root + "camera.json", json.dumps(_camera(None, intrinsics, None)))
+    return path
+
+
+def write_video(
+    path: str | Path,
+    rgb: NDArray[np.uint8],
+    *,
+    fps: float,
+    codec: str = "libx264",
+    options: dict[str, str] | None = None,
+    pts: Sequence[int] | None = None,
+    time_base: tuple[int, int] | None = None,
+) -> Path:
+    """Encode RGB frames into a video file with PyAV; the container follows the file extension.
+
+    Parameters
+    ----------
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    fps : float
+        Rate declared in the stream.
+    codec : str
+        FFmpeg encoder (``libx264``, ``mpeg4``, ``ffv1``, ``mjpeg`` ...).
+    options : dict, optional
+        Encoder options; default near-lossless quality.
+    pts : sequence of int, optional
+        Presentation times in ``time_base`` units (for dropped frames / variable rate); default uniform.
+    time_base : (num, den), optional
+    """
+    from fractions import Fraction
+
+    import av
+
+    path = Path(path)
+    rate = Fraction(fps).limit_denominator(1001)
+    with av.open(str(path), mode="w") as out:
+        stream: Any = out.add_stream(codec, rate=rate)
+        stream.width, stream.height = int(rgb.shape[2]), int(rgb.shape[1])
+        stream.pix_fmt = {"ffv1": "bgr0", "mjpeg": "yuvj420p"}.get(codec, "yuv420p")
+        if options is None:
+            options = {"crf": "10", "preset": "veryfast"} if codec == "libx264" else {}
+            if codec in ("mpeg4",):
+                stream.bit_rate = 20_000_000
+        stream.options = options
+        if time_base is not None:
+            stream.time_base = Fraction(*time_base)
+            stream.codec_context.time_base = Fraction(*time_base)
+        for i, frame in enumerate(rgb):
+            vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
+            if pts is not None:
+                vf.pts = int(pts[i])
+                vf.time_base = Fraction(*time_base) if time_base else stream.codec_context.time_base
+            for packet in stream.encode(vf):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    return path
+
+
+# ------------------------------------------------------------------------------------------------ bags
+
+
+def _header(typestore: Any, stamp_ns: int, frame_id: str, ros1: bool, seq: int) -> Any:
+    Header = typestore.types["std_msgs/msg/Header"]
+    Time = typestore.types["builtin_interfaces/msg/Time"]
+    stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+    if ros1:
+        return Header(seq=seq, stamp=stamp, frame_id=frame_id)
+    return Header(stamp=stamp, frame_id=frame_id)
+
+
+def _image_msg(typestore: Any, header: Any, img: NDArray[Any], encoding: str) -> Any:
+    Image = typestore.types["sensor_msgs/msg/Image"]
+    h, w = img.shape[:2]
+    data = np.ascontiguousarray(img).view(np.uint8).reshape(-1)
+    return Image(
+        header=header,
+        height=h,
+        width=w,
+        encoding=encoding,
+        is_bigendian=0,
+        step=int(data.size // h),
+        data=data,
+    )
+
+
+def _compressed_msg(typestore: Any, header: Any, data: bytes, fmt: str) -> Any:
+    CompressedImage = typestore.types["sensor_msgs/msg/CompressedImage"]
+    return CompressedImage(header=header, format=fmt, data=np.frombuffer(data, dtype=np.uint8))
+
+
+def _camera_info_msg(typestore: Any, header: Any, w: int, h: int, k: Intr, ros1: bool) -> Any:
+    CameraInfo = typestore.types["sensor_msgs/msg/CameraInfo"]
+    RegionOfInterest = typestore.types["sensor_msgs/msg/RegionOfInterest"]
+    fx, fy, cx, cy = k
+    kmat = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1], dtype=np.float64)
+    rmat = np.eye(3).ravel()
+    pmat = np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0], dtype=np.float64)
+    fields = {
+        "header": header,
+        "height": h,
+        "width": w,
+        "distortion_model": "plumb_bob",
+        "binning_x": 0,
+        "binning_y": 0,
+        "roi": RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+    }
+    if ros1:
+        fields.update(D=np.zeros(5), K=kmat, R=rmat, P=pmat)
+    else:
+        fields.update(d=np.zeros(5), k=kmat, r=rmat, p=pmat)
+    return CameraInfo(**fields)
+
+
+def write_ros_bag(
+    path: str | Path,
+    rgb: NDArray[np.uint8],
+    *,
+    stamps_ns: Sequence[int] | NDArray[np.int64],
+    intrinsics: Intr,
+    depth: NDArray[np.uint16] | None = None,
+    depth_stamps_ns: Sequence[int] | NDArray[np.int64] | None = None,
+    version: Literal[1, 2] = 1,
+    layout: Literal["ros", "realsense-sdk"] = "ros",
+    storage: Literal["mcap", "sqlite3"] = "mcap",
+    compressed: bool = False,
+    depth_scale: float = 0.001,
+    extra_topics: bool = True,
+) -> Path:
+    """Write colour (+ depth) frames as a ROS 1 or ROS 2 bag with the ``rosbags`` writers.
+
+    Parameters
+    ----------
+    path : path-like
+        ROS 1: the ``.bag`` file. ROS 2: the bag folder to create (holds ``metadata.yaml``).
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    stamps_ns : sequence of int, length T
+        Header stamps (and receive times) of the colour frames, nanoseconds.
+    intrinsics : (fx, fy, cx, cy)
+    depth : ndarray of uint16, shape (Td, H, W), optional
+        Aligned depth in units of ``depth_scale``.
+    depth_stamps_ns : sequence of int, length Td, optional
+        Defaults to ``stamps_ns``.
+    version : 1 or 2
+    layout : ``"ros"`` or ``"realsense-sdk"``
+        ``ros``: realsense-ros topic names (``/camera/color/image_raw``,
+        ``/camera/aligned_depth_to_color/image_raw``). ``realsense-sdk``: the RealSense Viewer layout
+        (``/device_0/sensor_1/Color_0/image/data`` ...), with depth units in the bag (ROS 1 only).
+    storage : ``"mcap"`` or ``"sqlite3"``
+        ROS 2 storage plugin.
+    compressed : bool
+        Colour as ``CompressedImage`` (jpeg) and depth as ``compressedDepth`` png (ROS 2 style topics).
+    depth_scale : float
+        Metres per depth unit; stored in the bag for the SDK layout.
+    extra_topics : bool
+        Also write unrelated topics (IMU-like floats, tf) as real recordings have.
+    """
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    ros1 = version == 1
+    typestore = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    if ros1:
+        from rosbags.rosbag1 import Writer as Ros1Writer
+
+        writer: Any = Ros1Writer(path)
+    else:
+        from rosbags.rosbag2 import StoragePlugin
+        from rosbags.rosbag2 import Writer as Ros2Writer
+
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        writer = Ros2Writer(path, version=9, storage_plugin=plugin)
+    d_stamps = list(stamps_ns if depth_stamps_ns is None else depth_stamps_ns)
+    h, w = rgb.shape[1:3]
+
+    if layout == "realsense-sdk":
+        c_img, c_info = "/device_0/sensor_1/Color_0/image/data", "/device_0/sensor_1/Color_0/info/camera_info"
+        d_img, d_info = "/device_0/sensor_0/Depth_0/image/data", "/device_0/sensor_0/Depth_0/info/camera_info"
+        d_enc = "mono16"
+    else:
+        c_img, c_info = "/camera/color/image_raw", "/camera/color/camera_info"
+        d_img = "/camera/aligned_depth_to_color/image_raw"
+        d_info = "/camera/aligned_depth_to_color/camera_info"
+        d_enc = "16UC1"
+    if compressed:
+        c_img += "/compressed"
+        d_img += "/compressedDepth"
+    img_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+
+    def ser(msg: Any, msgtype: str) -> bytes:
+        if ros1:
+            return bytes(typestore.serialize_ros1(msg, msgtype))
+        return bytes(typestore.serialize_cdr(msg, msgtype))
+
+    with writer:
+        conns: dict[str, Any] = {}
+
+        def conn(topic: str, msgtype: str) -> Any:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=typestore)
+            return conns[topic]
+
+        t0 = int(min(stamps_ns[0], d_stamps[0] if depth is not None else stamps_ns[0]))
+        if layout == "realsense-sdk":
+            f32 = typestore.types["std_msgs/msg/Float32"]
+            writer.write(
+                conn("/device_0/sensor_0/option/Depth_Units/value", "std_msgs/msg/Float32"),
+                t0,
+                ser(f32(data=depth_scale), "std_msgs/msg/Float32"),
+            )
+            tf = typestore.types["geometry_msgs/msg/Transform"]
+            vec = typestore.types["geometry_msgs/msg/Vector3"]
+            quat = typestore.types["geometry_msgs/msg/Quaternion"]
+            for stream in ("/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"):
+                msg = tf(translation=vec(x=0.0, y=0.0, z=0.0), rotation=quat(x=0.0, y=0.0, z=0.0, w=1.0))
+                writer.write(
+                    conn(stream + "/tf/0", "geometry_msgs/msg/Transform"),
+                    t0,
+                    ser(msg, "geometry_msgs/msg/Transform"),
+                )
+        events: list[tuple[int, int, str, int]] = [(int(s), 0, "c", i) for i, s in enumerate(stamps_ns)]
+        if depth is not None:
+            events += [(int(s), 1, "d", i) for i, s in enumerate(d_stamps)]
+        events.sort()
+        for stamp, _, kind, i in events:
+            if kind == "c":
+                header = _header(typestore, stamp, "camera_color_optical_frame", ros1, i)
+                if compressed:
+                    msg = _compressed_msg(typestore, header, _jpg(_bgr(rgb[i])), "rgb8; jpeg compressed bgr8")
+                else:
+                    msg = _image_msg(typestore, header, rgb[i], "rgb8")
+                writer.write(conn(c_img, img_type), stamp, ser(msg, img_type))
+                info = _camera_info_msg(typestore, header, w, h, intrinsics, ros1)
+                writer.write(
+                    conn(c_info, "sensor_msgs/msg/CameraInfo"), stamp, ser(info, "sensor_msgs/msg/CameraInfo")
+                )
+                if extra_topics and i % 4 == 0:
+                    f32 = typestore.types["std_msgs/msg/Float32"]
+                    writer.write(
+                        conn("/imu/temperature", "std_msgs/msg/Float32"),
+                        stamp,
+                        ser(f32(data=21.5), "std_msgs/msg/Float32"),
+                    )
+            else:
+                assert depth is not None
+                header = _header(typestore, stamp, "camera_color_optical_frame", ros1, i)
+                if compressed:
+                    data = bytes(12) + _png(depth[i])
+                    msg = _compressed_msg(typestore, header, data, "16UC1; compressedDepth png")
+                else:
+                    msg = _image_msg(typestore, header, depth[i], d_enc)
+                writer.write(conn(d_img, img_type), stamp, ser(msg, img_type))
+                info = _camera_info_msg(typestore, header, w, h, intrinsics, ros1)
+                writer.write(
+                    conn(d_info, "sensor_msgs/msg/CameraInfo"), stamp, ser(info, "sensor_msgs/msg/CameraInfo")
+                )
+    return path
+
+
+def zip_folder(folder: str | Path, dest: str | Path, *, root: str | None = None) -> Path:
+    """Zip a folder (for example a ROS 2 bag folder) with its files under ``root/`` (default its name)."""
+    folder, dest = Path(folder), Path(dest)
+    prefix = (folder.name if root is None else root).strip("/")
+    with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as zf:
+        for p in sorted(folder.rglob("*")):
+            if p.is_file():
+                arc = p.relative_to(folder).as_posix()
+                zf.write(p, f"{prefix}/{arc}" if prefix else arc)
+    return dest
+
+
+def write_ros2_zip(path: str | Path, rgb: NDArray[np.uint8], **kwargs: Any) -> Path:
+    """Write a ROS 2 bag folder with :func:`write_ros_bag` and zip it to ``path``."""
+    with tempfile.TemporaryDirectory(prefix="eigenscope-write-") as tmp:
+        bag = Path(tmp) / Path(path).stem
+        write_ros_bag(bag, rgb, version=2, **kwargs)
+        zip_folder(bag, path)
+        shutil.rmtree(bag, ignore_errors=True)
+    return Path(path)
