@@ -6,7 +6,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Protocol, Self
+from typing import Any, Protocol, Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -169,6 +169,35 @@ class ClipInfo:
         if self.fps:
             return self.frames / self.fps
         return None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (what ``eigenscope probe --json`` prints and the API's clip resource shows).
+
+        Per-frame timestamps are summarised (count, first/last, measured rate), not listed.
+        """
+        intr = self.intrinsics
+        return {
+            "format": self.format,
+            "frames": self.frames,
+            "width": self.width,
+            "height": self.height,
+            "fps": self.fps,
+            "fps_source": self.fps_source,
+            "measured_fps": self.measured_fps,
+            "container_fps": self.container_fps,
+            "dropped_frames": self.dropped_frames,
+            "duration_s": self.duration_s,
+            "has_timestamps": self.timestamps_s is not None,
+            "has_depth": self.has_depth,
+            "depth_scale": self.depth_scale,
+            "depth_source": self.depth_source,
+            "intrinsics": None
+            if intr is None
+            else {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy},
+            "streams": list(self.streams),
+            "size_bytes": self.size_bytes,
+            "notes": list(self.notes),
+        }
 
 
 @dataclass(frozen=True, slots=True)
