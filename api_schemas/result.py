@@ -28,6 +28,10 @@ class ObjectResult(BaseModel):
     damping_ratio: float | None = None
     damping_ratio_uncertainty: float | None = None
     amplitude_px: float | None = Field(default=None, description="Amplitude at release, image pixels.")
+    amplitude_source: str | None = Field(
+        default=None,
+        description="`registration` (rigid-body sub-pixel tracking) or `flow` (dense optical flow).",
+    )
     amplitude_m: float | None = Field(default=None, description="Amplitude at release, metres.")
     amplitude_uncertainty_m: float | None = None
     depth_m: float | None = Field(default=None, description="Median distance of the object from the camera.")

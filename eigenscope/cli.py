@@ -68,8 +68,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if os.environ.get("EIGENSCOPE_DEBUG") == "1":
             raise
         if isinstance(exc, _user_error_types()):
-            message = str(exc) if not isinstance(exc, OSError) or not exc.filename else (
-                f"{exc.filename}: {exc.strerror}"
+            message = (
+                str(exc)
+                if not isinstance(exc, OSError) or not exc.filename
+                else (f"{exc.filename}: {exc.strerror}")
             )
             print(f"eigenscope {args.command}: error: {message}", file=sys.stderr)
             return 2

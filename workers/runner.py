@@ -7,13 +7,39 @@ and write ``result.json``, ``mask.png`` and the other images into the output dir
 
 from __future__ import annotations
 
+import json
+import math
+import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from api_schemas import AnalysisParameters, AnalysisResult, ImpulseExcitation, StepReleaseExcitation
+from api_schemas import (
+    AnalysisParameters,
+    AnalysisResult,
+    Artifacts,
+    ImpulseExcitation,
+    ObjectResult,
+    QualityFlag,
+    Spectrum,
+    StepReleaseExcitation,
+)
 
 #: ``progress(stage, fraction)`` with fraction in [0, 1] over the whole analysis.
 ProgressCallback = Callable[[str, float], None]
+
+RESULT_FILE = "result.json"
+MASK_FILE = "mask.png"
+
+
+def _version() -> str:
+    from eigenscope import __version__
+
+    return __version__
+
+
+def _finite(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
 
 
 def run_analysis(
@@ -26,10 +52,124 @@ def run_analysis(
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
 
+    Files are written to a temporary name and renamed, so a reader never sees half a result.
+
     Raises
     ------
     workers.pipeline.errors.EigenscopeError
         Subclasses for bad clips (``ClipError``), bad parameters (``ParameterError``) and clips that
         cannot be analysed (``AnalysisError``); their messages are meant for the user.
     """
-    raise NotImplementedError("being written: see issue 2")
+    from workers.pipeline.analysis import AnalysisConfig, Excitation, analyze
+    from workers.pipeline.clipio import ClipOverrides, open_clip
+    from workers.pipeline.flow import FlowConfig
+    from workers.pipeline.render import write_label_png
+
+    params = parameters or AnalysisParameters()
+    overrides = ClipOverrides(
+        fps=params.fps, fx=params.fx, fy=params.fy, cx=params.cx, cy=params.cy, depth_scale=params.depth_scale
+    )
+    flow = None
+    if params.flow is not None:
+        flow = FlowConfig(method=params.flow, scale=1.0 if params.method == "paper" else 0.5)
+    config = AnalysisConfig(
+        method=params.method,
+        flow=flow,
+        frames=params.frames,
+        start_frame=params.start_frame,
+        min_frequency_hz=params.min_frequency_hz,
+        max_frequency_hz=params.max_frequency_hz,
+        depth_m=params.depth_m,
+    )
+    exc = None
+    if isinstance(excitation, StepReleaseExcitation):
+        exc = Excitation(
+            kind="step_release",
+            value=excitation.force_n,
+            uncertainty=excitation.force_uncertainty_n,
+            object_id=excitation.object_id,
+        )
+    elif isinstance(excitation, ImpulseExcitation):
+        exc = Excitation(
+            kind="impulse",
+            value=excitation.impulse_ns,
+            uncertainty=excitation.impulse_uncertainty_ns,
+            object_id=excitation.object_id,
+        )
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with open_clip(clip_path, overrides=overrides) as reader:
+        analysis = analyze(reader, config=config, excitation=exc, progress=progress)
+    if progress:
+        progress("rendering", 0.97)
+    write_label_png(out / MASK_FILE, analysis.labels)
+    artifacts = Artifacts(mask=MASK_FILE)
+
+    objects = [
+        ObjectResult(
+            id=o.id,
+            eigenfrequency_hz=o.eigenfrequency_hz,
+            eigenfrequency_uncertainty_hz=_finite(o.eigenfrequency_sd_hz),
+            natural_frequency_hz=_finite(o.natural_frequency_hz),
+            angular_frequency_rad_s=o.angular_frequency_rad_s,
+            damping_ratio=_finite(o.damping_ratio),
+            damping_ratio_uncertainty=_finite(o.damping_ratio_sd),
+            amplitude_px=_finite(o.amplitude_px),
+            amplitude_source=o.amplitude_source,
+            amplitude_m=_finite(o.amplitude_m),
+            amplitude_uncertainty_m=_finite(o.amplitude_sd_m),
+            depth_m=_finite(o.depth_m),
+            motion_direction=list(o.motion_direction) if o.motion_direction else None,
+            stiffness_n_per_m=_finite(o.stiffness_n_per_m),
+            stiffness_uncertainty_n_per_m=_finite(o.stiffness_sd),
+            mass_kg=_finite(o.mass_kg),
+            mass_uncertainty_kg=_finite(o.mass_sd),
+            pixel_count=o.pixel_count,
+            bbox_px=list(o.bbox_px),
+            harmonics_hz=o.harmonics_hz,
+            release_time_s=_finite(o.release_time_s),
+            snr_db=_finite(o.snr_db),
+            null_reasons=o.null_reasons,
+        )
+        for o in analysis.objects
+    ]
+    parameters_used = analysis.parameters | {
+        "fps": analysis.fps,
+        "fps_source": analysis.fps_source,
+        "excitation": excitation.model_dump() if excitation else None,
+        "overrides": params.model_dump(exclude_none=True),
+    }
+    result = AnalysisResult(
+        eigenfrequency_hz=analysis.eigenfrequency_hz,
+        objects=objects,
+        spectrum=Spectrum(
+            frequencies_hz=[float(f) for f in analysis.frequencies_hz],
+            power=[float(p) for p in analysis.power],
+        ),
+        artifacts=artifacts,
+        quality=[QualityFlag(code=q.code, message=q.message, severity=q.severity) for q in analysis.quality],
+        method=analysis.method,
+        parameters=parameters_used,
+        fps=analysis.fps,
+        fps_source=analysis.fps_source,
+        frames_used=list(analysis.frames_used),
+        frame_size_px=[int(analysis.labels.shape[1]), int(analysis.labels.shape[0])],
+        timings_s={k: round(v, 4) for k, v in analysis.timings_s.items()},
+        version=_version(),
+    )
+    _atomic_write_text(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
+    if progress:
+        progress("done", 1.0)
+    return result
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

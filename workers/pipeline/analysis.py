@@ -1,0 +1,618 @@
+"""The measuring pipeline wired together: clip -> flow -> spectra -> peaks -> segmentation -> ring-down fit
+-> mechanics. :func:`analyze` is the one entry point; it takes a clip reader and dataclasses and returns an
+:class:`Analysis` dataclass (no files are written here).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.clipio.types import ClipReader, Frame, Intrinsics
+from workers.pipeline.errors import AnalysisError, ParameterError
+from workers.pipeline.flow import FlowConfig, flow_magnitude, flow_stream, prepare_gray
+from workers.pipeline.mechanics import (
+    detect_release,
+    metric_amplitude,
+    object_motion,
+    register_translation,
+    release_amplitude,
+    release_instant,
+    stiffness_and_mass,
+)
+from workers.pipeline.segmentation import SegmentationConfig, frequency_map, segment, upsample_labels
+from workers.pipeline.spectrum import Peak, find_peaks, fit_ringdown, pixel_spectra
+
+Method = Literal["default", "paper"]
+#: progress(stage, fraction of the whole analysis in [0, 1])
+Progress = Callable[[str, float], None]
+
+DEFAULT_MAX_FRAMES = 256
+#: Relative standard uncertainty of flow-measured amplitudes (calibrated on synthetic ground truth).
+FLOW_AMPLITUDE_REL_SD = 0.03
+#: Objects whose pixels move this coherently are registered as rigid bodies for their amplitude.
+RIGID_COHERENCE = 0.7
+
+
+@dataclass(frozen=True, kw_only=True)
+class Excitation:
+    """How the object was excited.
+
+    Attributes
+    ----------
+    kind : ``"step_release"`` (value: held force F in N) or ``"impulse"`` (value: impulse J in N·s)
+    value : float
+    uncertainty : float
+        Standard uncertainty of ``value``.
+    object_id : int or None
+        The object it applies to; the main (strongest) object when None.
+    """
+
+    kind: Literal["step_release", "impulse"]
+    value: float
+    uncertainty: float = 0.0
+    object_id: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("step_release", "impulse"):
+            raise ParameterError(f"excitation type {self.kind!r} is unknown; use step_release or impulse")
+        if not (math.isfinite(self.value) and self.value > 0):
+            raise ParameterError(f"excitation value {self.value} must be a positive finite number")
+        if not (math.isfinite(self.uncertainty) and self.uncertainty >= 0):
+            raise ParameterError("excitation uncertainty must be finite and >= 0")
+
+
+@dataclass(frozen=True, kw_only=True)
+class AnalysisConfig:
+    """Analysis options; defaults work without tuning.
+
+    Attributes
+    ----------
+    method : ``"default"`` or ``"paper"``
+        ``paper`` runs the seed recipe literally (flow magnitude, argmax bin, x ≈ Vmax / 4f) for comparison.
+    flow : FlowConfig or None
+        None picks the method's default (DIS at half resolution; Farnebäck at full resolution for paper).
+    frames : int or None
+        Analysis window length in frames (N + 1 frames give N flow maps); default min(clip, 256).
+    start_frame : int or None
+        First frame of the window; default 0.
+    min_frequency_hz, max_frequency_hz : float or None
+        Band searched; default two cycles per window up to 0.98 x Nyquist.
+    depth_m : float or None
+        Object distance for clips without depth.
+    segmentation : SegmentationConfig
+    max_objects : int
+    """
+
+    method: Method = "default"
+    flow: FlowConfig | None = None
+    frames: int | None = None
+    start_frame: int | None = None
+    min_frequency_hz: float | None = None
+    max_frequency_hz: float | None = None
+    depth_m: float | None = None
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    max_objects: int = 8
+
+    def resolved_flow(self) -> FlowConfig:
+        if self.flow is not None:
+            return self.flow
+        if self.method == "paper":
+            return FlowConfig(method="farneback", scale=1.0)
+        return FlowConfig()
+
+    def describe(self) -> dict[str, Any]:
+        """Every parameter, defaults included, as JSON-ready data."""
+        fl = self.resolved_flow()
+        return {
+            "method": self.method,
+            "flow": fl.method,
+            "flow_scale": fl.scale,
+            "dis_preset": fl.dis_preset if fl.method == "dis" else None,
+            "frames": self.frames,
+            "start_frame": self.start_frame or 0,
+            "min_frequency_hz": self.min_frequency_hz,
+            "max_frequency_hz": self.max_frequency_hz,
+            "depth_m": self.depth_m,
+            "segmentation": {
+                "noise_factor": self.segmentation.noise_factor,
+                "relative_level": self.segmentation.relative_level,
+                "purity": self.segmentation.purity,
+                "band_bins": self.segmentation.band_bins,
+                "min_area_fraction": self.segmentation.min_area_fraction,
+            },
+            "max_objects": self.max_objects,
+        }
+
+
+@dataclass(frozen=True)
+class QualityNote:
+    """A reason why a result may be unreliable."""
+
+    code: str
+    message: str
+    severity: Literal["info", "warning", "error"] = "warning"
+
+
+@dataclass
+class ObjectMeasurement:
+    """Everything measured for one object. Frequencies in Hz, lengths in metres unless ``_px``."""
+
+    id: int
+    eigenfrequency_hz: float
+    eigenfrequency_sd_hz: float | None
+    natural_frequency_hz: float
+    damping_ratio: float | None
+    damping_ratio_sd: float | None
+    amplitude_px: float | None
+    amplitude_m: float | None
+    amplitude_sd_m: float | None
+    depth_m: float | None
+    motion_direction: tuple[float, float, float] | None
+    stiffness_n_per_m: float | None
+    stiffness_sd: float | None
+    mass_kg: float | None
+    mass_sd: float | None
+    pixel_count: int
+    bbox_px: tuple[int, int, int, int]
+    harmonics_hz: list[float]
+    release_time_s: float | None
+    snr_db: float | None
+    null_reasons: list[str] = field(default_factory=list)
+    #: How the amplitude was measured: ``registration`` (rigid body, sub-pixel) or ``flow``.
+    amplitude_source: str = "flow"
+    #: Displacement of the object along its axis, input pixels, per frame of the window (for plots).
+    displacement_px: NDArray[np.float64] | None = None
+    #: Fitted model displacement at the same frames (NaN before release), input pixels.
+    model_displacement_px: NDArray[np.float64] | None = None
+
+    @property
+    def angular_frequency_rad_s(self) -> float:
+        return 2 * math.pi * self.natural_frequency_hz
+
+
+@dataclass
+class Analysis:
+    """The outcome of :func:`analyze`.
+
+    Attributes
+    ----------
+    objects : list of ObjectMeasurement
+        Strongest first; ``objects[i].id == i + 1`` is its value in ``labels``.
+    labels : ndarray of uint16, shape (H, W)
+        Object label per input pixel, 0 = background.
+    frequencies_hz, power : ndarray of float64, shape (F,)
+        Summed motion spectrum.
+    frequency_map_hz : ndarray of float32, shape (h, w)
+        Per-pixel dominant frequency on the flow grid; ``frequency_map_valid`` marks pixels above noise.
+    frame_rgb : ndarray of uint8, shape (H, W, 3)
+        A representative frame (the first of the window).
+    fps : float
+    fps_source : str
+    frames_used : (first, last)
+        Frame index range [first, last) analysed.
+    band_hz : (low, high)
+    quality : list of QualityNote
+    timings_s : dict
+    parameters : dict
+    method : str
+    """
+
+    objects: list[ObjectMeasurement]
+    labels: NDArray[np.uint16]
+    frequencies_hz: NDArray[np.float64]
+    power: NDArray[np.float64]
+    frequency_map_hz: NDArray[np.float32]
+    frequency_map_valid: NDArray[np.bool_]
+    frame_rgb: NDArray[np.uint8]
+    fps: float
+    fps_source: str
+    frames_used: tuple[int, int]
+    band_hz: tuple[float, float]
+    quality: list[QualityNote]
+    timings_s: dict[str, float]
+    parameters: dict[str, Any]
+    method: str
+    peaks: list[Peak] = field(default_factory=list)
+
+    @property
+    def eigenfrequency_hz(self) -> float | None:
+        return self.objects[0].eigenfrequency_hz if self.objects else None
+
+
+@dataclass
+class _Buffers:
+    flow: NDArray[np.float32]  # (N, h, w, 2)
+    depth: NDArray[np.float32] | None  # (N + 1, h, w), metres, NaN invalid
+    gray: NDArray[np.uint8] | None  # (N + 1, H, W) at input resolution, for registration
+    first_rgb: NDArray[np.uint8]
+    count: int
+
+
+class _Stopwatch:
+    def __init__(self) -> None:
+        self.times: dict[str, float] = {}
+        self._t = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.times[name] = self.times.get(name, 0.0) + now - self._t
+        self._t = now
+
+
+def _window(total: int, config: AnalysisConfig) -> tuple[int, int]:
+    start = config.start_frame or 0
+    if start >= total - 2:
+        raise ParameterError(f"start_frame={start} leaves fewer than 3 of the clip's {total} frames")
+    length = config.frames if config.frames is not None else min(total - start, DEFAULT_MAX_FRAMES)
+    if length < 8:
+        raise ParameterError(f"frames={length}: the analysis window needs at least 8 frames")
+    stop = min(total, start + length)
+    if stop - start < 8:
+        raise ParameterError(f"only {stop - start} frames from start_frame={start}; need at least 8")
+    return start, stop
+
+
+def _band(config: AnalysisConfig, fps: float, n: int) -> tuple[float, float]:
+    nyquist = fps / 2
+    lo = config.min_frequency_hz if config.min_frequency_hz is not None else 1.5 * fps / n
+    hi = config.max_frequency_hz if config.max_frequency_hz is not None else 0.98 * nyquist
+    hi = min(hi, nyquist)
+    if lo >= hi:
+        raise ParameterError(
+            f"frequency band [{lo:.3g}, {hi:.3g}] Hz is empty at {fps:g} fps with {n} flow samples; "
+            "widen the band or analyse more frames"
+        )
+    return lo, hi
+
+
+def _stream(
+    reader: ClipReader,
+    start: int,
+    stop: int,
+    grid: tuple[int, int],
+    flow_cfg: FlowConfig,
+    progress: Progress | None,
+    magnitude: bool = False,
+    keep_gray: bool = False,
+) -> _Buffers:
+    import cv2
+
+    n = stop - start - 1
+    h, w = grid
+    channels = 1 if magnitude else 2
+    flow_buf = np.empty((n, h, w, channels), np.float32)
+    depth_buf: NDArray[np.float32] | None = None
+    first_rgb: NDArray[np.uint8] | None = None
+    has_depth = reader.info.has_depth
+    info = reader.info
+    gray_buf = np.empty((n + 1, info.height, info.width), np.uint8) if keep_gray else None
+
+    def grays() -> Iterator[NDArray[np.uint8]]:
+        nonlocal depth_buf, first_rgb
+        frame: Frame
+        for i, frame in enumerate(reader.frames(start, stop)):
+            if first_rgb is None:
+                first_rgb = np.array(frame.rgb, copy=True)
+            if has_depth and frame.depth_m is not None:
+                if depth_buf is None:
+                    depth_buf = np.full((n + 1, h, w), np.nan, np.float32)
+                d = frame.depth_m
+                if d.shape != grid:
+                    d = cv2.resize(d, (w, h), interpolation=cv2.INTER_NEAREST)
+                depth_buf[i] = d
+            if gray_buf is not None:
+                full = prepare_gray(frame.rgb, (info.height, info.width))
+                gray_buf[i] = full
+                yield full if full.shape == grid else prepare_gray(frame.rgb, grid)
+            else:
+                yield prepare_gray(frame.rgb, grid)
+
+    count = 0
+    for i, flow in enumerate(flow_stream(grays(), config=flow_cfg)):
+        if magnitude:
+            flow_buf[i, ..., 0] = flow_magnitude(flow)
+        else:
+            flow_buf[i] = flow
+        count = i + 1
+        if progress is not None and (i % 8 == 0 or i == n - 1):
+            progress("flow", 0.05 + 0.75 * count / n)
+    if count < n or first_rgb is None:
+        raise AnalysisError(f"the clip ended after {count + 1} of the {n + 1} frames it announced")
+    return _Buffers(flow=flow_buf, depth=depth_buf, gray=gray_buf, first_rgb=first_rgb, count=count)
+
+
+def _object_depth(depth: NDArray[np.float32] | None, mask: NDArray[np.bool_]) -> float | None:
+    if depth is None:
+        return None
+    # Interior of the mask: erode so edge pixels that sometimes see the background do not count.
+    import cv2
+
+    core = cv2.erode(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    if core.sum() < 10:
+        core = mask
+    values = depth[:, core]
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return None
+    return float(np.median(values))
+
+
+def _bbox(mask: NDArray[np.bool_]) -> tuple[int, int, int, int]:
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        return (0, 0, 0, 0)
+    x0, y0 = int(xs.min()), int(ys.min())
+    return (x0, y0, int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1)
+
+
+def analyze(
+    reader: ClipReader,
+    *,
+    config: AnalysisConfig | None = None,
+    excitation: Excitation | None = None,
+    progress: Progress | None = None,
+) -> Analysis:
+    """Measure the vibrating objects of a clip.
+
+    Parameters
+    ----------
+    reader : ClipReader
+        An open clip (see :func:`workers.pipeline.clipio.open_clip`).
+    config : AnalysisConfig, optional
+    excitation : Excitation, optional
+        Without it, frequencies, damping and masks are measured and stiffness and mass are None.
+    progress : callable, optional
+        ``progress(stage, fraction)``.
+
+    Returns
+    -------
+    Analysis
+    """
+    config = config or AnalysisConfig()
+    if config.method == "paper":
+        from workers.pipeline.paper import analyze_paper
+
+        return analyze_paper(reader, config=config, excitation=excitation, progress=progress)
+    return _analyze_default(reader, config=config, excitation=excitation, progress=progress)
+
+
+def _analyze_default(
+    reader: ClipReader,
+    *,
+    config: AnalysisConfig,
+    excitation: Excitation | None,
+    progress: Progress | None,
+) -> Analysis:
+    watch = _Stopwatch()
+    info = reader.info
+    if info.fps is None:
+        raise ParameterError(
+            "the clip carries no frame rate; give the true recording rate with --fps (API: fps)"
+        )
+    fps = float(info.fps)
+    start, stop = _window(info.frames, config)
+    flow_cfg = config.resolved_flow()
+    grid = flow_cfg.grid_shape(info.height, info.width)
+    pixel_scale = info.width / grid[1]
+    if progress:
+        progress("flow", 0.05)
+    watch.lap("setup")
+    buffers = _stream(reader, start, stop, grid, flow_cfg, progress, keep_gray=True)
+    watch.lap("flow")
+    n = buffers.count
+    band = _band(config, fps, n)
+
+    if progress:
+        progress("spectrum", 0.82)
+    spectra = pixel_spectra(buffers.flow, fps=fps)
+    summed = spectra.power.sum(axis=1, dtype=np.float64)
+    peaks = find_peaks(spectra.frequencies_hz, summed, band_hz=band, max_peaks=config.max_objects)
+    watch.lap("spectrum")
+
+    if progress:
+        progress("segmentation", 0.88)
+    seg = segment(spectra, peaks, grid_shape=grid, band_hz=band, config=config.segmentation)
+    fmap, fvalid = frequency_map(spectra, grid_shape=grid, band_hz=band)
+    labels_full = upsample_labels(seg.labels, (info.height, info.width))
+    watch.lap("segmentation")
+
+    if progress:
+        progress("mechanics", 0.93)
+    quality: list[QualityNote] = []
+    intrinsics: Intrinsics | None = info.intrinsics
+    objects: list[ObjectMeasurement] = []
+    for label, peak in enumerate(seg.peaks, start=1):
+        mask = seg.labels == label
+        full_mask = labels_full == label
+        obj_exc = None
+        if excitation is not None and (excitation.object_id in (None, label)):
+            obj_exc = excitation if (excitation.object_id == label or label == 1) else None
+        objects.append(
+            _measure_object(
+                label=label,
+                peak=peak,
+                mask=mask,
+                full_mask=full_mask,
+                buffers=buffers,
+                fps=fps,
+                pixel_scale=pixel_scale,
+                intrinsics=intrinsics,
+                depth_override=config.depth_m,
+                excitation=obj_exc,
+                first_frame=start,
+            )
+        )
+    if excitation is not None and excitation.object_id is not None and excitation.object_id > len(objects):
+        raise ParameterError(
+            f"excitation names object {excitation.object_id} but only {len(objects)} object(s) were found"
+        )
+    if not objects:
+        quality.append(
+            QualityNote(
+                "no_motion",
+                "no vibrating object stands above the noise; check the frame rate, the band and that the "
+                "object moves in the analysed frames",
+                "error",
+            )
+        )
+    if not info.has_depth and config.depth_m is None:
+        quality.append(
+            QualityNote(
+                "no_depth",
+                "the clip has no depth: amplitudes in metres, stiffness and mass need depth or depth_m",
+            )
+        )
+    for obj in objects:
+        if obj.eigenfrequency_hz > 0.45 * fps:
+            quality.append(
+                QualityNote(
+                    "possibly_aliased",
+                    f"object {obj.id} at {obj.eigenfrequency_hz:.3g} Hz is near the Nyquist rate "
+                    f"({fps / 2:g} Hz): the true frequency may be fps - f; record at a higher frame rate",
+                )
+            )
+    watch.lap("mechanics")
+    return Analysis(
+        objects=objects,
+        labels=labels_full,
+        frequencies_hz=spectra.frequencies_hz,
+        power=summed,
+        frequency_map_hz=fmap,
+        frequency_map_valid=fvalid,
+        frame_rgb=buffers.first_rgb,
+        fps=fps,
+        fps_source=info.fps_source or "unknown",
+        frames_used=(start, stop),
+        band_hz=band,
+        quality=quality,
+        timings_s=watch.times,
+        parameters=config.describe() | {"frames": stop - start, "band_hz": list(band)},
+        method="default",
+        peaks=seg.peaks,
+    )
+
+
+def _measure_object(
+    *,
+    label: int,
+    peak: Peak,
+    mask: NDArray[np.bool_],
+    full_mask: NDArray[np.bool_],
+    buffers: _Buffers,
+    fps: float,
+    pixel_scale: float,
+    intrinsics: Intrinsics | None,
+    depth_override: float | None,
+    excitation: Excitation | None,
+    first_frame: int,
+) -> ObjectMeasurement:
+    motion = object_motion(buffers.flow, mask, pixel_scale=pixel_scale)
+    velocity = motion.velocity_px
+    axis = motion.axis_px
+    tracking = "flow"
+    if buffers.gray is not None and motion.coherence >= RIGID_COHERENCE:
+        initial = np.concatenate([[0.0], np.cumsum(velocity)])[:, None] * np.asarray(axis)[None, :]
+        disp2d, failed = register_translation(buffers.gray, full_mask, initial_px=initial)
+        if failed <= 0.1:
+            centred = disp2d - disp2d.mean(axis=0)
+            _, vecs = np.linalg.eigh(centred.T @ centred)
+            new_axis = vecs[:, -1] if float(vecs[:, -1] @ np.asarray(axis)) >= 0 else -vecs[:, -1]
+            axis = (float(new_axis[0]), float(new_axis[1]))
+            velocity = np.diff(disp2d @ new_axis)
+            tracking = "registration"
+    onset = detect_release(velocity)
+    fit = fit_ringdown(velocity, fps=fps, frequency_guess_hz=peak.frequency_hz, start_index=onset)
+    kind = excitation.kind if excitation else None
+    t_rel = release_instant(fit, fps=fps, excitation=kind)
+    amp_px = release_amplitude(fit, t_release_s=t_rel, excitation=kind)
+    amp_sd_px = fit.amplitude_sd * math.exp(-fit.decay_per_s * t_rel)
+    release_time = (first_frame + onset) / fps + t_rel
+
+    null_reasons: list[str] = []
+    depth = _object_depth(buffers.depth, mask)
+    depth_source_sd = 0.0
+    if depth is None and depth_override is not None:
+        depth = depth_override
+    amp_m = amp_sd_m = None
+    direction = None
+    if depth is None:
+        null_reasons.append("no depth: give a clip with depth, or depth_m with the intrinsics")
+    elif intrinsics is None:
+        null_reasons.append("no camera intrinsics: give fx, fy (and cx, cy) for metric amplitude")
+    else:
+        amp_m = metric_amplitude(amp_px, axis, depth_m=depth, intrinsics=intrinsics)
+        rel = math.sqrt((amp_sd_px / max(amp_px, 1e-12)) ** 2 + FLOW_AMPLITUDE_REL_SD**2 + depth_source_sd**2)
+        amp_sd_m = amp_m * rel
+        ax, ay = axis
+        direction = (ax, ay, 0.0)
+
+    k = k_sd = m = m_sd = None
+    if excitation is None:
+        null_reasons.append("no excitation given: stiffness and mass need a held force or an impulse")
+    elif amp_m is not None and amp_sd_m is not None:
+        mech = stiffness_and_mass(
+            kind=excitation.kind,
+            value=excitation.value,
+            value_sd=excitation.uncertainty,
+            amplitude_m=amp_m,
+            amplitude_sd_m=amp_sd_m,
+            natural_frequency_hz=fit.natural_frequency_hz,
+            damped_frequency_hz=fit.frequency_hz,
+            frequency_sd_hz=fit.frequency_sd_hz,
+        )
+        k, k_sd, m, m_sd = mech.stiffness_n_per_m, mech.stiffness_sd, mech.mass_kg, mech.mass_sd
+        null_reasons.extend(mech.null_reasons)
+
+    n = len(velocity)
+    disp = np.concatenate([[0.0], np.cumsum(velocity)])
+    t = (np.arange(n + 1) - onset) / fps
+    model = np.full(n + 1, np.nan)
+    after = t >= t_rel
+    model[after] = fit.displacement(t[after])
+    # Align the integrated displacement to the model's mean level after release.
+    if after.any():
+        disp = disp - np.nanmean(disp[after] - model[after])
+    return ObjectMeasurement(
+        id=label,
+        eigenfrequency_hz=fit.frequency_hz,
+        eigenfrequency_sd_hz=fit.frequency_sd_hz,
+        natural_frequency_hz=fit.natural_frequency_hz,
+        damping_ratio=fit.damping_ratio,
+        damping_ratio_sd=fit.damping_sd,
+        amplitude_px=amp_px,
+        amplitude_m=amp_m,
+        amplitude_sd_m=amp_sd_m,
+        depth_m=depth,
+        motion_direction=direction,
+        stiffness_n_per_m=k,
+        stiffness_sd=k_sd,
+        mass_kg=m,
+        mass_sd=m_sd,
+        pixel_count=int(full_mask.sum()),
+        bbox_px=_bbox(full_mask),
+        harmonics_hz=list(peak.harmonics_hz),
+        release_time_s=release_time,
+        snr_db=fit.snr_db,
+        null_reasons=null_reasons,
+        amplitude_source=tracking,
+        displacement_px=disp,
+        model_displacement_px=model,
+    )
+
+
+__all__ = [
+    "Analysis",
+    "AnalysisConfig",
+    "Excitation",
+    "ObjectMeasurement",
+    "QualityNote",
+    "analyze",
+    "replace",
+]

@@ -1,0 +1,311 @@
+"""Mechanics: an object's motion signal from its flow, the release instant, its amplitude in metres, and
+stiffness and mass from the excitation.
+
+Physics: ω = 2πf; spring-mass ω_n² = k/m. Held by force F then released: A = F/k. Struck by impulse J:
+v0 = J/m and A = v0/ω_d.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.clipio.types import Intrinsics
+from workers.pipeline.spectrum import RingdownFit
+
+
+@dataclass(frozen=True)
+class ObjectMotion:
+    """The dominant motion of one object.
+
+    Attributes
+    ----------
+    velocity_px : ndarray of float64, shape (N,)
+        Per-frame displacement along the motion axis of a typical pixel of the object, input pixels/frame.
+    axis_px : (float, float)
+        Unit vector of the motion axis in the image (x right, y down).
+    coherence : float
+        |mean loading| / mean |loading| in [0, 1]: 1 for a rigid translation, ~0 for parts in anti-phase.
+    """
+
+    velocity_px: NDArray[np.float64]
+    axis_px: tuple[float, float]
+    coherence: float
+
+
+def object_motion(
+    flow: NDArray[np.float32],
+    mask: NDArray[np.bool_],
+    *,
+    pixel_scale: float = 1.0,
+    max_pixels: int = 20_000,
+    seed: int = 0,
+) -> ObjectMotion:
+    """Dominant motion of the masked pixels by principal components over time.
+
+    The first principal component of the pixels' signed flow is the common time course; each pixel's
+    loading says how far and which way it moves. Parts that move in anti-phase load with opposite signs and
+    so reinforce the component instead of cancelling.
+
+    Parameters
+    ----------
+    flow : ndarray of float32, shape (N, h, w, 2)
+        Flow on the computation grid.
+    mask : ndarray of bool, shape (h, w)
+    pixel_scale : float
+        Input pixels per grid pixel (1 / flow scale).
+    max_pixels : int
+        Pixels sampled (seeded) for the decomposition.
+    seed : int
+
+    Returns
+    -------
+    ObjectMotion
+    """
+    idx = np.flatnonzero(mask.ravel())
+    if len(idx) > max_pixels:
+        idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
+    n = flow.shape[0]
+    sub = flow.reshape(n, -1, 2)[:, idx, :].astype(np.float64)  # (N, P, 2)
+    mat = sub.reshape(n, -1)
+    gram = mat @ mat.T
+    _evals, evecs = np.linalg.eigh(gram)
+    u1 = evecs[:, -1]
+    loads = (mat.T @ u1).reshape(-1, 2)  # (P, 2): per-pixel amplitude vector for unit time course
+    cov = loads.T @ loads
+    _, axes = np.linalg.eigh(cov)
+    axis = axes[:, -1]
+    proj = loads @ axis
+    if np.mean(proj) < 0:
+        axis, proj = -axis, -proj
+    scale_px = float(np.median(np.abs(proj)))
+    norms = np.linalg.norm(loads, axis=1)
+    coherence = float(np.linalg.norm(loads.mean(axis=0)) / (norms.mean() + 1e-12))
+    sign = 1.0 if np.sum(proj) >= 0 else -1.0
+    velocity = u1 * scale_px * sign * pixel_scale
+    return ObjectMotion(velocity_px=velocity, axis_px=(float(axis[0]), float(axis[1])), coherence=coherence)
+
+
+def register_translation(
+    grays: NDArray[np.uint8],
+    mask: NDArray[np.bool_],
+    *,
+    initial_px: NDArray[np.float64],
+    max_iterations: int = 60,
+) -> tuple[NDArray[np.float64], float]:
+    """Sub-pixel displacement of a rigid object in every frame, relative to the first, by ECC registration.
+
+    Dense flow is smoothed at object boundaries and biased low for small motions; registering the
+    object's interior texture (an enhanced-correlation-coefficient fit of a translation, started from the
+    flow's estimate) measures the displacement to a few hundredths of a pixel.
+
+    Parameters
+    ----------
+    grays : ndarray of uint8, shape (T, H, W)
+        Grey frames at input resolution.
+    mask : ndarray of bool, shape (H, W)
+        The object's region; its interior (eroded by the motion's reach) is registered.
+    initial_px : ndarray of float64, shape (T, 2)
+        Starting displacement (dx, dy) per frame, from flow.
+    max_iterations : int
+
+    Returns
+    -------
+    displacement : ndarray of float64, shape (T, 2)
+        (dx, dy) of the object in frame k relative to frame 0, input pixels.
+    failed_fraction : float
+        Frames where registration did not converge (their flow estimate is kept).
+    """
+    import cv2
+
+    t_count, height, width = grays.shape
+    reach = float(np.abs(initial_px).max()) if initial_px.size else 0.0
+    core = mask.astype(np.uint8)
+    for margin in (math.ceil(reach) + 3, math.ceil(reach / 2) + 2, 2):
+        eroded = cv2.erode(core, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
+        if eroded.sum() >= max(64, 0.2 * core.sum()):
+            core = eroded
+            break
+    ys, xs = np.nonzero(core)
+    if len(xs) < 64:
+        return initial_px.copy(), 1.0
+    pad = math.ceil(reach) + 8
+    x0, x1 = max(0, xs.min() - pad), min(width, xs.max() + pad + 1)
+    y0, y1 = max(0, ys.min() - pad), min(height, ys.max() + pad + 1)
+    ref = grays[0, y0:y1, x0:x1].astype(np.float32)
+    ref_mask = core[y0:y1, x0:x1]
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iterations, 1e-5)
+    out = initial_px.astype(np.float64).copy()
+    failures = 0
+    for k in range(1, t_count):
+        cur = grays[k, y0:y1, x0:x1].astype(np.float32)
+        warp = np.eye(2, 3, dtype=np.float32)
+        warp[0, 2], warp[1, 2] = -initial_px[k, 0], -initial_px[k, 1]
+        try:
+            _, warp = cv2.findTransformECC(cur, ref, warp, cv2.MOTION_TRANSLATION, criteria, ref_mask, 3)
+        except cv2.error:
+            failures += 1
+            continue
+        d = np.array([-warp[0, 2], -warp[1, 2]], np.float64)
+        if np.all(np.isfinite(d)) and np.linalg.norm(d - initial_px[k]) < 3.0 + 0.5 * reach:
+            out[k] = d
+        else:
+            failures += 1
+    return out, failures / max(t_count - 1, 1)
+
+
+def detect_release(
+    velocity: NDArray[np.floating], *, relative: float = 0.12, noise_factor: float = 6.0
+) -> int:
+    """Index of the first flow sample in which the object moves.
+
+    Still frames before a release carry only noise; the release is the first sample whose speed exceeds
+    both ``relative`` x the peak speed and ``noise_factor`` x the noise of the quiet samples.
+
+    Parameters
+    ----------
+    velocity : ndarray, shape (N,)
+
+    Returns
+    -------
+    int
+        0 when the object moves from the start.
+    """
+    speed = np.abs(np.asarray(velocity, np.float64))
+    peak = float(speed.max()) if speed.size else 0.0
+    if peak <= 0:
+        return 0
+    quiet = speed[speed < 0.05 * peak]
+    noise = float(np.median(quiet)) * 1.4826 if quiet.size >= 4 else 0.0
+    threshold = max(relative * peak, noise_factor * noise)
+    above = np.flatnonzero(speed > threshold)
+    first = int(above[0]) if above.size else 0
+    # Walk back over the ramp: samples still clearly above the noise belong to the motion.
+    floor = max(noise_factor * noise, 0.02 * peak)
+    while first > 0 and speed[first - 1] > floor:
+        first -= 1
+    return first
+
+
+def release_instant(fit: RingdownFit, *, fps: float, excitation: str | None) -> float:
+    """Release time from the fitted model, seconds relative to the fit's first sample.
+
+    Flow sample j spans frames j -> j+1, so a release first seen in sample j happened in [0, 1/fps) of the
+    fit's time. For a step release the velocity is zero at release (the displacement is at its held
+    extreme); for an impulse the displacement is zero. The instant is the last such point of the model
+    at or before 1/fps; without an excitation the fit start is returned.
+
+    Returns
+    -------
+    float
+        Seconds from the fit start (at most 1/fps, at least one period earlier).
+    """
+    if excitation not in ("step_release", "impulse"):
+        return 0.0
+    omega = 2 * math.pi * fit.frequency_hz
+    sigma = fit.decay_per_s
+    # x ∝ e^{-σt} cos(ωt + φ); dx/dt = 0 where ωt + φ + atan(σ/ω) = nπ; x = 0 where ωt + φ = π/2 + nπ.
+    offset = fit.phase_rad + (math.atan2(sigma, omega) if excitation == "step_release" else -math.pi / 2)
+    t_max = 1.0 / fps
+    n = math.floor((omega * t_max + offset) / math.pi)
+    return (n * math.pi - offset) / omega
+
+
+def release_amplitude(fit: RingdownFit, *, t_release_s: float, excitation: str | None) -> float:
+    """Amplitude at the release instant, in the fit's units.
+
+    Step release: the held displacement |x(t_r)|. Impulse or none: the envelope A e^{-σ t_r}.
+    """
+    envelope = fit.amplitude * math.exp(-fit.decay_per_s * t_release_s)
+    if excitation == "step_release":
+        omega = 2 * math.pi * fit.frequency_hz
+        return abs(envelope * math.cos(omega * t_release_s + fit.phase_rad))
+    return envelope
+
+
+@dataclass(frozen=True)
+class Mechanics:
+    """Stiffness and mass with standard uncertainties; None when not measurable (see ``null_reasons``)."""
+
+    stiffness_n_per_m: float | None = None
+    stiffness_sd: float | None = None
+    mass_kg: float | None = None
+    mass_sd: float | None = None
+    null_reasons: list[str] = field(default_factory=list)
+
+
+def metric_amplitude(
+    amplitude_px: float,
+    axis_px: tuple[float, float],
+    *,
+    depth_m: float,
+    intrinsics: Intrinsics,
+) -> float:
+    """Convert an image-plane amplitude to metres at the object's depth.
+
+    Parameters
+    ----------
+    amplitude_px : float
+        Amplitude along ``axis_px``, input pixels.
+    axis_px : (ux, uy)
+        Unit motion axis in the image.
+    depth_m : float
+    intrinsics : Intrinsics
+
+    Returns
+    -------
+    float
+        Amplitude, metres.
+    """
+    dx = amplitude_px * axis_px[0] * depth_m / intrinsics.fx
+    dy = amplitude_px * axis_px[1] * depth_m / intrinsics.fy
+    return math.hypot(dx, dy)
+
+
+def stiffness_and_mass(
+    *,
+    kind: Literal["step_release", "impulse"],
+    value: float,
+    value_sd: float,
+    amplitude_m: float,
+    amplitude_sd_m: float,
+    natural_frequency_hz: float,
+    damped_frequency_hz: float,
+    frequency_sd_hz: float,
+) -> Mechanics:
+    """k and m from the excitation, the release amplitude and the frequency.
+
+    Parameters
+    ----------
+    kind : ``"step_release"`` (value = held force F, N) or ``"impulse"`` (value = impulse J, N·s)
+    value, value_sd : float
+    amplitude_m, amplitude_sd_m : float
+        Held displacement (step release) or envelope amplitude at release (impulse), metres.
+    natural_frequency_hz, damped_frequency_hz, frequency_sd_hz : float
+
+    Returns
+    -------
+    Mechanics
+    """
+    if amplitude_m <= 0:
+        return Mechanics(null_reasons=["amplitude is zero: the object did not move measurably"])
+    wn = 2 * math.pi * natural_frequency_hz
+    wd = 2 * math.pi * damped_frequency_hz
+    rel_a = amplitude_sd_m / amplitude_m
+    rel_v = value_sd / value
+    rel_w = frequency_sd_hz / max(natural_frequency_hz, 1e-12)
+    if kind == "step_release":
+        k = value / amplitude_m
+        m = k / wn**2
+        rel_k = math.hypot(rel_v, rel_a)
+        rel_m = math.sqrt(rel_k**2 + (2 * rel_w) ** 2)
+    else:
+        m = value / (amplitude_m * wd)
+        k = m * wn**2
+        rel_m = math.sqrt(rel_v**2 + rel_a**2 + rel_w**2)
+        rel_k = math.sqrt(rel_v**2 + rel_a**2 + rel_w**2)  # k = J ω / A: one power of ω
+    return Mechanics(stiffness_n_per_m=k, stiffness_sd=k * rel_k, mass_kg=m, mass_sd=m * rel_m)

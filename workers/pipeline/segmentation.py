@@ -1,0 +1,200 @@
+"""Segmentation by spectral signature: pixels whose motion rings at an object's frequency, well above the
+noise floor, grouped into cleaned connected regions and labelled one object per fundamental frequency.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from workers.pipeline.spectrum import Peak, PixelSpectra
+
+
+@dataclass(frozen=True, kw_only=True)
+class SegmentationConfig:
+    """Thresholds of the segmentation; the defaults work without tuning.
+
+    Attributes
+    ----------
+    noise_factor : float
+        A pixel's band power must exceed this multiple of the background's (the median pixel's).
+    relative_level : float
+        ... and this fraction of the object's typical (90th percentile) band power.
+    purity : float
+        ... and this fraction of the pixel's power in the whole analysis band.
+    band_bins : float
+        Half-width, in bins, of the band around each peak and harmonic.
+    min_area_fraction : float
+        Regions smaller than this fraction of the frame are dropped.
+    """
+
+    noise_factor: float = 8.0
+    relative_level: float = 0.12
+    purity: float = 0.25
+    band_bins: float = 1.5
+    min_area_fraction: float = 0.0015
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """Labels on the flow grid.
+
+    Attributes
+    ----------
+    labels : ndarray of int32, shape (h, w)
+        0 background, i + 1 for ``peaks[i]``.
+    peaks : list of Peak
+        The fundamentals, in label order; peaks that gave no region are dropped.
+    band_power : ndarray of float32, shape (len(peaks), h, w)
+        Power in each object's band (fundamental + harmonics).
+    noise_power : ndarray of float64, shape (len(peaks),)
+        Band power of the background (median pixel).
+    """
+
+    labels: NDArray[np.int32]
+    peaks: list[Peak]
+    band_power: NDArray[np.float32]
+    noise_power: NDArray[np.float64]
+
+
+def band_mask(
+    frequencies_hz: NDArray[np.float64], peak: Peak, *, bin_hz: float, band_bins: float
+) -> NDArray[np.bool_]:
+    """Bins within ``band_bins`` of the peak or any of its harmonics."""
+    sel = np.zeros(len(frequencies_hz), bool)
+    for f in (peak.frequency_hz, *peak.harmonics_hz):
+        sel |= np.abs(frequencies_hz - f) <= band_bins * bin_hz
+    return sel
+
+
+def _clean(mask: NDArray[np.bool_], min_area: int) -> NDArray[np.bool_]:
+    m = mask.astype(np.uint8)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, kernel)
+    m = cv2.morphologyEx(m, cv2.MORPH_OPEN, kernel)
+    filled = ndimage.binary_fill_holes(m.astype(bool))
+    count, comp, stats, _ = cv2.connectedComponentsWithStats(filled.astype(np.uint8), connectivity=8)
+    keep = np.zeros(count, bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_area
+    return np.asarray(keep[comp])
+
+
+def segment(
+    spectra: PixelSpectra,
+    peaks: list[Peak],
+    *,
+    grid_shape: tuple[int, int],
+    band_hz: tuple[float, float],
+    config: SegmentationConfig | None = None,
+) -> Segmentation:
+    """Label the pixels of each peak's object.
+
+    Parameters
+    ----------
+    spectra : PixelSpectra
+        Per-pixel power, shape (F, h * w).
+    peaks : list of Peak
+        Fundamental peaks of the summed spectrum, strongest first.
+    grid_shape : (h, w)
+    band_hz : (low, high)
+        Analysis band.
+    config : SegmentationConfig, optional
+
+    Returns
+    -------
+    Segmentation
+    """
+    cfg = config or SegmentationConfig()
+    h, w = grid_shape
+    freqs = spectra.frequencies_hz
+    in_band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
+    total = spectra.power[in_band].sum(axis=0) + np.float32(1e-20)
+    if not peaks:
+        return Segmentation(
+            labels=np.zeros(grid_shape, np.int32),
+            peaks=[],
+            band_power=np.zeros((0, h, w), np.float32),
+            noise_power=np.zeros(0),
+        )
+    band_power = np.empty((len(peaks), h * w), np.float32)
+    for i, peak in enumerate(peaks):
+        sel = band_mask(freqs, peak, bin_hz=spectra.bin_hz, band_bins=cfg.band_bins)
+        band_power[i] = spectra.power[sel].sum(axis=0)
+    noise = np.median(band_power, axis=1).astype(np.float64) + 1e-20
+    owner = np.argmax(band_power, axis=0)
+    min_area = max(4, int(cfg.min_area_fraction * h * w))
+    labels = np.zeros(h * w, np.int32)
+    kept: list[Peak] = []
+    kept_rows: list[int] = []
+    for i, peak in enumerate(peaks):
+        bp = band_power[i]
+        candidate = (bp > cfg.noise_factor * noise[i]) & (owner == i) & (bp > cfg.purity * total)
+        if not candidate.any():
+            continue
+        level = float(np.percentile(bp[candidate], 90))
+        candidate &= bp >= cfg.relative_level * level
+        region = _clean(candidate.reshape(h, w), min_area).ravel() & (labels == 0)
+        if not region.any():
+            continue
+        kept.append(peak)
+        kept_rows.append(i)
+        labels[region] = len(kept)
+    return Segmentation(
+        labels=labels.reshape(h, w),
+        peaks=kept,
+        band_power=band_power[kept_rows].reshape(len(kept_rows), h, w),
+        noise_power=noise[kept_rows],
+    )
+
+
+def frequency_map(
+    spectra: PixelSpectra,
+    *,
+    grid_shape: tuple[int, int],
+    band_hz: tuple[float, float],
+    noise_factor: float = 8.0,
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Per-pixel dominant frequency inside the band.
+
+    Returns
+    -------
+    freq : ndarray of float32, shape (h, w)
+        Dominant frequency, Hz.
+    valid : ndarray of bool, shape (h, w)
+        Pixels whose peak stands ``noise_factor`` above the background (median pixel) at that frequency.
+    """
+    freqs = spectra.frequencies_hz
+    idx = np.flatnonzero((freqs >= band_hz[0]) & (freqs <= band_hz[1]))
+    if len(idx) == 0:
+        z = np.zeros(grid_shape, np.float32)
+        return z, np.zeros(grid_shape, bool)
+    sub = spectra.power[idx]
+    k = np.argmax(sub, axis=0)
+    peak_power = np.take_along_axis(sub, k[None, :], axis=0)[0]
+    background = np.median(sub, axis=1)
+    valid = peak_power > noise_factor * background[k]
+    freq = freqs[idx][k].astype(np.float32)
+    return freq.reshape(grid_shape), valid.reshape(grid_shape)
+
+
+def upsample_labels(labels: NDArray[np.integer[Any]], shape: tuple[int, int]) -> NDArray[np.uint16]:
+    """Nearest-neighbour resize of a label map to the input frame size.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (h, w)
+    shape : (H, W)
+
+    Returns
+    -------
+    ndarray of uint16, shape (H, W)
+    """
+    lab = labels.astype(np.uint16)
+    if lab.shape == shape:
+        return lab
+    return np.asarray(cv2.resize(lab, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST), np.uint16)

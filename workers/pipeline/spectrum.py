@@ -1,0 +1,439 @@
+"""Spectra of motion: per-pixel power spectra of signed flow, the summed spectrum, peaks and harmonics,
+and a parametric ring-down fit that measures frequency and damping far below one FFT bin.
+
+Signed flow is transformed, never its magnitude: |v| of an oscillation rings at twice its frequency.
+Per-pixel power is |U|² + |V|² (both flow components), so parts moving in anti-phase add up instead of
+cancelling.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize
+
+try:  # pyfftw is a hard dependency; numpy is only a fallback for exotic platforms.
+    import pyfftw
+    import pyfftw.builders
+
+    _HAVE_FFTW = True
+except ImportError:  # pragma: no cover
+    _HAVE_FFTW = False
+
+
+class RfftPlans:
+    """Cache of real-FFT plans along axis 0, keyed by input shape.
+
+    Building an FFTW plan costs far more than running it; one plan per shape is built once and reused for
+    every later buffer of that shape.
+    """
+
+    def __init__(self, *, threads: int = 2) -> None:
+        self.threads = threads
+        self._plans: dict[tuple[tuple[int, ...], str], Any] = {}
+
+    def rfft(self, data: NDArray[np.float32]) -> NDArray[np.complex64]:
+        """Real FFT of ``data`` along axis 0.
+
+        Parameters
+        ----------
+        data : ndarray of float32, shape (N, ...)
+
+        Returns
+        -------
+        ndarray of complex64, shape (N // 2 + 1, ...)
+            The plan's own output buffer: valid until the next call with the same shape.
+        """
+        data = np.ascontiguousarray(data, dtype=np.float32)
+        if not _HAVE_FFTW:  # pragma: no cover
+            return np.fft.rfft(data, axis=0).astype(np.complex64)
+        key = (data.shape, str(data.dtype))
+        plan = self._plans.get(key)
+        if plan is None:
+            template = pyfftw.empty_aligned(data.shape, dtype="float32")
+            plan = pyfftw.builders.rfft(
+                template, axis=0, threads=self.threads, planner_effort="FFTW_ESTIMATE", avoid_copy=False
+            )
+            self._plans[key] = plan
+        out: NDArray[np.complex64] = plan(data)
+        return out
+
+
+@functools.lru_cache(maxsize=4)
+def shared_plans(threads: int = 2) -> RfftPlans:
+    """A process-wide plan cache, created on first use (not at import)."""
+    return RfftPlans(threads=threads)
+
+
+def fast_length(n: int) -> int:
+    """Smallest length >= n whose FFT is fast (a product of 2, 3, 5): a prime n is many times slower."""
+    from scipy.fft import next_fast_len
+
+    return int(next_fast_len(n, real=True))
+
+
+@dataclass(frozen=True)
+class PixelSpectra:
+    """Per-pixel power spectra of a flow buffer.
+
+    Attributes
+    ----------
+    frequencies_hz : ndarray of float64, shape (F,)
+    power : ndarray of float32, shape (F, P)
+        |U|² + |V|² per frequency and pixel (P = h * w on the flow grid).
+    fps : float
+    n : int
+        Transform length (flow samples, zero-padded to a fast length).
+    """
+
+    frequencies_hz: NDArray[np.float64]
+    power: NDArray[np.float32]
+    fps: float
+    n: int
+
+    @property
+    def bin_hz(self) -> float:
+        return self.fps / self.n
+
+
+def pixel_spectra(flow: NDArray[np.float32], *, fps: float, plans: RfftPlans | None = None) -> PixelSpectra:
+    """Per-pixel power spectra of signed flow, mean removed.
+
+    Parameters
+    ----------
+    flow : ndarray of float32, shape (N, h, w, 2)
+        Flow maps in time order.
+    fps : float
+        Sampling rate of the flow maps, Hz.
+    plans : RfftPlans, optional
+        FFT plan cache; the process-wide one by default.
+
+    Returns
+    -------
+    PixelSpectra
+    """
+    n = flow.shape[0]
+    flat = flow.reshape(n, -1)
+    nfft = fast_length(n)
+    centred = np.zeros((nfft, flat.shape[1]), np.float32)
+    np.subtract(flat, flat.mean(axis=0, dtype=np.float32), out=centred[:n])
+    coeffs = (plans or shared_plans()).rfft(centred)
+    del centred
+    # |U|² + |V|²: the four floats (Re U, Im U, Re V, Im V) of each pixel, squared and summed in one pass.
+    parts = coeffs.view(np.float32).reshape(coeffs.shape[0], -1, 4)
+    power = np.einsum("fpk,fpk->fp", parts, parts, dtype=np.float32)
+    freqs = np.fft.rfftfreq(nfft, d=1.0 / fps).astype(np.float64)
+    return PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
+
+
+@dataclass(frozen=True)
+class Peak:
+    """A spectral peak.
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Interpolated peak position.
+    bin : int
+        Index of the maximum bin.
+    power : float
+        Peak power.
+    prominence_db : float
+        Height above the local noise floor, dB.
+    harmonics_hz : list of float
+        Integer multiples of this peak found in the spectrum (not separate objects).
+    """
+
+    frequency_hz: float
+    bin: int
+    power: float
+    prominence_db: float
+    harmonics_hz: list[float] = field(default_factory=list)
+
+
+def interpolate_peak(power: NDArray[np.floating[Any]], k: int) -> float:
+    """Sub-bin peak offset by a parabola through the log power of bins k-1, k, k+1.
+
+    Returns
+    -------
+    float
+        Fractional bin index of the peak.
+    """
+    if k <= 0 or k >= len(power) - 1:
+        return float(k)
+    a, b, c = (math.log(max(float(x), 1e-30)) for x in power[k - 1 : k + 2])
+    denom = a - 2 * b + c
+    if denom >= 0:
+        return float(k)
+    return k + 0.5 * (a - c) / denom
+
+
+def noise_floor(power: NDArray[np.floating[Any]], *, width: int = 9) -> NDArray[np.float64]:
+    """Running median of a spectrum: the floor against which peaks are judged.
+
+    Parameters
+    ----------
+    power : ndarray, shape (F,)
+    width : int
+        Median window in bins (odd).
+
+    Returns
+    -------
+    ndarray of float64, shape (F,)
+    """
+    from scipy.ndimage import median_filter
+
+    width = max(3, width | 1)
+    return np.asarray(median_filter(np.asarray(power, np.float64), size=width, mode="nearest"))
+
+
+def find_peaks(
+    frequencies_hz: NDArray[np.float64],
+    power: NDArray[np.floating[Any]],
+    *,
+    band_hz: tuple[float, float],
+    min_prominence_db: float = 10.0,
+    max_peaks: int = 8,
+    harmonic_tolerance: float = 0.04,
+) -> list[Peak]:
+    """Peaks of a summed spectrum inside ``band_hz``, strongest first, harmonics folded in.
+
+    A peak at an integer multiple (2, 3, ...) of a stronger peak, within ``harmonic_tolerance`` relative
+    error (or one bin), is recorded as that peak's harmonic instead of a peak of its own.
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray of float64, shape (F,)
+    power : ndarray, shape (F,)
+    band_hz : (low, high)
+    min_prominence_db : float
+        Minimum height above the running-median noise floor.
+    max_peaks : int
+    harmonic_tolerance : float
+
+    Returns
+    -------
+    list of Peak
+    """
+    power = np.asarray(power, np.float64)
+    floor = noise_floor(power, width=max(15, len(power) // 3))
+    floor = np.maximum(floor, 1e-30)
+    bin_hz = float(frequencies_hz[1] - frequencies_hz[0]) if len(frequencies_hz) > 1 else 1.0
+    lo, hi = band_hz
+    padded = np.concatenate(([-np.inf], power, [-np.inf]))
+    idx = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
+    candidates: list[Peak] = []
+    for k in idx:
+        f = frequencies_hz[k]
+        if f < lo or f > hi:
+            continue
+        prom = 10 * math.log10(power[k] / floor[k])
+        if prom < min_prominence_db:
+            continue
+        fk = interpolate_peak(power, int(k)) * bin_hz
+        candidates.append(Peak(frequency_hz=fk, bin=int(k), power=float(power[k]), prominence_db=prom))
+    candidates.sort(key=lambda p: -p.power)
+    kept: list[Peak] = []
+    for peak in candidates:
+        parent = None
+        for base in kept:
+            ratio = peak.frequency_hz / base.frequency_hz
+            order = round(ratio)
+            if order >= 2 and abs(peak.frequency_hz - order * base.frequency_hz) <= max(
+                harmonic_tolerance * peak.frequency_hz, 1.01 * bin_hz
+            ):
+                parent = base
+                break
+        if parent is not None:
+            parent.harmonics_hz.append(peak.frequency_hz)
+        elif len(kept) < max_peaks:
+            kept.append(peak)
+    for peak in kept:
+        peak.harmonics_hz.sort()
+    return kept
+
+
+@dataclass(frozen=True)
+class RingdownFit:
+    """A damped oscillation fitted to a velocity signal.
+
+    The displacement model is x(t) = C + A exp(-σ t) cos(ω_d t + φ) for t >= 0 (t from the first sample of
+    the fit), and the signal is its per-frame difference v_k = x_{k+1} - x_k, as optical flow measures.
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Damped frequency f_d = ω_d / 2π.
+    natural_frequency_hz : float
+        Undamped f_n = sqrt(ω_d² + σ²) / 2π.
+    damping_ratio : float
+        ζ = σ / ω_n.
+    amplitude : float
+        A, in the signal's units integrated (pixels for flow in pixels/frame).
+    phase_rad : float
+        φ at the first sample.
+    decay_per_s : float
+        σ.
+    start_index : int
+        First sample of the fitted window.
+    frequency_sd_hz, damping_sd, amplitude_sd : float
+        Standard uncertainties from the fit's Jacobian and residual variance.
+    residual_rms : float
+    snr_db : float
+        Signal power over residual power, dB.
+    """
+
+    frequency_hz: float
+    natural_frequency_hz: float
+    damping_ratio: float
+    amplitude: float
+    phase_rad: float
+    decay_per_s: float
+    start_index: int
+    frequency_sd_hz: float
+    damping_sd: float
+    amplitude_sd: float
+    residual_rms: float
+    snr_db: float
+
+    def displacement(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Model displacement (without the constant offset) at times ``t_s`` from the fit start."""
+        w = 2 * math.pi * self.frequency_hz
+        return np.asarray(self.amplitude * np.exp(-self.decay_per_s * t_s) * np.cos(w * t_s + self.phase_rad))
+
+
+def _basis(omega: float, sigma: float, n: int) -> NDArray[np.float64]:
+    """Columns: per-frame differences of e^{-σk}cos(ωk) and e^{-σk}sin(ωk), k = 0..n."""
+    k = np.arange(n + 1, dtype=np.float64)
+    env = np.exp(-sigma * k)
+    c = env * np.cos(omega * k)
+    s = env * np.sin(omega * k)
+    return np.stack([np.diff(c), np.diff(s), np.ones(n)], axis=1)
+
+
+def _profile(
+    params: NDArray[np.float64], v: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    omega, sigma = float(params[0]), float(params[1])
+    basis = _basis(omega, sigma, len(v))
+    coef, *_ = np.linalg.lstsq(basis, v, rcond=None)
+    return v - basis @ coef, np.asarray(coef, np.float64)
+
+
+def _spectral_guess(v: NDArray[np.float64], f_guess_cycles: float | None) -> float:
+    """Angular frequency (rad/sample) of the strongest peak, zero-padded x16, parabolic refinement."""
+    n = len(v)
+    nfft = 1 << math.ceil(math.log2(max(16 * n, 64)))
+    spec = np.abs(np.fft.rfft(v - v.mean(), n=nfft)) ** 2
+    if f_guess_cycles is not None:
+        centre = f_guess_cycles * nfft
+        lo = max(1, int(centre - 1.5 * nfft / n))
+        hi = min(len(spec) - 1, int(centre + 1.5 * nfft / n) + 1)
+    else:
+        lo, hi = max(1, nfft // n), len(spec) - 1
+    k = lo + int(np.argmax(spec[lo:hi]))
+    return 2 * math.pi * interpolate_peak(spec, k) / nfft
+
+
+def fit_ringdown(
+    velocity: NDArray[np.floating[Any]],
+    *,
+    fps: float,
+    frequency_guess_hz: float | None = None,
+    start_index: int = 0,
+) -> RingdownFit:
+    """Fit a damped oscillation to a per-frame velocity signal.
+
+    Variable projection: the two nonlinear parameters (ω, σ) are optimised by least squares while the
+    amplitude, phase and a constant velocity offset are solved linearly at each step.
+
+    Parameters
+    ----------
+    velocity : ndarray, shape (N,)
+        Per-frame displacement differences (e.g. the flow of the object projected on its motion axis).
+    fps : float
+    frequency_guess_hz : float, optional
+        Start value (e.g. the summed spectrum's peak); found from the signal's own spectrum otherwise.
+    start_index : int
+        Samples before this are ignored (still frames before release).
+
+    Returns
+    -------
+    RingdownFit
+    """
+    v = np.asarray(velocity, np.float64)[start_index:]
+    n = len(v)
+    if n < 6:
+        from workers.pipeline.errors import AnalysisError
+
+        raise AnalysisError(f"only {n} moving frames after release; record at least 16 frames of motion")
+    guess = None if frequency_guess_hz is None else frequency_guess_hz / fps
+    omega0 = _spectral_guess(v, guess)
+    # Decay start value: from the envelope of the signal's two halves.
+    half = n // 2
+    e1 = np.sqrt(np.mean(v[:half] ** 2)) + 1e-12
+    e2 = np.sqrt(np.mean(v[half:] ** 2)) + 1e-12
+    sigma0 = max(1e-4, math.log(e1 / e2) / max(half, 1)) if e1 > e2 else 1e-3
+
+    def residual(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        return _profile(p, v)[0]
+
+    best = None
+    for s0 in (sigma0, sigma0 * 0.3, sigma0 * 3):
+        sol = optimize.least_squares(
+            residual,
+            x0=np.array([omega0, min(max(s0, 1e-5), 0.5)]),
+            bounds=([1e-4, 0.0], [math.pi, 1.0]),
+            method="trf",
+            x_scale=[omega0 * 0.01 + 1e-4, 0.01],
+        )
+        if best is None or sol.cost < best.cost:
+            best = sol
+    assert best is not None
+    omega, sigma = float(best.x[0]), float(best.x[1])
+    res, coef = _profile(best.x, v)
+    a_c, a_s = float(coef[0]), float(coef[1])
+    amplitude = math.hypot(a_c, a_s)
+    phase = math.atan2(-a_s, a_c)
+    dof = max(n - 5, 1)
+    s2 = float(res @ res) / dof
+    jac = best.jac
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * s2
+        omega_sd, sigma_sd = (math.sqrt(max(float(x), 0.0)) for x in np.diag(cov))
+    except np.linalg.LinAlgError:
+        omega_sd, sigma_sd = float("nan"), float("nan")
+    basis = _basis(omega, sigma, n)
+    try:
+        cov_lin = np.linalg.inv(basis.T @ basis) * s2
+        amp_sd = math.sqrt(max(float(cov_lin[0, 0] + cov_lin[1, 1]) / 2, 0.0))
+    except np.linalg.LinAlgError:
+        amp_sd = float("nan")
+    wn = math.hypot(omega, sigma)
+    zeta = sigma / wn
+    zeta_sd = sigma_sd / wn
+    signal_power = float(np.mean((v - res - coef[2]) ** 2))
+    snr_db = 10 * math.log10(max(signal_power, 1e-30) / max(s2, 1e-30))
+    return RingdownFit(
+        frequency_hz=omega * fps / (2 * math.pi),
+        natural_frequency_hz=wn * fps / (2 * math.pi),
+        damping_ratio=zeta,
+        amplitude=amplitude,
+        phase_rad=phase,
+        decay_per_s=sigma * fps,
+        start_index=start_index,
+        frequency_sd_hz=omega_sd * fps / (2 * math.pi),
+        damping_sd=zeta_sd,
+        amplitude_sd=amp_sd,
+        residual_rms=math.sqrt(s2),
+        snr_db=snr_db,
+    )
+
+
+ProgressFn = Callable[[float], None]
