@@ -36,5 +36,6 @@ class ClipInfoModel(BaseModel):
     duration_s: float | None = None
     dropped_frames: int = 0
     streams: list[str] = Field(default_factory=list, description="Streams or topics found in the file.")
+    filename: str | None = Field(default=None, description="Name of the uploaded file.")
     size_bytes: int
     created_at: datetime

@@ -1,0 +1,213 @@
+"""``eigenscope serve``: the HTTP API plus analysis workers, one command.
+
+With no ``EIGENSCOPE_REDIS_URL`` nothing else is needed: jobs go through an embedded broker and a SQLite
+job store in the data directory. With it set, ``eigenscope serve --no-worker`` runs the API alone and
+``eigenscope worker`` processes run anywhere that shares the data directory and the database.
+
+The command supervises its children (uvicorn, a Celery worker): a worker that dies is restarted, and
+SIGINT/SIGTERM stop them all.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+from typing import TYPE_CHECKING, Any
+
+from eigenscope.cli import UsageError
+
+if TYPE_CHECKING:
+    from service.settings import Settings
+
+
+def load_settings(**overrides: Any) -> Settings:
+    """Settings from the environment with non-None ``overrides``; bad values become a one-line error."""
+    from pydantic import ValidationError
+
+    from service.settings import Settings
+
+    values = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return Settings(**values)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(x) for x in first.get("loc", ()))
+        name = f"EIGENSCOPE_{where.upper()}" if where else "settings"
+        raise UsageError(f"{name}: {first.get('msg')}") from None
+
+
+def register(subparsers: Any) -> None:
+    parser: argparse.ArgumentParser = subparsers.add_parser(
+        "serve",
+        help="run the HTTP API and analysis workers",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=8000, help="port (default 8000; 0 is not allowed)")
+    parser.add_argument(
+        "--workers", type=int, default=1, help="analysis worker processes (default 1; each runs one job)"
+    )
+    parser.add_argument("--api-workers", type=int, default=1, help="uvicorn worker processes (default 1)")
+    parser.add_argument("--no-worker", action="store_true", help="run the API only (workers run elsewhere)")
+    parser.add_argument(
+        "--data-dir", default=None, help="data directory (default EIGENSCOPE_DATA_DIR or ./var)"
+    )
+    parser.add_argument("--log-level", default=None, help="log level (default EIGENSCOPE_LOG_LEVEL or INFO)")
+    parser.add_argument(
+        "--grace", type=float, default=10.0, help="seconds children get to stop before they are killed"
+    )
+    parser.set_defaults(handler=run)
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
+    """Ask Linux to SIGTERM this child when the supervisor dies, so no orphan outlives it."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+class Supervisor:
+    """Starts, watches and stops the API and worker processes."""
+
+    def __init__(self, env: dict[str, str], *, grace_s: float) -> None:
+        self.env = env
+        self.grace_s = grace_s
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.commands: dict[str, list[str]] = {}
+        self.restarts: dict[str, list[float]] = {}
+        self.stopping = False
+
+    def start(self, name: str, cmd: list[str]) -> None:
+        self.commands[name] = cmd
+        self.procs[name] = subprocess.Popen(cmd, env=self.env, preexec_fn=_die_with_parent)
+
+    def request_stop(self, signum: int, _frame: Any) -> None:
+        self.stopping = True
+
+    def watch(self, *, restartable: tuple[str, ...]) -> int:
+        """Block until a stop is requested or a non-restartable child exits; returns the exit status."""
+        while not self.stopping:
+            for name, proc in list(self.procs.items()):
+                code = proc.poll()
+                if code is None:
+                    continue
+                if name not in restartable:
+                    print(f"eigenscope serve: {name} exited with status {code}; stopping", file=sys.stderr)
+                    return code or 1
+                recent = [t for t in self.restarts.get(name, []) if time.monotonic() - t < 60]
+                if len(recent) >= 5:
+                    print(f"eigenscope serve: {name} keeps dying (status {code}); stopping", file=sys.stderr)
+                    return code or 1
+                print(f"eigenscope serve: {name} exited with status {code}; restarting it", file=sys.stderr)
+                self.restarts[name] = [*recent, time.monotonic()]
+                self.start(name, self.commands[name])
+            time.sleep(0.2)
+        return 0
+
+    def stop_all(self) -> None:
+        """SIGTERM every child, wait ``grace_s``, then SIGKILL the rest."""
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + self.grace_s
+        for proc in self.procs.values():
+            try:
+                proc.wait(timeout=max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=5)
+
+
+def wait_until_up(url: str, proc: subprocess.Popen[bytes], timeout_s: float = 60.0) -> bool:
+    """Poll ``url`` until it answers 200, the process dies, or the time runs out."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            return False
+        try:
+            with urllib.request.urlopen(url, timeout=1) as resp:
+                if resp.status == 200:
+                    return True
+        except OSError:
+            pass
+        time.sleep(0.1)
+    return False
+
+
+def run(args: argparse.Namespace) -> int:
+    if not 0 < args.port < 65536:
+        raise UsageError(f"--port={args.port} must be between 1 and 65535")
+    if args.workers < 1:
+        raise UsageError(f"--workers={args.workers} must be at least 1 (use --no-worker for none)")
+    if args.api_workers < 1:
+        raise UsageError(f"--api-workers={args.api_workers} must be at least 1")
+    settings = load_settings(data_dir=args.data_dir, log_level=args.log_level)
+
+    from service.storage import Storage
+    from service.store import Store
+    from workers.celery_app import broker_options
+
+    # Prepare the shared state once, before children race for it.
+    Storage(settings.data_path).ensure()
+    store = Store(settings.effective_database_url)
+    try:
+        store.create_schema()
+    except Exception as exc:
+        raise UsageError(f"cannot open the job store {settings.effective_database_url}: {exc}") from exc
+    finally:
+        store.dispose()
+    if settings.embedded:
+        broker_options(settings)
+
+    env = {**os.environ, **settings.child_environment()}
+    level = settings.log_level.lower()
+    supervisor = Supervisor(env, grace_s=args.grace)
+    signal.signal(signal.SIGTERM, supervisor.request_stop)
+    signal.signal(signal.SIGINT, supervisor.request_stop)
+    api_cmd = [
+        sys.executable,
+        "-m",
+        "uvicorn",
+        "--factory",
+        "service.app:create_app",
+        "--host",
+        args.host,
+        "--port",
+        str(args.port),
+        "--log-level",
+        level,
+        "--timeout-graceful-shutdown",
+        str(max(int(args.grace) - 2, 1)),
+    ]
+    if args.api_workers > 1:
+        api_cmd += ["--workers", str(args.api_workers)]
+    try:
+        supervisor.start("api", api_cmd)
+        if not args.no_worker:
+            worker_cmd = [sys.executable, "-m", "eigenscope", "worker", "--concurrency", str(args.workers)]
+            worker_cmd += ["--loglevel", settings.log_level]
+            supervisor.start("worker", worker_cmd)
+        host = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
+        base = f"http://{host}:{args.port}"
+        if wait_until_up(f"{base}/healthz", supervisor.procs["api"]):
+            mode = "embedded broker" if settings.embedded else "Redis broker"
+            workers = "no worker" if args.no_worker else f"{args.workers} worker(s)"
+            print(
+                f"eigenscope serving on {base} ({mode}, {workers}, data {settings.data_path}); "
+                f"API docs at {base}/docs",
+                file=sys.stderr,
+                flush=True,
+            )
+        return supervisor.watch(restartable=("worker",))
+    finally:
+        supervisor.stop_all()

@@ -1,0 +1,88 @@
+"""The FastAPI application factory: ``uvicorn --factory service.app:create_app``.
+
+The app reads its :class:`~service.settings.Settings` from the environment unless given some, keeps its
+state in a :class:`~service.context.ServiceContext` on ``app.state.ctx``, and never imports the analysis
+pipeline: jobs are published to the workers by task name.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request, Response
+from fastapi.routing import APIRoute
+
+from service.context import ServiceContext
+from service.openapi import install_openapi
+from service.problems import install_problem_handlers
+from service.routes import clips, health, jobs
+from service.settings import Settings
+
+#: Version of the HTTP API (the OpenAPI ``info.version``), independent of the package version.
+API_VERSION = "1.0.0"
+
+DESCRIPTION = (
+    "Eigenscope measures eigenfrequency, damping, stiffness and mass of objects from RGB-D clips. Upload a "
+    "clip, queue a job, poll it, fetch the result and its images. Every error is an RFC 9457 "
+    "`application/problem+json` document."
+)
+
+log = logging.getLogger(__name__)
+
+
+def _operation_id(route: APIRoute) -> str:
+    return route.name
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the API for ``settings`` (from the environment when None)."""
+    settings = settings if settings is not None else Settings()
+    ctx = ServiceContext.build(settings)
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        ctx.start()
+        log.info(
+            "eigenscope API ready: data %s, %s broker, store %s",
+            settings.data_path,
+            "embedded" if settings.embedded else "redis",
+            ctx.store.engine.url.render_as_string(hide_password=True),
+        )
+        try:
+            yield
+        finally:
+            ctx.stop()
+
+    app = FastAPI(
+        title="Eigenscope",
+        version=API_VERSION,
+        lifespan=lifespan,
+        generate_unique_id_function=_operation_id,
+    )
+    app.state.ctx = ctx
+    install_problem_handlers(app)
+    app.include_router(clips.router)
+    app.include_router(jobs.router)
+    app.include_router(health.router)
+    install_openapi(app, version=API_VERSION, description=DESCRIPTION)
+
+    @app.middleware("http")
+    async def record_metrics(
+        request: Request, call_next: Callable[[Request], Awaitable[Response]]
+    ) -> Response:
+        start = time.perf_counter()
+        status = 500
+        try:
+            response = await call_next(request)
+            status = response.status_code
+            return response
+        finally:
+            route = request.scope.get("route")
+            template = getattr(route, "path", None) or "unmatched"
+            ctx.metrics.requests.labels(request.method, template, str(status)).inc()
+            ctx.metrics.latency.labels(request.method, template).observe(time.perf_counter() - start)
+
+    return app

@@ -1,0 +1,116 @@
+"""Everything one API instance holds: settings, store, storage, queue, metrics and the recovery sweeper."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from service.metrics import Metrics
+from service.queue import JobQueue
+from service.settings import Settings
+from service.storage import Storage
+from service.store import Store
+
+log = logging.getLogger(__name__)
+
+#: Files of the embedded broker's "processed" folder and stale temp files older than this are removed.
+_CLEANUP_AGE_S = 3600.0
+
+
+def _remove_older_than(folder: Path, pattern: str, age_s: float) -> None:
+    cutoff = time.time() - age_s
+    if not folder.is_dir():
+        return
+    for path in folder.glob(pattern):
+        try:
+            if path.stat().st_mtime < cutoff:
+                if path.is_dir():
+                    import shutil
+
+                    shutil.rmtree(path, ignore_errors=True)
+                else:
+                    path.unlink(missing_ok=True)
+        except OSError:
+            continue
+
+
+@dataclass
+class ServiceContext:
+    """The state of one app instance (stored on ``app.state.ctx``)."""
+
+    settings: Settings
+    store: Store
+    storage: Storage
+    queue: JobQueue
+    metrics: Metrics
+    _stop: threading.Event = field(default_factory=threading.Event)
+    _sweeper: threading.Thread | None = None
+
+    @classmethod
+    def build(cls, settings: Settings) -> ServiceContext:
+        store = Store(
+            settings.effective_database_url, lease_s=settings.lease_s, max_attempts=settings.max_attempts
+        )
+        return cls(
+            settings=settings,
+            store=store,
+            storage=Storage(settings.data_path),
+            queue=JobQueue(settings),
+            metrics=Metrics(store),
+        )
+
+    def start(self) -> None:
+        """Create the storage tree and the tables, then start the sweeper thread."""
+        self.storage.ensure()
+        self.store.create_schema()
+        self._stop.clear()
+        self._sweeper = threading.Thread(target=self._sweep_loop, name="eigenscope-sweeper", daemon=True)
+        self._sweeper.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._sweeper is not None:
+            self._sweeper.join(timeout=10)
+            self._sweeper = None
+        self.queue.close()
+        self.store.dispose()
+
+    def publish(self, job_id: str) -> bool:
+        """Publish a job; on broker trouble leave it for the sweeper (returns False)."""
+        try:
+            self.queue.publish(job_id)
+            return True
+        except Exception:
+            log.warning("publishing job %s failed; the sweeper will retry", job_id, exc_info=True)
+            try:
+                self.store.mark_unpublished(job_id)
+            except Exception:
+                log.warning("could not flag job %s for republishing", job_id, exc_info=True)
+            return False
+
+    def sweep(self) -> list[str]:
+        """Requeue jobs of dead workers, republish lost messages, tidy temp files. Returns published ids."""
+        published = []
+        for job_id in self.store.recover_stale_jobs(requeue_after_s=self.settings.requeue_after_s):
+            if self.publish(job_id):
+                published.append(job_id)
+        if published:
+            log.info("sweeper: published %d job(s) again: %s", len(published), ", ".join(published))
+        _remove_older_than(self.settings.broker_dir / "processed", "*.msg", _CLEANUP_AGE_S)
+        _remove_older_than(self.storage.root / "tmp", "upload-*", 24 * _CLEANUP_AGE_S)
+        _remove_older_than(
+            self.storage.root / "tmp", "job-*", 2 * self.settings.task_hard_time_limit_s + _CLEANUP_AGE_S
+        )
+        return published
+
+    def _sweep_loop(self) -> None:
+        while True:
+            try:
+                self.sweep()
+            except Exception:
+                log.warning("sweeper pass failed", exc_info=True)
+            if self._stop.wait(self.settings.sweep_interval_s):
+                return

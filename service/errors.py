@@ -1,0 +1,106 @@
+"""Domain errors of the service, each with its HTTP status and RFC 9457 problem type.
+
+Routes and service functions raise these; one handler in :mod:`service.problems` turns them into
+``application/problem+json``. This module imports no web framework, so the workers can use it too.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+#: Problem types are ``PROBLEM_BASE + code``; the page need not exist (RFC 9457 allows opaque URIs).
+PROBLEM_BASE = "https://eigenscope.dev/problems/"
+
+
+class ServiceError(Exception):
+    """Base of every error the API reports as a problem document."""
+
+    status: ClassVar[int] = 500
+    title: ClassVar[str] = "Internal error"
+    code: ClassVar[str] = "internal-error"
+
+    def __init__(self, detail: str, *, code: str | None = None, **extra: Any) -> None:
+        super().__init__(detail)
+        self.detail = detail
+        if code is not None:
+            self.code = code  # type: ignore[misc]
+        self.extra = extra
+
+    @property
+    def type_uri(self) -> str:
+        return PROBLEM_BASE + self.code
+
+    def problem(self, instance: str | None = None) -> dict[str, Any]:
+        """The RFC 9457 document of this error."""
+        doc: dict[str, Any] = {
+            "type": self.type_uri,
+            "title": self.title,
+            "status": self.status,
+            "detail": self.detail,
+        }
+        if instance is not None:
+            doc["instance"] = instance
+        doc.update(self.extra)
+        return doc
+
+
+class NotFoundError(ServiceError):
+    status = 404
+    title = "Not found"
+    code = "not-found"
+
+
+class ConflictError(ServiceError):
+    status = 409
+    title = "Conflict"
+    code = "conflict"
+
+
+class PayloadTooLargeError(ServiceError):
+    status = 413
+    title = "Payload too large"
+    code = "clip-too-large"
+
+
+class UnsupportedMediaError(ServiceError):
+    status = 415
+    title = "Unsupported media type"
+    code = "unsupported-format"
+
+
+class InvalidInputError(ServiceError):
+    status = 422
+    title = "Unprocessable content"
+    code = "invalid-request"
+
+
+class InvalidClipError(InvalidInputError):
+    title = "Invalid clip"
+    code = "invalid-clip"
+
+
+class InsufficientStorageError(ServiceError):
+    status = 507
+    title = "Insufficient storage"
+    code = "insufficient-storage"
+
+
+class UnavailableError(ServiceError):
+    status = 503
+    title = "Service unavailable"
+    code = "unavailable"
+
+
+#: Codes of :mod:`workers.pipeline.errors` (and the probe) mapped to API errors.
+CLIP_ERROR_TYPES: dict[str, type[ServiceError]] = {
+    "invalid-clip": InvalidClipError,
+    "unsupported-format": UnsupportedMediaError,
+    "clip-too-large": PayloadTooLargeError,
+    "invalid-parameter": InvalidInputError,
+}
+
+
+def clip_error(code: str, detail: str) -> ServiceError:
+    """The API error for a clip loader failure with machine code ``code``."""
+    cls = CLIP_ERROR_TYPES.get(code, InvalidClipError)
+    return cls(detail, code=code if code in CLIP_ERROR_TYPES else "invalid-clip")

@@ -1,0 +1,158 @@
+"""Job creation, views and cancellation (the logic behind the ``/v1/jobs`` routes)."""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+from api_schemas import JobCreate, JobList, JobModel
+from service.context import ServiceContext
+from service.errors import InvalidInputError, NotFoundError
+from service.store import ClipRecord, JobRecord, dumps_canonical
+
+log = logging.getLogger(__name__)
+
+
+def artifact_url(job_id: str, name: str, *, root_path: str = "") -> str:
+    return f"{root_path}/v1/jobs/{job_id}/artifacts/{name}"
+
+
+def job_view(job: JobRecord, *, root_path: str = "") -> JobModel:
+    """The API representation of a job: artifacts in the result become URLs."""
+    result: dict[str, Any] | None = None
+    if job.result is not None:
+        result = dict(job.result)
+        artifacts = result.get("artifacts")
+        if isinstance(artifacts, dict):
+            result["artifacts"] = {
+                key: artifact_url(job.id, value, root_path=root_path) if isinstance(value, str) else value
+                for key, value in artifacts.items()
+            }
+    return JobModel.model_validate(
+        {
+            "id": job.id,
+            "clip_id": job.clip_id,
+            "status": job.status,
+            "progress": job.progress,
+            "stage": job.stage,
+            "attempts": job.attempts,
+            "excitation": job.excitation,
+            "parameters": job.parameters,
+            "created_at": job.created_at,
+            "started_at": job.started_at,
+            "finished_at": job.finished_at,
+            "error": job.error,
+            "result": result,
+        }
+    )
+
+
+def _invalid(loc: Sequence[str], msg: str) -> InvalidInputError:
+    return InvalidInputError(
+        f"{'.'.join(loc[1:])}: {msg}",
+        code="invalid-parameter",
+        errors=[{"loc": list(loc), "msg": msg, "type": "value_error"}],
+    )
+
+
+def check_against_clip(body: JobCreate, clip: ClipRecord) -> None:
+    """Reject parameters that cannot work with this clip, before a worker spends time on it."""
+    p = body.parameters
+    info = clip.info
+    frames = int(info.get("frames") or 0)
+    fps = p.fps if p.fps is not None else info.get("fps")
+    if fps is None:
+        raise _invalid(
+            ("body", "parameters", "fps"),
+            f"clip {clip.id} carries no frame rate; give the recording rate in parameters.fps (Hz)",
+        )
+    lo, hi = p.min_frequency_hz, p.max_frequency_hz
+    if lo is not None and hi is not None and lo >= hi:
+        raise _invalid(
+            ("body", "parameters", "max_frequency_hz"),
+            f"max_frequency_hz={hi} must exceed min_frequency_hz={lo}",
+        )
+    if p.min_frequency_hz is not None and p.min_frequency_hz >= float(fps) / 2:
+        raise _invalid(
+            ("body", "parameters", "min_frequency_hz"),
+            f"min_frequency_hz={p.min_frequency_hz} is at or above the Nyquist frequency "
+            f"{float(fps) / 2:g} Hz of a {float(fps):g} fps clip",
+        )
+    start = p.start_frame or 0
+    if frames and start >= frames:
+        raise _invalid(
+            ("body", "parameters", "start_frame"), f"start_frame={start} is past the clip's {frames} frames"
+        )
+    if frames and p.frames is not None and start + p.frames > frames:
+        raise _invalid(
+            ("body", "parameters", "frames"),
+            f"a window of {p.frames} frames from frame {start} does not fit the clip's {frames} frames",
+        )
+
+
+def request_hash(body: JobCreate) -> str:
+    return hashlib.sha256(dumps_canonical(body.model_dump(mode="json")).encode()).hexdigest()
+
+
+def create_job(
+    ctx: ServiceContext, body: JobCreate, *, idempotency_key: str | None
+) -> tuple[JobRecord, bool]:
+    """Validate against the clip, insert the job and publish it. Returns ``(job, created)``."""
+    digest = request_hash(body)
+    if idempotency_key is not None:
+        existing = ctx.store.job_by_idempotency_key(idempotency_key, digest)
+        if existing is not None:
+            return existing, False
+    clip = ctx.store.find_clip(body.clip_id)
+    if clip is None:
+        raise InvalidInputError(
+            f"clip {body.clip_id!r} does not exist (never uploaded, or deleted); "
+            "upload it with POST /v1/clips and use the returned id",
+            code="clip-not-found",
+            errors=[{"loc": ["body", "clip_id"], "msg": "no such clip", "type": "value_error"}],
+        )
+    check_against_clip(body, clip)
+    job, created = ctx.store.create_job(
+        clip_id=body.clip_id,
+        excitation=body.excitation.model_dump(mode="json") if body.excitation is not None else None,
+        parameters=body.parameters.model_dump(mode="json", exclude_none=True),
+        idempotency_key=idempotency_key,
+        request_hash=digest,
+    )
+    if created:
+        ctx.metrics.jobs_created.inc()
+        ctx.publish(job.id)
+        log.info("job %s: queued for clip %s", job.id, job.clip_id)
+    return job, created
+
+
+def list_jobs(
+    ctx: ServiceContext,
+    *,
+    statuses: Sequence[str],
+    clip_id: str | None,
+    limit: int,
+    cursor: str | None,
+    root_path: str = "",
+) -> JobList:
+    jobs, next_cursor = ctx.store.list_jobs(statuses=statuses, clip_id=clip_id, limit=limit, cursor=cursor)
+    return JobList(items=[job_view(j, root_path=root_path) for j in jobs], next_cursor=next_cursor)
+
+
+def artifact_file(ctx: ServiceContext, job_id: str, name: str) -> Any:
+    """The path of a finished job's artifact (only names the result lists, plus ``result.json``)."""
+    job = ctx.store.get_job(job_id)
+    if job.status != "succeeded" or job.result is None:
+        raise NotFoundError(
+            f"job {job_id} is {job.status}; artifacts exist once it has succeeded", code="artifact-not-found"
+        )
+    artifacts = job.result.get("artifacts") or {}
+    names = {v for v in artifacts.values() if isinstance(v, str)} | {"result.json"}
+    if name not in names:
+        raise NotFoundError(
+            f"job {job_id} has no artifact {name!r}; it has {', '.join(sorted(names))}",
+            code="artifact-not-found",
+        )
+    return ctx.storage.artifact_path(job_id, name)

@@ -1,0 +1,73 @@
+"""Validate an uploaded clip by running :mod:`workers.probe` in a sandboxed child process.
+
+The API process never imports the clip readers; a crash, hang or memory blow-up on a hostile file stays
+in the child, which runs under resource limits and a wall-clock timeout.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from service.errors import InvalidClipError, ServiceError, clip_error
+
+log = logging.getLogger(__name__)
+
+_PASS_ENV = ("PATH", "PYTHONPATH", "HOME", "LANG", "LC_ALL", "TMPDIR", "VIRTUAL_ENV")
+
+
+def probe_clip(path: Path, *, timeout_s: float, memory_mb: int) -> dict[str, Any]:
+    """Describe the clip at ``path`` (see :func:`workers.probe.probe`), or raise the matching API error.
+
+    Raises
+    ------
+    ServiceError
+        422 for a malformed clip or a probe that ran out of time, 415 for an unknown format, 413 for a
+        clip over the readers' caps.
+    """
+    env = {k: v for k, v in os.environ.items() if k in _PASS_ENV}
+    env.update({"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+    cmd = [
+        sys.executable,
+        "-m",
+        "workers.probe",
+        str(path),
+        "--memory-mb",
+        str(memory_mb),
+        "--cpu-s",
+        str(int(timeout_s) + 1),
+    ]
+    try:
+        proc = subprocess.run(
+            cmd, capture_output=True, timeout=timeout_s, env=env, stdin=subprocess.DEVNULL, check=False
+        )
+    except subprocess.TimeoutExpired:
+        raise InvalidClipError(
+            f"the clip could not be validated within {timeout_s:g} s; it is malformed or far too large",
+            code="probe-timeout",
+        ) from None
+    lines = proc.stdout.decode(errors="replace").strip().splitlines()
+    try:
+        doc = json.loads(lines[-1]) if lines else None
+    except json.JSONDecodeError:
+        doc = None
+    if proc.returncode == 0 and isinstance(doc, dict) and "format" in doc:
+        return doc
+    if isinstance(doc, dict) and "code" in doc:
+        if doc["code"] == "probe-failed":
+            raise ServiceError(f"clip validation failed: {doc.get('detail')}", code="probe-failed")
+        raise clip_error(str(doc["code"]), str(doc.get("detail") or "the clip is not valid"))
+    stderr = proc.stderr.decode(errors="replace").strip()
+    log.warning("probe of %s exited %s without a verdict: %s", path, proc.returncode, stderr[-2000:])
+    if proc.returncode < 0:
+        raise InvalidClipError(
+            f"reading the clip crashed the validator (signal {-proc.returncode}); the file is malformed "
+            "or exceeds the validator's memory/CPU limits",
+            code="invalid-clip",
+        )
+    raise ServiceError("clip validation failed unexpectedly; see the server log", code="probe-failed")

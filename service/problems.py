@@ -1,0 +1,105 @@
+"""One place that turns every error into RFC 9457 ``application/problem+json``."""
+
+from __future__ import annotations
+
+import logging
+from http import HTTPStatus
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from service.errors import PROBLEM_BASE, ServiceError
+
+log = logging.getLogger(__name__)
+
+PROBLEM_MEDIA_TYPE = "application/problem+json"
+
+
+class ProblemResponse(JSONResponse):
+    media_type = PROBLEM_MEDIA_TYPE
+
+
+def _phrase(status: int) -> str:
+    try:
+        return HTTPStatus(status).phrase
+    except ValueError:
+        return "Error"
+
+
+def problem_response(doc: dict[str, Any], headers: dict[str, str] | None = None) -> ProblemResponse:
+    return ProblemResponse(doc, status_code=int(doc["status"]), headers=headers)
+
+
+def _validation_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
+    errors = []
+    for err in exc.errors():
+        item: dict[str, Any] = {
+            "loc": [str(x) if not isinstance(x, int) else x for x in err.get("loc", ())],
+            "msg": str(err.get("msg", "")),
+            "type": str(err.get("type", "")),
+        }
+        errors.append(item)
+    return errors
+
+
+async def _service_error(request: Request, exc: Exception) -> ProblemResponse:
+    assert isinstance(exc, ServiceError)
+    if exc.status >= 500:
+        log.error("%s %s: %s", request.method, request.url.path, exc.detail)
+    headers = {"Retry-After": "5"} if exc.status == 503 else None
+    return problem_response(exc.problem(instance=request.url.path), headers)
+
+
+async def _validation_error(request: Request, exc: Exception) -> ProblemResponse:
+    assert isinstance(exc, RequestValidationError)
+    errors = _validation_errors(exc)
+    parts = [f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in errors[:5]]
+    doc = {
+        "type": PROBLEM_BASE + "invalid-request",
+        "title": "Unprocessable content",
+        "status": 422,
+        "detail": "; ".join(parts) or "the request is not valid",
+        "instance": request.url.path,
+        "errors": errors,
+    }
+    return problem_response(doc)
+
+
+async def _http_error(request: Request, exc: Exception) -> ProblemResponse:
+    assert isinstance(exc, StarletteHTTPException)
+    detail = exc.detail if isinstance(exc.detail, str) else None
+    if exc.status_code == 404 and detail == "Not Found":
+        detail = f"no such resource: {request.method} {request.url.path}"
+    if exc.status_code == 405:
+        detail = f"{request.method} is not allowed on {request.url.path}"
+    doc = {
+        "type": "about:blank",
+        "title": _phrase(exc.status_code),
+        "status": exc.status_code,
+        "detail": detail,
+        "instance": request.url.path,
+    }
+    return problem_response(doc, dict(exc.headers) if exc.headers else None)
+
+
+async def _unexpected_error(request: Request, exc: Exception) -> ProblemResponse:
+    log.exception("%s %s failed", request.method, request.url.path, exc_info=exc)
+    doc = {
+        "type": PROBLEM_BASE + "internal-error",
+        "title": "Internal error",
+        "status": 500,
+        "detail": "the server failed to handle this request; the error is in the server log",
+        "instance": request.url.path,
+    }
+    return problem_response(doc)
+
+
+def install_problem_handlers(app: FastAPI) -> None:
+    """Register the handlers: domain errors, validation errors, HTTP errors and anything unexpected."""
+    app.add_exception_handler(ServiceError, _service_error)
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(StarletteHTTPException, _http_error)
+    app.add_exception_handler(Exception, _unexpected_error)

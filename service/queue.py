@@ -1,0 +1,54 @@
+"""Publishing jobs to the workers, by task name only (the API never imports the task code)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any
+
+from service.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+class JobQueue:
+    """Publishes ``run_job`` messages through a Celery app built from the settings (created lazily)."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self._app: Any = None
+        self._lock = threading.Lock()
+
+    @property
+    def app(self) -> Any:
+        with self._lock:
+            if self._app is None:
+                from workers.celery_app import create_celery
+
+                self._app = create_celery(self.settings)
+            return self._app
+
+    def publish(self, job_id: str) -> None:
+        """Send ``run_job(job_id)``; raises if the broker cannot take it."""
+        from workers.celery_app import TASK_RUN_JOB
+
+        self.app.send_task(TASK_RUN_JOB, args=[job_id], queue=self.settings.queue, ignore_result=True)
+
+    def ping(self) -> None:
+        """Raise unless the broker is reachable."""
+        if self.settings.embedded:
+            folder = self.settings.broker_dir / "queue"
+            if not folder.is_dir():
+                raise OSError(f"embedded broker folder {folder} is missing")
+            return
+        with self.app.connection_for_write() as conn:
+            conn.ensure_connection(max_retries=1, timeout=3)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._app is not None:
+                try:
+                    self._app.close()
+                except Exception:  # pragma: no cover - shutdown best effort
+                    log.debug("closing the Celery app failed", exc_info=True)
+                self._app = None

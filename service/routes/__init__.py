@@ -1,0 +1,1 @@
+"""HTTP routes: thin adapters from requests to :mod:`service.clips` and :mod:`service.jobs`."""

@@ -1,0 +1,57 @@
+"""``/v1/clips``: upload, inspect and delete clips."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Request, Response
+from starlette.concurrency import run_in_threadpool
+
+from api_schemas import ClipInfoModel
+from service import clips
+from service.deps import ContextDep
+from service.openapi import UPLOAD_REQUEST_BODY, problem_responses
+
+router = APIRouter(prefix="/v1/clips", tags=["clips"])
+
+ClipId = Annotated[str, Path(min_length=1, max_length=64, description="Clip id from `create_clip`.")]
+
+
+@router.post(
+    "",
+    name="create_clip",
+    status_code=201,
+    summary="Upload a clip",
+    description=(
+        "Upload a clip as multipart/form-data, field `file`. The body is streamed to storage and the clip is "
+        "validated before the response: 413 over the size cap, 415 for a format Eigenscope does not read, "
+        "422 with the reader's message for a malformed clip."
+    ),
+    responses={
+        **problem_responses(413, 415, 422, 507),
+        201: {"headers": {"Location": {"description": "URL of the clip", "schema": {"type": "string"}}}},
+    },
+    openapi_extra=UPLOAD_REQUEST_BODY,
+)
+async def create_clip(request: Request, response: Response, ctx: ContextDep) -> ClipInfoModel:
+    clip = await clips.upload_clip(ctx, request)
+    response.headers["Location"] = f"{request.scope.get('root_path', '')}/v1/clips/{clip.id}"
+    return clip
+
+
+@router.get("/{clip_id}", name="get_clip", summary="Describe a clip", responses=problem_responses(404))
+def get_clip(clip_id: ClipId, ctx: ContextDep) -> ClipInfoModel:
+    return clips.clip_view(ctx.store.get_clip(clip_id))
+
+
+@router.delete(
+    "/{clip_id}",
+    name="delete_clip",
+    status_code=204,
+    summary="Delete a clip",
+    description="Delete the clip file. Refused (409) while a queued or running job uses it.",
+    responses=problem_responses(404, 409),
+)
+async def delete_clip(clip_id: ClipId, ctx: ContextDep) -> Response:
+    await run_in_threadpool(clips.delete_clip, ctx, clip_id)
+    return Response(status_code=204)

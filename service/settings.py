@@ -1,0 +1,123 @@
+"""Service configuration from the environment (prefix ``EIGENSCOPE_``).
+
+With nothing set, everything runs on this machine with no external server: the job store is a SQLite
+file and the Celery broker is kombu's filesystem transport, both inside ``DATA_DIR``. Set
+``EIGENSCOPE_REDIS_URL`` to scale workers out over Redis and ``EIGENSCOPE_DATABASE_URL`` to keep jobs in
+PostgreSQL.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Self
+
+from pydantic import Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+#: Name of the Celery queue every analysis job goes to.
+DEFAULT_QUEUE = "eigenscope"
+
+
+class Settings(BaseSettings):
+    """Every knob of the service and its workers; see the field descriptions."""
+
+    model_config = SettingsConfigDict(env_prefix="EIGENSCOPE_", extra="ignore", frozen=True)
+
+    redis_url: str | None = Field(
+        default=None,
+        description="Celery broker, e.g. redis://host:6379/0. Unset: embedded broker in DATA_DIR.",
+    )
+    database_url: str | None = Field(
+        default=None,
+        description="SQLAlchemy URL of the job store. Unset: SQLite file DATA_DIR/eigenscope.db.",
+    )
+    data_dir: Path = Field(default=Path("var"), description="Clips, artifacts and the embedded broker.")
+    max_upload_mb: int = Field(default=2048, ge=1, description="Largest accepted upload, MiB.")
+    queue: str = Field(default=DEFAULT_QUEUE, min_length=1)
+
+    broker_polling_interval_s: float = Field(default=0.1, gt=0, le=10)
+    task_soft_time_limit_s: float = Field(default=1800, gt=0)
+    task_hard_time_limit_s: float = Field(default=1900, gt=0)
+    visibility_timeout_s: float | None = Field(
+        default=None, description="Redis visibility timeout; default: hard time limit + 10 min."
+    )
+    max_attempts: int = Field(default=3, ge=1, le=20, description="Runs of one job before it fails.")
+    lease_s: float = Field(default=30, ge=2, description="A running job's lease; renewed every lease_s/3.")
+    progress_interval_s: float = Field(default=0.25, ge=0, description="Least time between progress writes.")
+    requeue_after_s: float = Field(
+        default=3600, gt=0, description="Queued jobs this old are published again (lost-message insurance)."
+    )
+    sweep_interval_s: float = Field(default=5, gt=0, description="How often the API recovers stale jobs.")
+
+    probe_timeout_s: float = Field(default=120, gt=0, description="Upload validation time limit.")
+    probe_memory_mb: int = Field(default=4096, ge=256, description="Address-space cap of the probe.")
+
+    retry_after_s: int = Field(default=1, ge=1, description="Suggested polling interval for clients.")
+    log_level: str = Field(default="INFO")
+
+    @field_validator("redis_url", "database_url", mode="before")
+    @classmethod
+    def _blank_is_unset(cls, value: Any) -> Any:
+        if isinstance(value, str) and not value.strip():
+            return None
+        return value
+
+    @model_validator(mode="after")
+    def _check_limits(self) -> Self:
+        if self.task_hard_time_limit_s <= self.task_soft_time_limit_s:
+            raise ValueError(
+                f"EIGENSCOPE_TASK_HARD_TIME_LIMIT_S={self.task_hard_time_limit_s} must exceed "
+                f"EIGENSCOPE_TASK_SOFT_TIME_LIMIT_S={self.task_soft_time_limit_s}"
+            )
+        if self.visibility_timeout_s is not None and self.visibility_timeout_s <= self.task_hard_time_limit_s:
+            raise ValueError(
+                f"EIGENSCOPE_VISIBILITY_TIMEOUT_S={self.visibility_timeout_s} must exceed the hard time "
+                f"limit {self.task_hard_time_limit_s}, or a long job would be delivered twice"
+            )
+        return self
+
+    # Derived values ---------------------------------------------------------------------------
+
+    @property
+    def embedded(self) -> bool:
+        """True when no broker server is configured (filesystem transport in the data directory)."""
+        return self.redis_url is None
+
+    @property
+    def data_path(self) -> Path:
+        """The data directory as an absolute path."""
+        return self.data_dir.expanduser().resolve()
+
+    @property
+    def effective_database_url(self) -> str:
+        """The job store's SQLAlchemy URL."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{self.data_path / 'eigenscope.db'}"
+
+    @property
+    def effective_visibility_timeout_s(self) -> float:
+        """Redis visibility timeout, always above the hard time limit."""
+        if self.visibility_timeout_s is not None:
+            return self.visibility_timeout_s
+        return self.task_hard_time_limit_s + 600
+
+    @property
+    def max_upload_bytes(self) -> int:
+        return self.max_upload_mb * 1024 * 1024
+
+    @property
+    def broker_dir(self) -> Path:
+        """Folders of the embedded filesystem broker."""
+        return self.data_path / "broker"
+
+    def child_environment(self) -> dict[str, str]:
+        """These settings as ``EIGENSCOPE_*`` variables, for processes started on this machine."""
+        env: dict[str, str] = {}
+        for name, value in self.model_dump().items():
+            if value is None:
+                continue
+            if name == "data_dir":
+                value = self.data_path
+            env[f"EIGENSCOPE_{name.upper()}"] = str(value)
+        return env

@@ -1,0 +1,248 @@
+"""One delivery of a ``run_job`` message: claim the job, run the analysis, record the outcome.
+
+This is the logic behind :func:`workers.tasks.run_job`, kept free of Celery's task machinery so it can be
+tested with a real store and a stand-in runner. The job row is the source of truth:
+
+- the job is *claimed* first (lease + attempt count); a delivery that finds the job finished drops the
+  message, one that finds a live lease held by another worker asks to be retried after it expires;
+- a heartbeat thread renews the lease while the analysis runs; progress is written at most every
+  ``progress_interval_s`` (and on every stage change);
+- a progress write that no longer lands (the job was cancelled or taken over) aborts the analysis;
+- outputs are written to a fresh directory and renamed into place, so a re-run never mixes files;
+- domain errors fail the job with a problem document; unexpected errors give the job back to the queue
+  until ``max_attempts`` is reached.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from pydantic import TypeAdapter, ValidationError
+
+from api_schemas import (
+    AnalysisParameters,
+    AnalysisResult,
+    Excitation,
+    ImpulseExcitation,
+    StepReleaseExcitation,
+)
+from service.errors import PROBLEM_BASE
+from service.store import ClaimOutcome, Store, lease_owner_token
+
+log = logging.getLogger(__name__)
+
+ProgressCallback = Callable[[str, float], None]
+
+_EXCITATION: TypeAdapter[StepReleaseExcitation | ImpulseExcitation] = TypeAdapter(Excitation)
+
+#: HTTP-ish status recorded in a failed job's problem, by domain error code.
+_ERROR_STATUS = {"unsupported-format": 415, "clip-too-large": 413}
+_ERROR_TITLE = {
+    "invalid-clip": "Invalid clip",
+    "unsupported-format": "Unsupported clip format",
+    "clip-too-large": "Clip too large",
+    "invalid-parameter": "Invalid parameter",
+    "analysis-failed": "Analysis failed",
+}
+
+
+class Runner(Protocol):
+    """The signature of :func:`workers.runner.run_analysis`."""
+
+    def __call__(
+        self,
+        clip_path: str | Path,
+        out_dir: str | Path,
+        *,
+        excitation: StepReleaseExcitation | ImpulseExcitation | None = ...,
+        parameters: AnalysisParameters | None = ...,
+        progress: ProgressCallback | None = ...,
+    ) -> AnalysisResult: ...
+
+
+class JobAbortedError(Exception):
+    """The job is no longer ours (cancelled or taken over): stop without writing anything."""
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    """What the task does with the message: drop it (``retry_in_s`` None) or retry after a delay."""
+
+    status: str
+    retry_in_s: float | None = None
+
+
+def problem(code: str, title: str, status: int, detail: str) -> dict[str, Any]:
+    return {"type": PROBLEM_BASE + code, "title": title, "status": status, "detail": detail, "code": code}
+
+
+class _Lease:
+    """Renews the job's lease in a background thread; remembers if it was lost."""
+
+    def __init__(self, store: Store, job_id: str, owner: str) -> None:
+        self.store, self.job_id, self.owner = store, job_id, owner
+        self.lost = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"lease-{job_id[:8]}", daemon=True)
+
+    def __enter__(self) -> _Lease:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+    def _run(self) -> None:
+        interval = max(self.store.lease_s / 3.0, 0.5)
+        while not self._stop.wait(interval):
+            try:
+                if not self.store.renew_lease(self.job_id, self.owner):
+                    self.lost.set()
+                    return
+            except Exception:  # the database blinked: try again; the lease outlives a few misses
+                log.warning("job %s: lease renewal failed", self.job_id, exc_info=True)
+
+
+class _Progress:
+    """The ``progress(stage, fraction)`` callback: throttled writes; raises :class:`JobAbortedError`."""
+
+    def __init__(self, store: Store, job_id: str, owner: str, lease: _Lease, interval_s: float) -> None:
+        self.store, self.job_id, self.owner, self.lease = store, job_id, owner, lease
+        self.interval_s = interval_s
+        self._last_write = 0.0
+        self._last_stage: str | None = None
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        if self.lease.lost.is_set():
+            raise JobAbortedError(self.job_id)
+        now = time.monotonic()
+        if stage == self._last_stage and now - self._last_write < self.interval_s:
+            return
+        self._last_write, self._last_stage = now, stage
+        if not self.store.report_progress(self.job_id, self.owner, stage, fraction):
+            self.lease.lost.set()
+            raise JobAbortedError(self.job_id)
+
+
+def execute_job(
+    store: Store,
+    storage_root: Path,
+    job_id: str,
+    *,
+    runner: Runner,
+    progress_interval_s: float = 0.25,
+    soft_time_limit_s: float | None = None,
+    timeout_errors: tuple[type[BaseException], ...] = (),
+) -> Outcome:
+    """Run one delivery of job ``job_id``; see the module docstring.
+
+    Parameters
+    ----------
+    store : Store
+    storage_root : Path
+        The data directory (``clips/``, ``jobs/``, ``tmp/``).
+    runner : callable
+        :func:`workers.runner.run_analysis` or a stand-in with its signature.
+    timeout_errors : tuple of exception types
+        Raised into the runner when the soft time limit strikes (Celery's ``SoftTimeLimitExceeded``).
+    """
+    from service.storage import Storage
+
+    storage = Storage(storage_root)
+    owner = lease_owner_token()
+    claim = store.claim_job(job_id, owner)
+    if claim.outcome is ClaimOutcome.BUSY:
+        log.info("job %s is held by another worker; retrying in %.1f s", job_id, claim.retry_in_s)
+        return Outcome("busy", retry_in_s=claim.retry_in_s)
+    if claim.outcome is not ClaimOutcome.CLAIMED:
+        log.info("job %s: %s, message dropped", job_id, claim.outcome.value)
+        return Outcome(claim.outcome.value)
+    job = claim.job
+    assert job is not None
+
+    def fail(p: dict[str, Any]) -> Outcome:
+        store.fail_job(job_id, owner, p)
+        return Outcome("failed")
+
+    clip = store.find_clip(job.clip_id)
+    clip_path = storage.clip_path(clip.path) if clip is not None else None
+    if clip_path is None or not clip_path.is_file():
+        return fail(
+            problem(
+                "clip-gone",
+                "Clip gone",
+                410,
+                f"clip {job.clip_id} was deleted before the job ran; upload it again and create a new job",
+            )
+        )
+    try:
+        excitation = _EXCITATION.validate_python(job.excitation) if job.excitation is not None else None
+        parameters = AnalysisParameters.model_validate(job.parameters)
+    except ValidationError as exc:
+        return fail(problem("invalid-parameter", "Invalid parameter", 422, f"stored job is invalid: {exc}"))
+
+    workdir = storage.new_job_workdir(job_id, job.attempts)
+    try:
+        with _Lease(store, job_id, owner) as lease:
+            callback = _Progress(store, job_id, owner, lease, progress_interval_s)
+            try:
+                callback("starting", 0.0)
+                result = runner(
+                    clip_path, workdir, excitation=excitation, parameters=parameters, progress=callback
+                )
+                if lease.lost.is_set() or not store.renew_lease(job_id, owner):
+                    raise JobAbortedError(job_id)
+                storage.publish_job_outputs(job_id, workdir)
+                if not store.complete_job(job_id, owner, result.model_dump(mode="json")):
+                    log.info("job %s was cancelled as it finished", job_id)
+                return Outcome("succeeded")
+            except JobAbortedError:
+                log.info("job %s: cancelled or taken over; stopped", job_id)
+                return Outcome("aborted")
+            except timeout_errors:
+                return fail(
+                    problem(
+                        "time-limit",
+                        "Time limit exceeded",
+                        500,
+                        f"the analysis ran longer than the limit of {soft_time_limit_s or 0:g} s; analyse a "
+                        "shorter window (parameters.frames) or ask the operator to raise "
+                        "EIGENSCOPE_TASK_SOFT_TIME_LIMIT_S",
+                    )
+                )
+            except Exception as exc:
+                code = getattr(exc, "code", None)
+                if _is_domain_error(exc) and isinstance(code, str):
+                    status = _ERROR_STATUS.get(code, 422)
+                    return fail(problem(code, _ERROR_TITLE.get(code, "Analysis failed"), status, str(exc)))
+                log.exception("job %s: attempt %d crashed", job_id, job.attempts)
+                if job.attempts < store.max_attempts:
+                    store.release_job(job_id, owner)
+                    return Outcome("retry", retry_in_s=float(2**job.attempts))
+                return fail(
+                    problem(
+                        "internal-error",
+                        "Internal error",
+                        500,
+                        f"the analysis crashed {job.attempts} time(s); last error: "
+                        f"{type(exc).__name__}: {exc}",
+                    )
+                )
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _is_domain_error(exc: BaseException) -> bool:
+    """True for :class:`workers.pipeline.errors.EigenscopeError` (looked up without importing it here)."""
+    return any(
+        cls.__module__ == "workers.pipeline.errors" and cls.__name__ == "EigenscopeError"
+        for cls in type(exc).__mro__
+    )

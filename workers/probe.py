@@ -1,0 +1,120 @@
+"""Validate a clip in a short-lived, resource-limited process: ``python -m workers.probe PATH``.
+
+The API never opens clips itself (it must not load the readers' native libraries, and a hostile file
+must not take the API down): it runs this module with a timeout. On success it prints the clip's
+:class:`~workers.pipeline.clipio.ClipInfo` as one JSON object and exits 0; on failure it prints
+``{"code": ..., "detail": ...}`` and exits 3 (the clip is bad) or 4 (the probe itself failed).
+
+Resource limits (address space, CPU seconds, file size) are applied before anything heavy is imported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+from typing import Any
+
+EXIT_BAD_CLIP = 3
+EXIT_PROBE_FAILED = 4
+
+
+def _limit(which: int, value: int) -> None:
+    _soft, hard = resource.getrlimit(which)
+    if hard != resource.RLIM_INFINITY:
+        value = min(value, hard)
+    resource.setrlimit(which, (value, hard if hard != resource.RLIM_INFINITY else value))
+
+
+def apply_limits(*, memory_mb: int | None, cpu_s: int | None) -> None:
+    """Cap this process: address space (MiB), CPU time (s), no file larger than 16 MiB, 256 open files."""
+    if memory_mb:
+        _limit(resource.RLIMIT_AS, memory_mb * 1024 * 1024)
+    if cpu_s:
+        _limit(resource.RLIMIT_CPU, cpu_s)
+    _limit(resource.RLIMIT_FSIZE, 16 * 1024 * 1024)
+    _limit(resource.RLIMIT_NOFILE, 256)
+    _limit(resource.RLIMIT_CORE, 0)
+
+
+def _emit(doc: dict[str, Any]) -> None:
+    sys.stdout.write(json.dumps(doc) + "\n")
+    sys.stdout.flush()
+
+
+def probe(path: str, args: argparse.Namespace) -> dict[str, Any]:
+    """Open the clip, read its first frame and describe it as a JSON-able dict."""
+    from workers.pipeline.clipio import ClipOverrides, ReadLimits, open_clip
+
+    overrides = ClipOverrides(
+        fps=args.fps, fx=args.fx, fy=args.fy, cx=args.cx, cy=args.cy, depth_scale=args.depth_scale
+    )
+    limits = ReadLimits(max_frames=args.max_frames) if args.max_frames else ReadLimits()
+    with open_clip(path, overrides=overrides, limits=limits) as reader:
+        info = reader.info
+        for _frame in reader.frames(0, 1):
+            break
+    k = info.intrinsics
+    return {
+        "format": info.format,
+        "frames": int(info.frames),
+        "width": int(info.width),
+        "height": int(info.height),
+        "fps": info.fps,
+        "fps_source": info.fps_source,
+        "has_depth": bool(info.has_depth),
+        "depth_scale": info.depth_scale,
+        "intrinsics": None if k is None else {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy},
+        "duration_s": info.duration_s,
+        "dropped_frames": int(info.dropped_frames),
+        "streams": [str(s) for s in info.streams],
+    }
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m workers.probe", description=__doc__.splitlines()[0])
+    parser.add_argument("path")
+    for name in ("fps", "fx", "fy", "cx", "cy"):
+        parser.add_argument(f"--{name}", type=float, default=None)
+    parser.add_argument("--depth-scale", type=float, default=None)
+    parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--memory-mb", type=int, default=None, help="address-space cap, MiB")
+    parser.add_argument("--cpu-s", type=int, default=None, help="CPU time cap, seconds")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    apply_limits(memory_mb=args.memory_mb, cpu_s=args.cpu_s)
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    try:
+        from workers.pipeline.errors import EigenscopeError
+    except MemoryError:
+        _emit({"code": "probe-failed", "detail": "the probe's memory cap is too small to start"})
+        return EXIT_PROBE_FAILED
+    try:
+        info = probe(args.path, args)
+    except EigenscopeError as exc:
+        _emit({"code": exc.code, "detail": str(exc)})
+        return EXIT_BAD_CLIP
+    except MemoryError:
+        _emit(
+            {
+                "code": "clip-too-large",
+                "detail": f"reading the clip's header needed more than {args.memory_mb} MiB of memory",
+            }
+        )
+        return EXIT_BAD_CLIP
+    except Exception as exc:
+        # A reader choking on a hostile or exotic file: still the clip's fault as far as the user can act.
+        _emit({"code": "invalid-clip", "detail": f"the clip could not be read ({type(exc).__name__}: {exc})"})
+        return EXIT_BAD_CLIP
+    _emit(info)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
