@@ -170,6 +170,8 @@ def common_root(names: list[str]) -> str:
     tops = {n.split("/", 1)[0] for n in names if not _ignorable(n)}
     if len(tops) == 1:
         top = tops.pop()
+        if top in ("rgb", "depth"):  # the layout's own folder, not a wrapper
+            return ""
         if all(n.startswith(top + "/") for n in names if not _ignorable(n)):
             return top + "/"
     return ""

@@ -270,7 +270,8 @@ def depth_to_metres(raw: NDArray[np.generic], depth_scale: float) -> NDArray[np.
 def uniform_fps_from_timestamps(timestamps_s: NDArray[np.float64]) -> tuple[float, int]:
     """Estimate the nominal frame rate and dropped-frame count from capture times.
 
-    The nominal period is the median frame interval; gaps of k periods count as k - 1 drops.
+    The nominal period starts as the median frame interval; gaps of k periods count as k - 1 drops, and
+    the period is then refined as the whole span over the number of periods it holds.
 
     Returns
     -------
@@ -283,6 +284,8 @@ def uniform_fps_from_timestamps(timestamps_s: NDArray[np.float64]) -> tuple[floa
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ClipError("timestamps: must be finite and strictly increasing; fix the recording or give --fps")
     period = float(np.median(dt))
-    steps = np.rint(dt / period).astype(np.int64)
-    dropped = int(np.sum(np.maximum(steps - 1, 0)))
+    steps = np.maximum(np.rint(dt / period).astype(np.int64), 1)
+    dropped = int(np.sum(steps - 1))
+    # Refine over the whole span: robust to timestamps quantised to a coarse time base (e.g. 1 ms).
+    period = float(timestamps_s[-1] - timestamps_s[0]) / float(np.sum(steps))
     return 1.0 / period, dropped

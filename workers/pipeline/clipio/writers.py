@@ -169,7 +169,10 @@ def write_video(
         stream.width, stream.height = int(rgb.shape[2]), int(rgb.shape[1])
         stream.pix_fmt = {"ffv1": "bgr0", "mjpeg": "yuvj420p"}.get(codec, "yuv420p")
         if options is None:
-            options = {"crf": "10", "preset": "veryfast"} if codec == "libx264" else {}
+            options = {
+                "libx264": {"crf": "10", "preset": "veryfast"},
+                "mjpeg": {"qmin": "1", "qmax": "3"},
+            }.get(codec, {})
             if codec in ("mpeg4",):
                 stream.bit_rate = 20_000_000
         stream.options = options
