@@ -24,7 +24,8 @@ class Truth:
     @property
     def stamps_ns(self) -> NDArray[np.int64]:
         ticks = np.rint(np.arange(len(self.rgb)) * 1e9 / self.fps).astype(np.int64)
-        return ticks + np.int64(T0_NS)
+        stamps: NDArray[np.int64] = ticks + np.int64(T0_NS)
+        return stamps
 
 
 @pytest.fixture(scope="session")

@@ -55,14 +55,27 @@ def _is_zip(path: Path) -> bool:
         return fh.read(2) == b"PK"
 
 
-def _probe_video(path: Path) -> bool:
+def _probe_video(path: Path) -> str | None:
+    """None when FFmpeg finds a video stream, else why not."""
     import av
 
     try:
         with av.open(str(path), mode="r", metadata_errors="ignore") as container:
-            return bool(container.streams.video) and container.format.name not in ("tty", "image2")
-    except (av.error.FFmpegError, OSError, ValueError, EOFError):
-        return False
+            if container.format.name in ("tty", "image2"):
+                return "not a video container"
+            return None if container.streams.video else "no video stream"
+    except (av.error.FFmpegError, OSError, ValueError, EOFError) as exc:
+        return (str(exc).strip() or type(exc).__name__).splitlines()[0][:160]
+
+
+def _container_kind(head: bytes) -> str | None:
+    if head[4:8] == b"ftyp":
+        return "MP4/MOV"
+    if head.startswith(b"RIFF") and head[8:12] == b"AVI ":
+        return "AVI"
+    if head.startswith(b"\x1a\x45\xdf\xa3"):
+        return "Matroska/WebM"
+    return None
 
 
 def detect_format(path: str | Path) -> str:
@@ -142,8 +155,15 @@ def detect_format(path: str | Path) -> str:
         raise UnsupportedFormatError(
             f"{path.name}: a single image is not a clip; zip the frames as rgb/*.png (and depth/*.png)"
         )
-    if _probe_video(path):
+    why = _probe_video(path)
+    if why is None:
         return "video"
+    container = _container_kind(head)
+    if container is not None:
+        raise ClipError(
+            f"video: {path.name} is an {container} file but is truncated or corrupt ({why}); "
+            "upload the complete file"
+        )
     if ext in _VIDEO_EXTS:
         raise ClipError(
             f"video: {path.name} has a video extension but its content is not a readable video "

@@ -1,0 +1,328 @@
+"""A corpus of malformed and hostile clips: each is refused with its own one-line message, within seconds,
+writing nothing outside the test's folder."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import tempfile
+import time
+import zipfile
+import zlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from workers.pipeline.clipio import ClipOverrides, ReadLimits, open_clip, write_npz
+from workers.pipeline.clipio import writers as w
+from workers.pipeline.errors import ClipError, ClipTooLargeError, UnsupportedFormatError
+
+T0 = 1_700_000_000_000_000_000
+
+
+def _png(img: np.ndarray) -> bytes:
+    import cv2
+
+    return bytes(cv2.imencode(".png", img)[1])
+
+
+def _rgb(n: int = 12, h: int = 32, w_: int = 40) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    return rng.integers(0, 255, (n, h, w_, 3), dtype=np.uint8)
+
+
+def _stamps(n: int) -> np.ndarray:
+    return T0 + np.arange(n, dtype=np.int64) * 33_333_333
+
+
+# Each builder writes one bad clip into the folder and returns (path, open_clip kwargs).
+Builder = Callable[[Path], tuple[Path, dict[str, Any]]]
+
+
+def zip_slip(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "slip.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        for i, f in enumerate(_rgb()):
+            zf.writestr(f"rgb/{i:03d}.png", _png(f))
+        zf.writestr("../../evil.png", b"owned")
+    return p, {}
+
+
+def zip_slip_absolute(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "slip_abs.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        for i, f in enumerate(_rgb()):
+            zf.writestr(f"rgb/{i:03d}.png", _png(f))
+        info = zipfile.ZipInfo("x")
+        info.filename = "/tmp/eigenscope-evil.png"
+        zf.writestr(info, b"owned")
+    return p, {}
+
+
+def zip_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
+    """64 MiB of zeros deflated to ~64 KiB, against a 16 MiB cap."""
+    p = d / "bomb.zip"
+    with zipfile.ZipFile(p, "w", zipfile.ZIP_DEFLATED) as zf:
+        for i, f in enumerate(_rgb()):
+            zf.writestr(f"rgb/{i:03d}.png", _png(f))
+        zf.writestr("depth/000.png", b"\0" * (64 << 20))
+    return p, {"limits": ReadLimits(max_uncompressed_bytes=16 << 20)}
+
+
+def png_pixel_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
+    """A tiny PNG whose header claims 60000 x 60000 pixels."""
+    ihdr = struct.pack(">IIBBBBB", 60000, 60000, 8, 2, 0, 0, 0)
+    chunk = struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    png = b"\x89PNG\r\n\x1a\n" + chunk + b"\0" * 64
+    p = d / "pixels.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        for i in range(12):
+            zf.writestr(f"rgb/{i:03d}.png", png)
+    return p, {}
+
+
+def too_many_entries(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "entries.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        for i in range(300):
+            zf.writestr(f"rgb/{i:04d}.png", b"x")
+    return p, {"limits": ReadLimits(max_entries=200)}
+
+
+def truncated_npz(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = write_npz(d / "t.npz", _rgb(), fps=30.0)
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+    return p, {}
+
+
+def mismatched_depth_count(d: Path) -> tuple[Path, dict[str, Any]]:
+    rgb = _rgb()
+    depth = np.full((10, 32, 40), 1000, np.uint16)
+    p = d / "count.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        for i, f in enumerate(rgb):
+            zf.writestr(f"rgb/{i:03d}.png", _png(f))
+        for i, f in enumerate(depth):
+            zf.writestr(f"depth/{i:03d}.png", _png(f))
+    return p, {}
+
+
+def mismatched_depth_size(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = w.write_zip_frames(d / "size.zip", _rgb(), depth=np.full((12, 16, 20), 900, np.uint16), fps=30.0)
+    return p, {}
+
+
+def mismatched_depth_npz(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = write_npz(d / "m.npz", _rgb(), fps=30.0, depth=np.zeros((11, 32, 40), np.uint16))
+    return p, {}
+
+
+def eight_bit_depth(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = w.write_zip_frames(d / "d8.zip", _rgb(), depth=np.full((12, 32, 40), 9, np.uint8), fps=30.0)
+    return p, {}
+
+
+def too_few_frames(d: Path) -> tuple[Path, dict[str, Any]]:
+    return write_npz(d / "few.npz", _rgb(4), fps=30.0), {}
+
+
+def nan_fps_npz(d: Path) -> tuple[Path, dict[str, Any]]:
+    return write_npz(d / "nan.npz", _rgb(), fps=float("nan")), {}
+
+
+def nan_fps_camera_json(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = w.write_zip_frames(d / "nanfps.zip", _rgb())
+    with zipfile.ZipFile(p, "a") as zf:
+        zf.writestr("camera.json", json.dumps({"fps": float("nan"), "fx": 500.0}))
+    return p, {}
+
+
+def text_named_mp4(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "notes.mp4"
+    p.write_text("These are my lab notes, not a video.\n" * 20)
+    return p, {}
+
+
+def truncated_mp4(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = w.write_video(d / "cut.mp4", _rgb(24, 64, 80), fps=30.0)
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 3])
+    return p, {}
+
+
+def empty_file(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "empty.bag"
+    p.write_bytes(b"")
+    return p, {}
+
+
+def random_bytes(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "blob.bin"
+    p.write_bytes(np.random.default_rng(0).integers(0, 255, 4096, dtype=np.uint8).tobytes())
+    return p, {}
+
+
+def empty_bag(d: Path) -> tuple[Path, dict[str, Any]]:
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    p = d / "empty.bag"
+    with Writer(p) as writer:
+        writer.add_connection(
+            "/camera/color/image_raw", "sensor_msgs/msg/Image", typestore=get_typestore(Stores.ROS1_NOETIC)
+        )
+    return p, {}
+
+
+def bag_without_images(d: Path) -> tuple[Path, dict[str, Any]]:
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    f32 = ts.types["std_msgs/msg/Float32"]
+    p = d / "noimg.bag"
+    with Writer(p) as writer:
+        c = writer.add_connection("/imu/temperature", "std_msgs/msg/Float32", typestore=ts)
+        for i in range(20):
+            writer.write(c, T0 + i, bytes(ts.serialize_ros1(f32(data=1.0), "std_msgs/msg/Float32")))
+    return p, {}
+
+
+def truncated_bag(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = w.write_ros_bag(d / "cut.bag", _rgb(), stamps_ns=_stamps(12), intrinsics=(50, 50, 20, 16))
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) * 2 // 3])
+    return p, {}
+
+
+def empty_ros2_bag(d: Path) -> tuple[Path, dict[str, Any]]:
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    p = d / "empty2"
+    with Writer(p, version=9) as writer:
+        writer.add_connection(
+            "/camera/color/image_raw", "sensor_msgs/msg/Image", typestore=get_typestore(Stores.ROS2_HUMBLE)
+        )
+    return p, {}
+
+
+def truncated_mcap(d: Path) -> tuple[Path, dict[str, Any]]:
+    folder = w.write_ros_bag(d / "b2", _rgb(), stamps_ns=_stamps(12), intrinsics=(50, 50, 20, 16), version=2)
+    mcap = next(folder.glob("*.mcap"))
+    p = d / "cut.mcap"
+    p.write_bytes(mcap.read_bytes()[:-2000])
+    return p, {}
+
+
+def corrupt_png_frame(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "corrupt.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        for i, f in enumerate(_rgb()):
+            data = _png(f)
+            if i == 5:
+                data = data[:40] + b"\0" * (len(data) - 40)
+            zf.writestr(f"rgb/{i:03d}.png", data)
+    return p, {"overrides": ClipOverrides(fps=30.0)}
+
+
+def zip_without_layout(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "misc.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        zf.writestr("README.txt", "hello")
+        zf.writestr("data/values.csv", "1,2,3")
+    return p, {}
+
+
+def video_depth_count_mismatch(d: Path) -> tuple[Path, dict[str, Any]]:
+    video = w.write_video(d / "v.mkv", _rgb(12), fps=30.0, codec="ffv1")
+    comp = d / "dep.npz"
+    np.savez(comp, depth=np.full((9, 32, 40), 1000, np.uint16))
+    return video, {"depth": comp}
+
+
+CORPUS: list[tuple[Builder, type[Exception], str]] = [
+    (zip_slip, ClipError, "points outside the archive"),
+    (zip_slip_absolute, ClipError, "'/tmp/eigenscope-evil.png' points outside"),
+    (zip_bomb, ClipTooLargeError, "expands to more than"),
+    (png_pixel_bomb, ClipTooLargeError, "60000x60000 frames exceed the cap"),
+    (too_many_entries, ClipTooLargeError, "lists 300 entries"),
+    (truncated_npz, ClipError, "npz: t.npz is a zip archive but is corrupt or truncated"),
+    (mismatched_depth_count, ClipError, "12 colour frames but 10 depth frames"),
+    (mismatched_depth_size, ClipError, "depth frames are 20x16 but colour frames are 40x32"),
+    (mismatched_depth_npz, ClipError, "'depth' has shape (11, 32, 40)"),
+    (eight_bit_depth, ClipError, "must be a 16-bit single-channel PNG"),
+    (too_few_frames, ClipError, "only 4 frames"),
+    (nan_fps_npz, ClipError, "declares fps=nan"),
+    (nan_fps_camera_json, ClipError, "zip-frames: the file declares fps=nan"),
+    (text_named_mp4, ClipError, "notes.mp4 has a video extension but its content is not a readable video"),
+    (truncated_mp4, ClipError, "video: cut.mp4 is an MP4/MOV file but is truncated or corrupt"),
+    (empty_file, ClipError, "empty.bag is empty"),
+    (random_bytes, UnsupportedFormatError, "blob.bin: not a clip format"),
+    (empty_bag, ClipError, "empty.bag holds no messages"),
+    (bag_without_images, ClipError, "no sensor_msgs/Image or CompressedImage topic"),
+    (truncated_bag, ClipError, "ros1-bag: cut.bag cannot be read"),
+    (empty_ros2_bag, ClipError, "empty2 holds no messages"),
+    (truncated_mcap, ClipError, "ros2-bag: cut.mcap cannot be read"),
+    (corrupt_png_frame, ClipError, "005.png: image data is corrupt"),
+    (zip_without_layout, UnsupportedFormatError, "zip holds no clip layout"),
+    (video_depth_count_mismatch, ClipError, "12 video frames but 9 depth maps"),
+]
+
+
+def _consume(path: Path, kwargs: dict[str, Any]) -> None:
+    with open_clip(path, **kwargs) as reader:
+        for _ in reader.frames():
+            pass
+
+
+def _outside_snapshot() -> set[str]:
+    tmp = Path(tempfile.gettempdir())
+    return {p.name for p in tmp.iterdir() if p.name.startswith("eigenscope")} | set(os.listdir("."))
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize(("build", "error", "message"), CORPUS, ids=[c[0].__name__ for c in CORPUS])
+def test_malformed_clip_is_refused(
+    build: Builder, error: type[Exception], message: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    work = tmp_path / "work"
+    work.mkdir()
+    path, kwargs = build(work)
+    run_dir = tmp_path / "cwd"
+    run_dir.mkdir()
+    monkeypatch.chdir(run_dir)
+    before = _outside_snapshot()
+    listing = sorted(p.name for p in work.rglob("*"))
+    started = time.monotonic()
+    with pytest.raises(error) as caught:
+        _consume(path, kwargs)
+    elapsed = time.monotonic() - started
+    text = str(caught.value)
+    assert message in text
+    assert "\n" not in text
+    assert elapsed < 5.0
+    assert _outside_snapshot() == before
+    assert sorted(p.name for p in work.rglob("*")) == listing
+    assert list(run_dir.iterdir()) == []
+    assert not (tmp_path / "evil.png").exists()
+    assert not Path("/tmp/eigenscope-evil.png").exists()
+
+
+def test_every_malformed_clip_has_its_own_message(tmp_path: Path) -> None:
+    messages = []
+    for i, (build, _, _) in enumerate(CORPUS):
+        d = tmp_path / str(i)
+        d.mkdir()
+        path, kwargs = build(d)
+        try:
+            _consume(path, kwargs)
+        except ClipError as exc:
+            messages.append(str(exc))
+    assert len(messages) == len(CORPUS)
+    assert len(set(messages)) == len(messages)
