@@ -33,7 +33,7 @@ def scene() -> tuple[Scene, SyntheticClip]:
     return sc, render(sc)
 
 
-def _stamps(n: int) -> np.ndarray:
+def _stamps(n: int) -> Any:
     return T0 + np.rint(np.arange(n) * 1e9 / FPS).astype(np.int64)
 
 
