@@ -67,7 +67,7 @@ def broker_options(settings: Settings) -> tuple[str, dict[str, Any]]:
     queue_dir, processed, control = root / "queue", root / "processed", root / "control"
     for folder in (queue_dir, processed, control):
         folder.mkdir(parents=True, exist_ok=True)
-    return "filesystem://", {
+    return "filesystem://localhost//", {
         "data_folder_in": str(queue_dir),
         "data_folder_out": str(queue_dir),
         "store_processed": True,  # move (atomic rename) rather than copy to /tmp: one consumer per message

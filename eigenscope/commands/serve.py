@@ -115,7 +115,11 @@ class Supervisor:
         return 0
 
     def stop_all(self) -> None:
-        """SIGTERM every child, wait ``grace_s``, then SIGKILL the rest."""
+        """SIGTERM every child, wait ``grace_s``, then SIGKILL the rest.
+
+        A worker finishes its running job if it can within the grace period; a job it is killed in the
+        middle of is taken over on the next start (its lease names a process that no longer exists).
+        """
         for proc in self.procs.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)

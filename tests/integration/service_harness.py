@@ -1,0 +1,253 @@
+"""Start real service processes for tests: ``eigenscope serve``, uvicorn, ``eigenscope worker``.
+
+Every process runs in its own session (process group) and is killed with its children on teardown, so a
+failing test leaves no orphans. Local Redis and PostgreSQL are used when reachable; with ``CI=true`` an
+unreachable one fails the test instead of skipping it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+REDIS_URL = os.environ.get("EIGENSCOPE_TEST_REDIS_URL", "redis://127.0.0.1:6379/15")
+POSTGRES_ADMIN_URL = os.environ.get("EIGENSCOPE_TEST_POSTGRES_URL", "postgresql://postgres@127.0.0.1:5432/test")
+
+
+def in_ci() -> bool:
+    return os.environ.get("CI", "").lower() in ("1", "true", "yes")
+
+
+def unavailable(what: str, why: str) -> None:
+    message = f"{what} is not reachable ({why}); start it or set the EIGENSCOPE_TEST_* URL"
+    if in_ci():
+        pytest.fail(f"CI requires {message}", pytrace=False)
+    pytest.skip(message)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def redis_url() -> str:
+    """The test Redis URL (DB 15), flushed; skip or fail if unreachable."""
+    import redis
+
+    try:
+        client = redis.Redis.from_url(REDIS_URL, socket_connect_timeout=2)
+        client.flushdb()
+        client.close()
+    except Exception as exc:
+        unavailable(f"Redis at {REDIS_URL}", str(exc))
+    return REDIS_URL
+
+
+@contextlib.contextmanager
+def postgres_database() -> Iterator[str]:
+    """A fresh PostgreSQL database for one test run, dropped afterwards."""
+    import psycopg
+
+    admin = POSTGRES_ADMIN_URL.replace("postgresql+psycopg://", "postgresql://")
+    conn = None
+    for candidate in (admin, admin.replace("//postgres@", "//root@")):
+        try:
+            conn = psycopg.connect(candidate, autocommit=True, connect_timeout=3)
+            admin = candidate
+            break
+        except Exception as exc:
+            last = exc
+    if conn is None:
+        unavailable(f"PostgreSQL at {POSTGRES_ADMIN_URL}", str(last))
+    assert conn is not None
+    name = f"eigenscope_it_{uuid.uuid4().hex[:10]}"
+    conn.execute(f'CREATE DATABASE "{name}"')
+    base, _, _ = admin.rpartition("/")
+    try:
+        yield f"{base}/{name}"
+    finally:
+        with contextlib.suppress(Exception):
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        conn.close()
+
+
+@dataclass
+class Proc:
+    """A child process in its own session; ``stop`` kills the whole group."""
+
+    name: str
+    popen: subprocess.Popen[bytes]
+    log_path: Path
+
+    @classmethod
+    def start(cls, name: str, cmd: list[str], *, env: dict[str, str], log_dir: Path) -> Proc:
+        log_path = log_dir / f"{name}.log"
+        log = log_path.open("ab")
+        popen = subprocess.Popen(
+            cmd, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+        )
+        log.close()
+        return cls(name, popen, log_path)
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def log(self) -> str:
+        try:
+            return self.log_path.read_text(errors="replace")[-6000:]
+        except OSError:
+            return ""
+
+    def stop(self, *, grace_s: float = 3.0) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.popen.pid, signal.SIGTERM)
+        try:
+            self.popen.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            pass
+        # Whatever is left in the group (Celery pool children, a stuck server) goes now.
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.popen.wait(timeout=10)
+
+
+def children_of(pid: int) -> list[int]:
+    out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True, check=False)
+    return [int(x) for x in out.stdout.split()]
+
+
+@dataclass
+class LiveService:
+    """A running API (+ workers) and an HTTP client for it."""
+
+    base_url: str
+    data_dir: Path
+    env: dict[str, str]
+    procs: list[Proc] = field(default_factory=list)
+    client: httpx.Client = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.client = httpx.Client(base_url=self.base_url, timeout=60.0)
+
+    def logs(self) -> str:
+        return "\n".join(f"--- {p.name} ---\n{p.log()}" for p in self.procs)
+
+    def wait_ready(self, timeout_s: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for p in self.procs:
+                if not p.alive():
+                    raise RuntimeError(f"{p.name} exited with {p.popen.returncode}:\n{self.logs()}")
+            try:
+                if self.client.get("/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.1)
+        raise RuntimeError(f"service at {self.base_url} not ready after {timeout_s} s:\n{self.logs()}")
+
+    def stop(self) -> None:
+        self.client.close()
+        for p in reversed(self.procs):
+            p.stop()
+
+    def upload(self, path: Path) -> httpx.Response:
+        with path.open("rb") as fh:
+            return self.client.post("/v1/clips", files={"file": (path.name, fh, "application/octet-stream")})
+
+    def wait_job(self, job_id: str, timeout_s: float = 120.0) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            job: dict[str, Any] = self.client.get(f"/v1/jobs/{job_id}").json()
+            if job["status"] in ("succeeded", "failed", "cancelled"):
+                return job
+            if time.monotonic() > deadline:
+                raise AssertionError(f"job {job_id} still {job['status']} after {timeout_s} s:\n{self.logs()}")
+            time.sleep(0.02)
+
+
+def base_env(data_dir: Path, **settings: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("EIGENSCOPE_")}
+    env["EIGENSCOPE_DATA_DIR"] = str(data_dir)
+    env["PYTHONUNBUFFERED"] = "1"
+    for key, value in settings.items():
+        env[f"EIGENSCOPE_{key.upper()}"] = value
+    return env
+
+
+def start_embedded(tmp_path: Path, *, workers: int = 1, **settings: str) -> LiveService:
+    """``eigenscope serve`` with the embedded broker (and the job store given in ``settings``)."""
+    data_dir = tmp_path / "data"
+    port = free_port()
+    env = base_env(data_dir, **settings)
+    cmd = [sys.executable, "-m", "eigenscope", "serve", "--port", str(port), "--workers", str(workers)]
+    service = LiveService(f"http://127.0.0.1:{port}", data_dir, env)
+    service.procs.append(Proc.start("serve", cmd, env=env, log_dir=tmp_path))
+    try:
+        service.wait_ready()
+    except BaseException:
+        service.stop()
+        raise
+    return service
+
+
+def start_split(tmp_path: Path, *, workers: int = 1, **settings: str) -> LiveService:
+    """uvicorn and separate ``eigenscope worker`` processes (the Redis deployment)."""
+    data_dir = tmp_path / "data"
+    port = free_port()
+    env = base_env(data_dir, **settings)
+    service = LiveService(f"http://127.0.0.1:{port}", data_dir, env)
+    api = [sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--port", str(port)]
+    try:
+        service.procs.append(Proc.start("api", api, env=env, log_dir=tmp_path))
+        for i in range(workers):
+            cmd = [sys.executable, "-m", "eigenscope", "worker", "--hostname", f"w{i}-{uuid.uuid4().hex[:6]}@%h"]
+            service.procs.append(Proc.start(f"worker{i}", cmd, env=env, log_dir=tmp_path))
+        service.wait_ready()
+        wait_worker_ready(service)
+    except BaseException:
+        service.stop()
+        raise
+    return service
+
+
+def wait_worker_ready(service: LiveService, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if all(" ready." in p.log() for p in service.procs if p.name.startswith("worker")):
+            return
+        time.sleep(0.1)
+    raise RuntimeError(f"workers not ready:\n{service.logs()}")
+
+
+def synth_clip(out: Path, **options: Any) -> dict[str, Any]:
+    """Render a ground-truth clip with ``eigenscope synth``; returns the truth JSON."""
+    cmd = [sys.executable, "-m", "eigenscope", "synth", "--out", str(out)]
+    for key, value in options.items():
+        cmd += [f"--{key.replace('_', '-')}", str(value)]
+    subprocess.run(cmd, check=True, capture_output=True, timeout=120)
+    truth: dict[str, Any] = json.loads(out.with_name(out.stem + ".truth.json").read_text())
+    return truth
+
+
+SMALL_CLIP = {"frames": 64, "width": 160, "height": 120, "frequency_hz": 4.0, "mass_kg": 0.5, "force_n": 5.0}
