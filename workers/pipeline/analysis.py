@@ -24,10 +24,11 @@ from workers.pipeline.mechanics import (
     register_translation,
     release_amplitude,
     release_instant,
+    silhouette,
     stiffness_and_mass,
 )
 from workers.pipeline.segmentation import SegmentationConfig, frequency_map, segment, upsample_labels
-from workers.pipeline.spectrum import Peak, find_peaks, fit_ringdown, pixel_spectra
+from workers.pipeline.spectrum import Peak, background_spectrum, find_peaks, fit_ringdown, pixel_spectra
 
 Method = Literal["default", "paper"]
 #: progress(stage, fraction of the whole analysis in [0, 1])
@@ -413,7 +414,10 @@ def _analyze_default(
         progress("spectrum", 0.82)
     spectra = pixel_spectra(buffers.flow, fps=fps)
     summed = spectra.power.sum(axis=1, dtype=np.float64)
-    peaks = find_peaks(spectra.frequencies_hz, summed, band_hz=band, max_peaks=config.max_objects)
+    noise = background_spectrum(spectra)
+    peaks = find_peaks(
+        spectra.frequencies_hz, summed, band_hz=band, noise=noise, max_peaks=config.max_objects
+    )
     watch.lap("spectrum")
 
     if progress:
@@ -518,8 +522,11 @@ def _measure_object(
     axis = motion.axis_px
     tracking = "flow"
     if buffers.gray is not None and motion.coherence >= RIGID_COHERENCE:
-        initial = np.concatenate([[0.0], np.cumsum(velocity)])[:, None] * np.asarray(axis)[None, :]
-        disp2d, failed = register_translation(buffers.gray, full_mask, initial_px=initial)
+        ref = int(np.argmax(np.abs(velocity)))
+        position = np.concatenate([[0.0], np.cumsum(velocity)])
+        initial = (position - position[ref])[:, None] * np.asarray(axis)[None, :]
+        outline = silhouette(buffers.flow[ref], mask, axis_px=axis, shape=full_mask.shape)
+        disp2d, failed = register_translation(buffers.gray, outline, ref_index=ref, initial_px=initial)
         if failed <= 0.1:
             centred = disp2d - disp2d.mean(axis=0)
             _, vecs = np.linalg.eigh(centred.T @ centred)

@@ -90,33 +90,83 @@ def object_motion(
     return ObjectMotion(velocity_px=velocity, axis_px=(float(axis[0]), float(axis[1])), coherence=coherence)
 
 
+def silhouette(
+    flow_at_ref: NDArray[np.float32],
+    region: NDArray[np.bool_],
+    *,
+    axis_px: tuple[float, float],
+    shape: tuple[int, int],
+    level: float = 0.5,
+) -> NDArray[np.bool_]:
+    """The object's outline in one frame: pixels of ``region`` that move with it at that instant.
+
+    The spectral mask covers where the object is over the whole ring-down (for a large motion, the swept
+    area); registration needs where it is in one reference frame. In a frame where the object moves fast,
+    its own pixels carry its velocity and the uncovered background does not.
+
+    Parameters
+    ----------
+    flow_at_ref : ndarray of float32, shape (h, w, 2)
+        Flow from the reference frame to the next, on the flow grid.
+    region : ndarray of bool, shape (h, w)
+        The object's spectral mask on the flow grid.
+    axis_px : (ux, uy)
+        Motion axis.
+    shape : (H, W)
+        Input frame size; the silhouette is returned at this size.
+    level : float
+        Fraction of the region's typical speed along the axis a pixel must reach.
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    import cv2
+
+    along = flow_at_ref[..., 0] * axis_px[0] + flow_at_ref[..., 1] * axis_px[1]
+    grown = cv2.dilate(region.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    typical = float(np.median(along[region])) if region.any() else 0.0
+    if typical < 0:
+        along, typical = -along, -typical
+    moving = grown & (along > level * typical) if typical > 0 else region
+    up = cv2.resize(moving.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+    edge = max(2, round(2 * shape[1] / region.shape[1]))
+    up = cv2.erode(up, np.ones((2 * edge + 1, 2 * edge + 1), np.uint8))
+    return np.asarray(up.astype(bool))
+
+
 def register_translation(
     grays: NDArray[np.uint8],
-    mask: NDArray[np.bool_],
+    ref_mask: NDArray[np.bool_],
     *,
+    ref_index: int,
     initial_px: NDArray[np.float64],
     max_iterations: int = 60,
 ) -> tuple[NDArray[np.float64], float]:
-    """Sub-pixel displacement of a rigid object in every frame, relative to the first, by ECC registration.
+    """Sub-pixel displacement of a rigid object in every frame, relative to a reference frame, by ECC
+    registration of the object's texture.
 
-    Dense flow is smoothed at object boundaries and biased low for small motions; registering the
-    object's interior texture (an enhanced-correlation-coefficient fit of a translation, started from the
-    flow's estimate) measures the displacement to a few hundredths of a pixel.
+    Dense flow is smoothed at object boundaries and biased low for small and for very large motions;
+    registering the object's texture (an enhanced-correlation-coefficient fit of a translation, started
+    from the flow's estimate, then from the last registered position, then from phase correlation)
+    measures the displacement to a few hundredths of a pixel.
 
     Parameters
     ----------
     grays : ndarray of uint8, shape (T, H, W)
         Grey frames at input resolution.
-    mask : ndarray of bool, shape (H, W)
-        The object's region; its interior (eroded by the motion's reach) is registered.
+    ref_mask : ndarray of bool, shape (H, W)
+        The object's pixels in the reference frame (see :func:`silhouette`).
+    ref_index : int
+        The reference frame.
     initial_px : ndarray of float64, shape (T, 2)
-        Starting displacement (dx, dy) per frame, from flow.
+        Starting displacement (dx, dy) per frame relative to the reference, from flow.
     max_iterations : int
 
     Returns
     -------
     displacement : ndarray of float64, shape (T, 2)
-        (dx, dy) of the object in frame k relative to frame 0, input pixels.
+        (dx, dy) of the object in frame k relative to the reference frame, input pixels.
     failed_fraction : float
         Frames where registration did not converge (their flow estimate is kept).
     """
@@ -124,37 +174,61 @@ def register_translation(
 
     t_count, height, width = grays.shape
     reach = float(np.abs(initial_px).max()) if initial_px.size else 0.0
-    core = mask.astype(np.uint8)
-    for margin in (math.ceil(reach) + 3, math.ceil(reach / 2) + 2, 2):
-        eroded = cv2.erode(core, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
-        if eroded.sum() >= max(64, 0.2 * core.sum()):
-            core = eroded
-            break
+    core = ref_mask.astype(np.uint8)
     ys, xs = np.nonzero(core)
     if len(xs) < 64:
         return initial_px.copy(), 1.0
-    pad = math.ceil(reach) + 8
+    pad = math.ceil(1.3 * reach) + 8
     x0, x1 = max(0, xs.min() - pad), min(width, xs.max() + pad + 1)
     y0, y1 = max(0, ys.min() - pad), min(height, ys.max() + pad + 1)
-    ref = grays[0, y0:y1, x0:x1].astype(np.float32)
-    ref_mask = core[y0:y1, x0:x1]
+    ref = grays[ref_index, y0:y1, x0:x1].astype(np.float32)
+    ref_mask_crop = core[y0:y1, x0:x1]
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iterations, 1e-5)
+    hann = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
     out = initial_px.astype(np.float64).copy()
     failures = 0
-    for k in range(1, t_count):
-        cur = grays[k, y0:y1, x0:x1].astype(np.float32)
+
+    def ecc(cur: NDArray[np.float32], start: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]] | None:
         warp = np.eye(2, 3, dtype=np.float32)
-        warp[0, 2], warp[1, 2] = -initial_px[k, 0], -initial_px[k, 1]
+        warp[0, 2], warp[1, 2] = -start[0], -start[1]
         try:
-            _, warp = cv2.findTransformECC(cur, ref, warp, cv2.MOTION_TRANSLATION, criteria, ref_mask, 3)
+            cc, warp = cv2.findTransformECC(
+                cur, ref, warp, cv2.MOTION_TRANSLATION, criteria, ref_mask_crop, 3
+            )
         except cv2.error:
-            failures += 1
-            continue
+            return None
         d = np.array([-warp[0, 2], -warp[1, 2]], np.float64)
-        if np.all(np.isfinite(d)) and np.linalg.norm(d - initial_px[k]) < 3.0 + 0.5 * reach:
-            out[k] = d
-        else:
-            failures += 1
+        return (float(cc), d) if np.all(np.isfinite(d)) else None
+
+    def track(order: range, previous: NDArray[np.float64]) -> None:
+        nonlocal failures
+        last = ref_index
+        for k in order:
+            cur = grays[k, y0:y1, x0:x1].astype(np.float32)
+            # Starts, cheapest first: the flow's estimate; the last registered position moved by the
+            # flow's step; phase correlation (wide basin, for motions the flow underestimates).
+            starts = [initial_px[k], previous + (initial_px[k] - initial_px[last])]
+            best: tuple[float, NDArray[np.float64]] | None = None
+            for attempt in range(3):
+                if attempt == 2:
+                    (sx, sy), _ = cv2.phaseCorrelate(ref, cur, hann)
+                    starts.append(np.array([sx, sy]))
+                found = ecc(cur, starts[attempt])
+                if found is not None and (best is None or found[0] > best[0]):
+                    best = found
+                if best is not None and best[0] > 0.9:
+                    break
+            last = k
+            if best is None or best[0] < 0.5:
+                failures += 1
+                previous = previous + (initial_px[k] - initial_px[k - 1 if k > ref_index else k + 1])
+                continue
+            out[k] = best[1]
+            previous = best[1]
+
+    out[ref_index] = 0.0
+    track(range(ref_index + 1, t_count), np.zeros(2))
+    track(range(ref_index - 1, -1, -1), np.zeros(2))
     return out, failures / max(t_count - 1, 1)
 
 

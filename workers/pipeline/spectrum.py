@@ -71,6 +71,22 @@ def shared_plans(threads: int = 2) -> RfftPlans:
     return RfftPlans(threads=threads)
 
 
+def background_spectrum(spectra: PixelSpectra, *, percentile: float = 20.0) -> NDArray[np.float64]:
+    """What the summed spectrum would be if every pixel were static background.
+
+    The ``percentile``-th pixel's power at each frequency, times the pixel count: robust while moving
+    objects cover less than ``100 - percentile`` % of the frame.
+
+    Returns
+    -------
+    ndarray of float64, shape (F,)
+    """
+    n_pix = spectra.power.shape[1]
+    step = max(1, n_pix // 20_000)
+    level = np.percentile(spectra.power[:, ::step], percentile, axis=1)
+    return np.asarray(level, np.float64) * n_pix
+
+
 def fast_length(n: int) -> int:
     """Smallest length >= n whose FFT is fast (a product of 2, 3, 5): a prime n is many times slower."""
     from scipy.fft import next_fast_len
@@ -145,7 +161,9 @@ class Peak:
     power : float
         Peak power.
     prominence_db : float
-        Height above the local noise floor, dB.
+        Height above the key saddle (topographic prominence), dB.
+    snr_db : float
+        Height above the background's noise spectrum, dB (inf when no noise spectrum was given).
     harmonics_hz : list of float
         Integer multiples of this peak found in the spectrum (not separate objects).
     """
@@ -154,6 +172,7 @@ class Peak:
     bin: int
     power: float
     prominence_db: float
+    snr_db: float = float("inf")
     harmonics_hz: list[float] = field(default_factory=list)
 
 
@@ -193,27 +212,67 @@ def noise_floor(power: NDArray[np.floating[Any]], *, width: int = 9) -> NDArray[
     return np.asarray(median_filter(np.asarray(power, np.float64), size=width, mode="nearest"))
 
 
+def topographic_prominence(power: NDArray[np.float64], k: int) -> float:
+    """Ratio of a peak to its key saddle: the higher of the lowest points between it and the nearest
+    higher sample on each side (or the end of the array).
+
+    Parameters
+    ----------
+    power : ndarray of float64, shape (F,)
+    k : int
+        Index of a local maximum.
+
+    Returns
+    -------
+    float
+        power[k] / saddle (>= 1).
+    """
+    height = power[k]
+    left = power[:k][::-1]
+    higher = np.flatnonzero(left > height)
+    left_min = (
+        float(left[: higher[0]].min())
+        if higher.size and higher[0] > 0
+        else (float(left.min()) if left.size and not higher.size else height)
+    )
+    right = power[k + 1 :]
+    higher = np.flatnonzero(right > height)
+    right_min = (
+        float(right[: higher[0]].min())
+        if higher.size and higher[0] > 0
+        else (float(right.min()) if right.size and not higher.size else height)
+    )
+    saddle = max(left_min, right_min, 1e-30)
+    return float(height / saddle)
+
+
 def find_peaks(
     frequencies_hz: NDArray[np.float64],
     power: NDArray[np.floating[Any]],
     *,
     band_hz: tuple[float, float],
-    min_prominence_db: float = 10.0,
+    noise: NDArray[np.floating[Any]] | None = None,
+    min_prominence_db: float = 6.0,
+    min_snr_db: float = 10.0,
     max_peaks: int = 8,
     harmonic_tolerance: float = 0.04,
 ) -> list[Peak]:
     """Peaks of a summed spectrum inside ``band_hz``, strongest first, harmonics folded in.
 
-    A peak at an integer multiple (2, 3, ...) of a stronger peak, within ``harmonic_tolerance`` relative
-    error (or one bin), is recorded as that peak's harmonic instead of a peak of its own.
+    A peak must stand ``min_prominence_db`` above its key saddle inside the band (topographic
+    prominence: a broad, heavily damped peak on a sloping background still counts, a wiggle on a
+    plateau does not) and ``min_snr_db`` above the ``noise`` spectrum when one is given (the spectrum
+    a frame of static background would sum to). A peak at an integer multiple (2, 3, ...) of a stronger
+    peak, within ``harmonic_tolerance`` relative error (or one bin), is recorded as that peak's harmonic
+    instead of a peak of its own.
 
     Parameters
     ----------
     frequencies_hz : ndarray of float64, shape (F,)
     power : ndarray, shape (F,)
     band_hz : (low, high)
-    min_prominence_db : float
-        Minimum height above the running-median noise floor.
+    noise : ndarray, shape (F,), optional
+    min_prominence_db, min_snr_db : float
     max_peaks : int
     harmonic_tolerance : float
 
@@ -222,22 +281,27 @@ def find_peaks(
     list of Peak
     """
     power = np.asarray(power, np.float64)
-    floor = noise_floor(power, width=max(15, len(power) // 3))
-    floor = np.maximum(floor, 1e-30)
     bin_hz = float(frequencies_hz[1] - frequencies_hz[0]) if len(frequencies_hz) > 1 else 1.0
     lo, hi = band_hz
-    padded = np.concatenate(([-np.inf], power, [-np.inf]))
-    idx = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
+    band = np.flatnonzero((frequencies_hz >= lo) & (frequencies_hz <= hi))
+    if band.size < 3:
+        return []
+    sub = power[band]
+    padded = np.concatenate(([-np.inf], sub, [-np.inf]))
+    local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
     candidates: list[Peak] = []
-    for k in idx:
-        f = frequencies_hz[k]
-        if f < lo or f > hi:
-            continue
-        prom = 10 * math.log10(power[k] / floor[k])
+    for j in local:
+        k = int(band[j])
+        prom = 10 * math.log10(topographic_prominence(sub, int(j)))
         if prom < min_prominence_db:
             continue
-        fk = interpolate_peak(power, int(k)) * bin_hz
-        candidates.append(Peak(frequency_hz=fk, bin=int(k), power=float(power[k]), prominence_db=prom))
+        snr = float("inf")
+        if noise is not None:
+            snr = 10 * math.log10(power[k] / max(float(noise[k]), 1e-30))
+            if snr < min_snr_db:
+                continue
+        fk = interpolate_peak(power, k) * bin_hz
+        candidates.append(Peak(frequency_hz=fk, bin=k, power=float(power[k]), prominence_db=prom, snr_db=snr))
     candidates.sort(key=lambda p: -p.power)
     kept: list[Peak] = []
     for peak in candidates:

@@ -1,0 +1,49 @@
+"""Shared pytest configuration: seeded randomness and the shared data folder."""
+
+from __future__ import annotations
+
+import os
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+
+@pytest.fixture(autouse=True)
+def _seeded() -> None:
+    """Every test starts from the same random state."""
+    random.seed(1234)
+    np.random.seed(1234)  # noqa: NPY002 - legacy global state, for third-party code that uses it
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    """``../shared`` beside the checkout. Missing in CI is a failure, locally a visible skip."""
+    if not SHARED.is_dir():
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"shared data folder {SHARED} is missing in CI")
+        pytest.skip(f"shared data folder {SHARED} is missing")
+    return SHARED
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Print the ground-truth accuracy table collected by the pipeline tests."""
+    try:
+        from tests.unit.pipeline.conftest import ACCURACY_ROWS
+    except ImportError:
+        return
+    if not ACCURACY_ROWS:
+        return
+    tr = terminalreporter
+    tr.section("ground-truth accuracy (relative errors; default vs the paper's recipe)")
+    cols = list(ACCURACY_ROWS[0].keys())
+    tr.write_line(" | ".join(f"{c:>14}" for c in cols))
+    for row in ACCURACY_ROWS:
+        cells = []
+        for c in cols:
+            v = row.get(c)
+            cells.append(f"{v:>14.4g}" if isinstance(v, float) else f"{v!s:>14}")
+        tr.write_line(" | ".join(cells))
