@@ -83,8 +83,8 @@ def background_spectrum(spectra: PixelSpectra, *, percentile: float = 20.0) -> N
     """
     n_pix = spectra.power.shape[1]
     step = max(1, n_pix // 20_000)
-    level = np.percentile(spectra.power[:, ::step], percentile, axis=1)
-    return np.asarray(level, np.float64) * n_pix
+    level = np.asarray(np.percentile(spectra.power[:, ::step], percentile, axis=1), np.float64)
+    return level * n_pix
 
 
 def fast_length(n: int) -> int:
@@ -292,7 +292,7 @@ def find_peaks(
     candidates: list[Peak] = []
     for j in local:
         k = int(band[j])
-        prom = 10 * math.log10(topographic_prominence(sub, int(j)))
+        prom = 10 * math.log10(topographic_prominence(np.asarray(sub, np.float64), int(j)))
         if prom < min_prominence_db:
             continue
         snr = float("inf")
