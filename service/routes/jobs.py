@@ -120,10 +120,10 @@ def cancel_job(job_id: JobId, request: Request, ctx: ContextDep) -> JobModel:
     response_class=FileResponse,
     responses={
         200: {
-            "description": "The file, with its media type.",
+            "description": "The file, with its media type (`image/png` for images, `application/json` "
+            "for `result.json`).",
             "content": {
                 "image/png": {"schema": {"type": "string", "format": "binary"}},
-                "application/json": {"schema": {"type": "string", "format": "binary"}},
                 "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
             },
         },

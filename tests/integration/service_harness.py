@@ -96,6 +96,7 @@ class Proc:
 
     @classmethod
     def start(cls, name: str, cmd: list[str], *, env: dict[str, str], log_dir: Path) -> Proc:
+        log_dir.mkdir(parents=True, exist_ok=True)
         log_path = log_dir / f"{name}.log"
         log = log_path.open("ab")
         popen = subprocess.Popen(

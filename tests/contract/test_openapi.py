@@ -1,0 +1,72 @@
+"""``openapi/openapi.json`` is the app's spec, with clean operation ids, named schemas and declared errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from eigenscope.commands.export_openapi import render_spec
+
+SPEC_PATH = Path(__file__).resolve().parents[2] / "openapi" / "openapi.json"
+
+OPERATIONS = {
+    ("post", "/v1/clips"): "create_clip",
+    ("get", "/v1/clips/{clip_id}"): "get_clip",
+    ("delete", "/v1/clips/{clip_id}"): "delete_clip",
+    ("post", "/v1/jobs"): "create_job",
+    ("get", "/v1/jobs"): "list_jobs",
+    ("get", "/v1/jobs/{job_id}"): "get_job",
+    ("post", "/v1/jobs/{job_id}/cancel"): "cancel_job",
+    ("get", "/v1/jobs/{job_id}/artifacts/{name}"): "get_job_artifact",
+    ("get", "/healthz"): "healthz",
+    ("get", "/readyz"): "readyz",
+    ("get", "/metrics"): "metrics",
+}
+
+
+@pytest.fixture(scope="module")
+def spec() -> dict[str, Any]:
+    doc: dict[str, Any] = json.loads(SPEC_PATH.read_text())
+    return doc
+
+
+def test_committed_spec_equals_the_apps() -> None:
+    assert SPEC_PATH.read_text() == render_spec(), "run `eigenscope export-openapi` and commit the result"
+
+
+def test_operation_ids(spec: dict[str, Any]) -> None:
+    found = {(m, p): op["operationId"] for p, item in spec["paths"].items() for m, op in item.items()}
+    assert found == OPERATIONS
+
+
+def test_errors_are_declared_as_problem_json(spec: dict[str, Any]) -> None:
+    for path, item in spec["paths"].items():
+        for method, op in item.items():
+            for status, response in op["responses"].items():
+                if status[0] in "45":
+                    assert list(response["content"]) == ["application/problem+json"], (method, path, status)
+                    assert response["content"]["application/problem+json"]["schema"] == {
+                        "$ref": "#/components/schemas/Problem"
+                    }
+    expected = {
+        ("post", "/v1/clips"): {"413", "415", "422"},
+        ("get", "/v1/jobs/{job_id}"): {"404"},
+        ("post", "/v1/jobs/{job_id}/cancel"): {"404", "409"},
+        ("post", "/v1/jobs"): {"422"},
+    }
+    for (method, path), statuses in expected.items():
+        assert statuses <= set(spec["paths"][path][method]["responses"]), (method, path)
+
+
+def test_named_schemas(spec: dict[str, Any]) -> None:
+    schemas = spec["components"]["schemas"]
+    for name in ("Clip", "Job", "JobCreate", "JobList", "JobStatus", "Problem", "AnalysisResult", "ClipUpload"):
+        assert name in schemas
+    assert not any(n.startswith(("Body_", "HTTPValidation")) or n.endswith("Model") for n in schemas), list(schemas)
+    upload = spec["paths"]["/v1/clips"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
+    assert upload == {"$ref": "#/components/schemas/ClipUpload"}
+    job_post = spec["paths"]["/v1/jobs"]["post"]
+    assert {"Location", "Retry-After"} <= set(job_post["responses"]["202"]["headers"])
