@@ -1,0 +1,66 @@
+"""Docker does not run on our machines: check ``docker/`` by parsing it."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from eigenscope.cli import build_parser
+
+ROOT = Path(__file__).resolve().parents[2]
+DOCKER = ROOT / "docker"
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict[str, Any]:
+    doc: dict[str, Any] = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    return doc
+
+
+def assert_eigenscope_command(command: list[str]) -> None:
+    assert command[0] == "eigenscope", command
+    args = build_parser().parse_args(command[1:])  # exits (fails the test) on unknown options
+    assert callable(args.handler)
+
+
+def test_compose_services(compose: dict[str, Any]) -> None:
+    services = compose["services"]
+    assert {"redis", "api", "worker", "flower"} <= set(services)
+    redis = services["redis"]
+    assert "--appendonly" in redis["command"] and "yes" in redis["command"]
+    assert any(v.endswith(":/data") for v in redis["volumes"])
+    assert "redis-data" in compose["volumes"] and "data" in compose["volumes"]
+    for name in ("api", "worker"):
+        service = services[name]
+        assert service["build"]["dockerfile"] == "docker/Dockerfile"
+        assert (DOCKER / service["build"]["context"] / service["build"]["dockerfile"]).resolve().is_file()
+        env = service["environment"]
+        assert env["EIGENSCOPE_REDIS_URL"].startswith("redis://redis:")
+        assert "data:/data" in service["volumes"]
+        assert_eigenscope_command(service["command"])
+    assert services["api"]["command"][1] == "serve" and "--no-worker" in services["api"]["command"]
+    assert services["worker"]["command"][1] == "worker"
+    assert services["worker"]["deploy"]["replicas"] >= 1
+    assert "--broker=redis://redis:6379/0" in services["flower"]["command"]
+
+
+def test_dockerfile() -> None:
+    text = (DOCKER / "Dockerfile").read_text()
+    stages = re.findall(r"^FROM\s+(\S+)", text, flags=re.M)
+    assert len(stages) >= 2 and all(s == "python:3.11-slim" for s in stages)
+    users = re.findall(r"^USER\s+(\S+)", text, flags=re.M)
+    assert users and users[-1] not in ("root", "0")
+    for source in re.findall(r"^COPY\s+(?!--from)(\S+)\s", text, flags=re.M):
+        if "[" not in source:
+            assert (ROOT / source).exists(), source
+    cmd = re.findall(r"^CMD\s+(\[.*\])", text, flags=re.M)[-1]
+    assert_eigenscope_command(yaml.safe_load(cmd))
+    for line in re.findall(r"^#\s+(?:API|worker):\s+(eigenscope .*)$", text, flags=re.M):
+        assert_eigenscope_command(shlex.split(line))
+    ignore = (DOCKER / "Dockerfile.dockerignore").read_text()
+    assert ".venv" in ignore and ".git" in ignore
