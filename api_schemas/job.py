@@ -54,7 +54,19 @@ class AnalysisParameters(BaseModel):
     cx: float | None = None
     cy: float | None = None
     depth_scale: float | None = Field(default=None, gt=0, description="Metres per depth unit.")
-    depth_m: float | None = Field(default=None, gt=0, description="Object distance when the clip has no depth.")
+    depth_m: float | None = Field(
+        default=None, gt=0, description="Object distance when the clip has no depth."
+    )
+    color_topic: str | None = Field(
+        default=None,
+        max_length=256,
+        description="Bag topic of the colour images (default: chosen automatically).",
+    )
+    depth_topic: str | None = Field(
+        default=None,
+        max_length=256,
+        description="Bag topic of the depth images (default: chosen automatically; `none` ignores depth).",
+    )
     min_frequency_hz: float | None = Field(default=None, ge=0)
     max_frequency_hz: float | None = Field(default=None, gt=0)
 

@@ -49,10 +49,14 @@ def run_analysis(
     excitation: StepReleaseExcitation | ImpulseExcitation | None = None,
     parameters: AnalysisParameters | None = None,
     progress: ProgressCallback | None = None,
+    depth_path: str | Path | None = None,
+    scratch_dir: str | Path | None = None,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
 
     Files are written to a temporary name and renamed, so a reader never sees half a result.
+    ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``scratch_dir`` is where a
+    zipped ROS 2 bag may be unpacked (default: the system temporary folder).
 
     Raises
     ------
@@ -67,7 +71,14 @@ def run_analysis(
 
     params = parameters or AnalysisParameters()
     overrides = ClipOverrides(
-        fps=params.fps, fx=params.fx, fy=params.fy, cx=params.cx, cy=params.cy, depth_scale=params.depth_scale
+        fps=params.fps,
+        fx=params.fx,
+        fy=params.fy,
+        cx=params.cx,
+        cy=params.cy,
+        depth_scale=params.depth_scale,
+        color_topic=params.color_topic,
+        depth_topic=params.depth_topic,
     )
     flow = None
     if params.flow is not None:
@@ -99,7 +110,7 @@ def run_analysis(
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with open_clip(clip_path, overrides=overrides) as reader:
+    with open_clip(clip_path, overrides=overrides, depth=depth_path, scratch_dir=scratch_dir) as reader:
         analysis = analyze(reader, config=config, excitation=exc, progress=progress)
     if progress:
         progress("rendering", 0.97)

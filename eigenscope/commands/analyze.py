@@ -24,6 +24,11 @@ def register(sub: Any) -> None:
     for name in ("fx", "fy", "cx", "cy"):
         p.add_argument(f"--{name}", type=float, help=f"camera intrinsic {name}, pixels")
     p.add_argument("--depth-scale", type=float, help="metres per depth unit")
+    p.add_argument(
+        "--depth", metavar="PATH", help="depth companion of a video: .npz with 'depth' or zip of PNGs"
+    )
+    p.add_argument("--color-topic", help="bag topic of the colour images (default: automatic)")
+    p.add_argument("--depth-topic", help="bag topic of the depth images ('none' ignores depth)")
     p.add_argument("--depth-m", type=float, help="object distance for clips without depth, metres")
     p.add_argument("--frames", type=int, help="analysis window length in frames (default: up to 256)")
     p.add_argument("--start-frame", type=int, help="first frame of the window (default 0)")
@@ -56,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
             cy=args.cy,
             depth_scale=args.depth_scale,
             depth_m=args.depth_m,
+            color_topic=args.color_topic,
+            depth_topic=args.depth_topic,
             min_frequency_hz=args.min_frequency_hz,
             max_frequency_hz=args.max_frequency_hz,
         )
@@ -79,7 +86,9 @@ def run(args: argparse.Namespace) -> int:
         where = ".".join(str(x) for x in err["loc"]) or "input"
         raise UsageError(f"--{where.replace('_', '-')}: {err['msg']}") from None
 
-    result = run_analysis(args.clip, args.out, excitation=excitation, parameters=params)
+    result = run_analysis(
+        args.clip, args.out, excitation=excitation, parameters=params, depth_path=args.depth
+    )
     if args.json:
         json.dump(result.model_dump(mode="json"), sys.stdout, indent=2)
         print()

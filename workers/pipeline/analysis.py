@@ -16,7 +16,14 @@ from numpy.typing import NDArray
 
 from workers.pipeline.clipio.types import ClipReader, Frame, Intrinsics
 from workers.pipeline.errors import AnalysisError, ParameterError
-from workers.pipeline.flow import FlowConfig, flow_magnitude, flow_stream, prepare_gray
+from workers.pipeline.flow import (
+    FlowConfig,
+    flow_magnitude,
+    flow_stream,
+    needs_resampling,
+    prepare_gray,
+    resample_uniform,
+)
 from workers.pipeline.mechanics import (
     detect_release,
     metric_amplitude,
@@ -234,6 +241,8 @@ class _Buffers:
     gray: NDArray[np.uint8] | None  # (N + 1, H, W) at input resolution, for registration
     first_rgb: NDArray[np.uint8]
     count: int
+    times_s: NDArray[np.float64]  # (N + 1,) capture times, seconds from the window's first frame
+    start_s: float  # capture time of the window's first frame, seconds from the clip's first frame
 
 
 class _Stopwatch:
@@ -291,6 +300,7 @@ def _stream(
     flow_buf = np.empty((n, h, w, channels), np.float32)
     depth_buf: NDArray[np.float32] | None = None
     first_rgb: NDArray[np.uint8] | None = None
+    times = np.empty(n + 1, np.float64)
     has_depth = reader.info.has_depth
     info = reader.info
     gray_buf = np.empty((n + 1, info.height, info.width), np.uint8) if keep_gray else None
@@ -299,6 +309,7 @@ def _stream(
         nonlocal depth_buf, first_rgb
         frame: Frame
         for i, frame in enumerate(reader.frames(start, stop)):
+            times[i] = frame.timestamp_s
             if first_rgb is None:
                 first_rgb = np.array(frame.rgb, copy=True)
             if has_depth and frame.depth_m is not None:
@@ -326,7 +337,15 @@ def _stream(
             progress("flow", 0.05 + 0.75 * count / n)
     if count < n or first_rgb is None:
         raise AnalysisError(f"the clip ended after {count + 1} of the {n + 1} frames it announced")
-    return _Buffers(flow=flow_buf, depth=depth_buf, gray=gray_buf, first_rgb=first_rgb, count=count)
+    return _Buffers(
+        flow=flow_buf,
+        depth=depth_buf,
+        gray=gray_buf,
+        first_rgb=first_rgb,
+        count=count,
+        times_s=times - times[0],
+        start_s=float(times[0]),
+    )
 
 
 def _object_depth(depth: NDArray[np.float32] | None, mask: NDArray[np.bool_]) -> float | None:
@@ -409,10 +428,24 @@ def _analyze_default(
     watch.lap("flow")
     n = buffers.count
     band = _band(config, fps, n)
+    quality: list[QualityNote] = []
 
     if progress:
         progress("spectrum", 0.82)
-    spectra = pixel_spectra(buffers.flow, fps=fps)
+    uniform_flow = buffers.flow
+    if needs_resampling(buffers.times_s, fps):
+        uniform_flow, _ = resample_uniform(buffers.flow, buffers.times_s, fps)
+        quality.append(
+            QualityNote(
+                "uneven_timing",
+                f"frame times deviate from a uniform {fps:g} fps grid "
+                f"({info.dropped_frames} dropped frames): spectra were resampled and the ring-down "
+                "was fitted at the true frame times",
+                "info",
+            )
+        )
+    spectra = pixel_spectra(uniform_flow, fps=fps)
+    del uniform_flow
     summed = spectra.power.sum(axis=1, dtype=np.float64)
     noise = background_spectrum(spectra)
     peaks = find_peaks(
@@ -429,7 +462,6 @@ def _analyze_default(
 
     if progress:
         progress("mechanics", 0.93)
-    quality: list[QualityNote] = []
     intrinsics: Intrinsics | None = info.intrinsics
     objects: list[ObjectMeasurement] = []
     for label, peak in enumerate(seg.peaks, start=1):
@@ -535,12 +567,18 @@ def _measure_object(
             velocity = np.diff(disp2d @ new_axis)
             tracking = "registration"
     onset = detect_release(velocity)
-    fit = fit_ringdown(velocity, fps=fps, frequency_guess_hz=peak.frequency_hz, start_index=onset)
+    fit = fit_ringdown(
+        velocity,
+        fps=fps,
+        frequency_guess_hz=peak.frequency_hz,
+        start_index=onset,
+        frame_times_s=buffers.times_s,
+    )
     kind = excitation.kind if excitation else None
     t_rel = release_instant(fit, fps=fps, excitation=kind)
     amp_px = release_amplitude(fit, t_release_s=t_rel, excitation=kind)
     amp_sd_px = fit.amplitude_sd * math.exp(-fit.decay_per_s * t_rel)
-    release_time = (first_frame + onset) / fps + t_rel
+    release_time = buffers.start_s + float(buffers.times_s[onset]) + t_rel
 
     null_reasons: list[str] = []
     depth = _object_depth(buffers.depth, mask)
@@ -579,7 +617,7 @@ def _measure_object(
 
     n = len(velocity)
     disp = np.concatenate([[0.0], np.cumsum(velocity)])
-    t = (np.arange(n + 1) - onset) / fps
+    t = buffers.times_s[: n + 1] - buffers.times_s[onset]
     model = np.full(n + 1, np.nan)
     after = t >= t_rel
     model[after] = fit.displacement(t[after])

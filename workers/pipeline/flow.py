@@ -187,3 +187,65 @@ def flow_magnitude(flow: NDArray[np.float32]) -> NDArray[np.float32]:
     """
     mag: Any = cv2.magnitude(np.ascontiguousarray(flow[..., 0]), np.ascontiguousarray(flow[..., 1]))
     return np.asarray(mag, dtype=np.float32)
+
+
+def needs_resampling(timestamps_s: NDArray[np.float64], fps: float, *, tolerance: float = 0.05) -> bool:
+    """Whether frame times stray from a uniform grid at ``fps`` by more than ``tolerance`` of a period."""
+    if len(timestamps_s) < 2:
+        return False
+    period = 1.0 / fps
+    dt = np.diff(timestamps_s)
+    return bool(np.any(np.abs(dt - period) > tolerance * period))
+
+
+def resample_uniform(
+    steps: NDArray[np.floating[Any]], timestamps_s: NDArray[np.float64], fps: float
+) -> tuple[NDArray[np.float32], int]:
+    """Per-interval motion measured between unevenly timed frames, resampled onto a uniform grid.
+
+    Flow between frames k and k+1 is a displacement over ``t[k+1] - t[k]``; when frames were dropped
+    (or timing jitters) that interval is not one period. Displacements are accumulated into positions
+    at the true frame times, linearly interpolated at ``t[0] + j / fps``, and differenced again, so a
+    dropped frame neither shifts nor biases the frequency.
+
+    Parameters
+    ----------
+    steps : ndarray, shape (N, ...)
+        Motion from frame k to frame k + 1 (for example flow maps (N, h, w, 2), or a 1-D signal).
+    timestamps_s : ndarray of float64, shape (N + 1,)
+        Capture times of the N + 1 frames, strictly increasing.
+    fps : float
+        Nominal frame rate of the uniform grid.
+
+    Returns
+    -------
+    uniform : ndarray of float32, shape (M, ...)
+        Motion per uniform period, M = round((t[-1] - t[0]) * fps).
+    count : int
+        M.
+    """
+    t = np.asarray(timestamps_s, np.float64) - float(timestamps_s[0])
+    n = steps.shape[0]
+    if t.shape != (n + 1,):
+        raise ParameterError(f"resample: {n} motion steps need {n + 1} timestamps, got {t.shape[0]}")
+    m = round(t[-1] * fps)
+    grid = np.arange(m + 1, dtype=np.float64) / fps
+    grid[-1] = min(grid[-1], t[-1])
+    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, n - 1)
+    weight = ((grid - t[idx]) / (t[idx + 1] - t[idx])).astype(np.float32)
+    # Position at frame k = sum of steps before k; position at grid time = pos[idx] + w * steps[idx].
+    out = np.empty((m, *steps.shape[1:]), np.float32)
+    position_prev = np.zeros(steps.shape[1:], np.float32)
+    cumulative = np.zeros(steps.shape[1:], np.float32)
+    k_done = 0
+    shape_tail = (1,) * (steps.ndim - 1)
+    for j in range(m + 1):
+        k = int(idx[j])
+        while k_done < k:
+            cumulative += steps[k_done]
+            k_done += 1
+        position = cumulative + weight[j].reshape(shape_tail) * steps[k]
+        if j > 0:
+            out[j - 1] = position - position_prev
+        position_prev = position
+    return out, m

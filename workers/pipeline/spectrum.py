@@ -83,8 +83,10 @@ def background_spectrum(spectra: PixelSpectra, *, percentile: float = 20.0) -> N
     """
     n_pix = spectra.power.shape[1]
     step = max(1, n_pix // 20_000)
-    level = np.asarray(np.percentile(spectra.power[:, ::step], percentile, axis=1), np.float64)
-    return level * n_pix
+    level: NDArray[np.float64] = np.percentile(spectra.power[:, ::step], percentile, axis=1).astype(
+        np.float64
+    )
+    return level * float(n_pix)
 
 
 def fast_length(n: int) -> int:
@@ -372,20 +374,20 @@ class RingdownFit:
         return np.asarray(self.amplitude * np.exp(-self.decay_per_s * t_s) * np.cos(w * t_s + self.phase_rad))
 
 
-def _basis(omega: float, sigma: float, n: int) -> NDArray[np.float64]:
-    """Columns: per-frame differences of e^{-σk}cos(ωk) and e^{-σk}sin(ωk), k = 0..n."""
-    k = np.arange(n + 1, dtype=np.float64)
+def _basis(omega: float, sigma: float, k: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Columns: per-interval differences of e^{-σk}cos(ωk) and e^{-σk}sin(ωk) at frame positions k
+    (N + 1 values, in periods of the nominal rate from the fit start), and a constant drift per period."""
     env = np.exp(-sigma * k)
     c = env * np.cos(omega * k)
     s = env * np.sin(omega * k)
-    return np.stack([np.diff(c), np.diff(s), np.ones(n)], axis=1)
+    return np.stack([np.diff(c), np.diff(s), np.diff(k)], axis=1)
 
 
 def _profile(
-    params: NDArray[np.float64], v: NDArray[np.float64]
+    params: NDArray[np.float64], v: NDArray[np.float64], k: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     omega, sigma = float(params[0]), float(params[1])
-    basis = _basis(omega, sigma, len(v))
+    basis = _basis(omega, sigma, k)
     coef, *_ = np.linalg.lstsq(basis, v, rcond=None)
     return v - basis @ coef, np.asarray(coef, np.float64)
 
@@ -411,6 +413,7 @@ def fit_ringdown(
     fps: float,
     frequency_guess_hz: float | None = None,
     start_index: int = 0,
+    frame_times_s: NDArray[np.float64] | None = None,
 ) -> RingdownFit:
     """Fit a damped oscillation to a per-frame velocity signal.
 
@@ -426,6 +429,10 @@ def fit_ringdown(
         Start value (e.g. the summed spectrum's peak); found from the signal's own spectrum otherwise.
     start_index : int
         Samples before this are ignored (still frames before release).
+    frame_times_s : ndarray of float64, shape (N + 1,), optional
+        Capture times of the frames that bound the samples (sample k spans frames k and k + 1). With
+        dropped frames or jitter the model is evaluated at these true times, so gaps do not bias the fit;
+        uniform at ``fps`` when omitted.
 
     Returns
     -------
@@ -433,6 +440,11 @@ def fit_ringdown(
     """
     v = np.asarray(velocity, np.float64)[start_index:]
     n = len(v)
+    if frame_times_s is None:
+        k_pos = np.arange(n + 1, dtype=np.float64)
+    else:
+        times = np.asarray(frame_times_s, np.float64)
+        k_pos = (times[start_index : start_index + n + 1] - times[start_index]) * fps
     if n < 6:
         from workers.pipeline.errors import AnalysisError
 
@@ -446,7 +458,7 @@ def fit_ringdown(
     sigma0 = max(1e-4, math.log(e1 / e2) / max(half, 1)) if e1 > e2 else 1e-3
 
     def residual(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        return _profile(p, v)[0]
+        return _profile(p, v, k_pos)[0]
 
     best = None
     for s0 in (sigma0, sigma0 * 0.3, sigma0 * 3):
@@ -461,7 +473,7 @@ def fit_ringdown(
             best = sol
     assert best is not None
     omega, sigma = float(best.x[0]), float(best.x[1])
-    res, coef = _profile(best.x, v)
+    res, coef = _profile(best.x, v, k_pos)
     a_c, a_s = float(coef[0]), float(coef[1])
     amplitude = math.hypot(a_c, a_s)
     phase = math.atan2(-a_s, a_c)
@@ -473,7 +485,7 @@ def fit_ringdown(
         omega_sd, sigma_sd = (math.sqrt(max(float(x), 0.0)) for x in np.diag(cov))
     except np.linalg.LinAlgError:
         omega_sd, sigma_sd = float("nan"), float("nan")
-    basis = _basis(omega, sigma, n)
+    basis = _basis(omega, sigma, k_pos)
     try:
         cov_lin = np.linalg.inv(basis.T @ basis) * s2
         amp_sd = math.sqrt(max(float(cov_lin[0, 0] + cov_lin[1, 1]) / 2, 0.0))
@@ -482,7 +494,7 @@ def fit_ringdown(
     wn = math.hypot(omega, sigma)
     zeta = sigma / wn
     zeta_sd = sigma_sd / wn
-    signal_power = float(np.mean((v - res - coef[2]) ** 2))
+    signal_power = float(np.mean((v - res - coef[2] * np.diff(k_pos)) ** 2))
     snr_db = 10 * math.log10(max(signal_power, 1e-30) / max(s2, 1e-30))
     return RingdownFit(
         frequency_hz=omega * fps / (2 * math.pi),

@@ -207,11 +207,6 @@ def test_container_rate_wrong_user_fps_wins(
     assert right.objects[0].eigenfrequency_hz == pytest.approx(baseline.eigenfrequency_hz, rel=0.01)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 4, analysis side: the analysis does not yet resample flow onto Frame.timestamp_s; "
-    "remove this marker when it does",
-)
 def test_bag_with_dropped_frames_keeps_frequency(scene: tuple[Scene, SyntheticClip], tmp_path: Path) -> None:
     """Frames lost in recording leave gaps in the header stamps; the frequency must not be biased."""
     sc, clip = scene
