@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -45,7 +46,9 @@ def wait_ready(base: str, proc: subprocess.Popen[bytes], timeout_s: float = 90.0
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--data-dir", type=Path, default=ROOT / "var" / "demo")
     parser.add_argument("--port", type=int, default=0, help="default: a free port")
     parser.add_argument("--keep-serving", action="store_true", help="leave the server running until Ctrl-C")
@@ -62,7 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     env.pop("EIGENSCOPE_DATABASE_URL", None)
     env["EIGENSCOPE_DATA_DIR"] = str(data_dir)
 
-    print(f"demo: starting eigenscope serve on {base} (embedded broker, SQLite; data in {data_dir})", flush=True)
+    print(
+        f"demo: starting eigenscope serve on {base} (embedded broker, SQLite; data in {data_dir})", flush=True
+    )
     server = subprocess.Popen(
         [sys.executable, "-m", "eigenscope", "serve", "--port", str(port), "--log-level", "warning"],
         env=env,
@@ -106,10 +111,8 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         if args.keep_serving:
             print(f"demo: still serving on {base} (API docs at {base}/docs); Ctrl-C to stop", flush=True)
-            try:
+            with contextlib.suppress(KeyboardInterrupt):
                 server.wait()
-            except KeyboardInterrupt:
-                pass
         return 0
     finally:
         if server.poll() is None:

@@ -10,7 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "integration"))
 
-import service_harness as h  # noqa: E402
+import service_harness as h
 
 
 @pytest.fixture(scope="session")

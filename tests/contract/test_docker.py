@@ -32,9 +32,11 @@ def test_compose_services(compose: dict[str, Any]) -> None:
     services = compose["services"]
     assert {"redis", "api", "worker", "flower"} <= set(services)
     redis = services["redis"]
-    assert "--appendonly" in redis["command"] and "yes" in redis["command"]
+    assert "--appendonly" in redis["command"]
+    assert "yes" in redis["command"]
     assert any(v.endswith(":/data") for v in redis["volumes"])
-    assert "redis-data" in compose["volumes"] and "data" in compose["volumes"]
+    assert "redis-data" in compose["volumes"]
+    assert "data" in compose["volumes"]
     for name in ("api", "worker"):
         service = services[name]
         assert service["build"]["dockerfile"] == "docker/Dockerfile"
@@ -43,7 +45,8 @@ def test_compose_services(compose: dict[str, Any]) -> None:
         assert env["EIGENSCOPE_REDIS_URL"].startswith("redis://redis:")
         assert "data:/data" in service["volumes"]
         assert_eigenscope_command(service["command"])
-    assert services["api"]["command"][1] == "serve" and "--no-worker" in services["api"]["command"]
+    assert services["api"]["command"][1] == "serve"
+    assert "--no-worker" in services["api"]["command"]
     assert services["worker"]["command"][1] == "worker"
     assert services["worker"]["deploy"]["replicas"] >= 1
     assert "--broker=redis://redis:6379/0" in services["flower"]["command"]
@@ -52,9 +55,11 @@ def test_compose_services(compose: dict[str, Any]) -> None:
 def test_dockerfile() -> None:
     text = (DOCKER / "Dockerfile").read_text()
     stages = re.findall(r"^FROM\s+(\S+)", text, flags=re.M)
-    assert len(stages) >= 2 and all(s == "python:3.11-slim" for s in stages)
+    assert len(stages) >= 2
+    assert all(s == "python:3.11-slim" for s in stages)
     users = re.findall(r"^USER\s+(\S+)", text, flags=re.M)
-    assert users and users[-1] not in ("root", "0")
+    assert users
+    assert users[-1] not in ("root", "0")
     for source in re.findall(r"^COPY\s+(?!--from)(\S+)\s", text, flags=re.M):
         if "[" not in source:
             assert (ROOT / source).exists(), source
@@ -63,4 +68,5 @@ def test_dockerfile() -> None:
     for line in re.findall(r"^#\s+(?:API|worker):\s+(eigenscope .*)$", text, flags=re.M):
         assert_eigenscope_command(shlex.split(line))
     ignore = (DOCKER / "Dockerfile.dockerignore").read_text()
-    assert ".venv" in ignore and ".git" in ignore
+    assert ".venv" in ignore
+    assert ".git" in ignore

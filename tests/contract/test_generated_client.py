@@ -20,7 +20,9 @@ SPEC = Path(__file__).resolve().parents[2] / "openapi" / "openapi.json"
 
 
 def generate_client(dest: Path) -> Any:
-    exe = shutil.which("openapi-python-client") or str(Path(sys.executable).with_name("openapi-python-client"))
+    exe = shutil.which("openapi-python-client") or str(
+        Path(sys.executable).with_name("openapi-python-client")
+    )
     package = dest / "eigenscope_client"
     out = subprocess.run(
         [exe, "generate", "--path", str(SPEC), "--output-path", str(package), "--meta", "none"],
@@ -42,7 +44,15 @@ def test_generated_client_runs_a_job(tmp_path: Path, truth_clip: tuple[Path, dic
     from eigenscope_client import Client
     from eigenscope_client.api.clips import create_clip, get_clip
     from eigenscope_client.api.jobs import create_job, get_job, get_job_artifact
-    from eigenscope_client.models import ClipUpload, Job, JobCreate, JobStatus, Problem, StepReleaseExcitation
+    from eigenscope_client.models import (
+        Clip,
+        ClipUpload,
+        Job,
+        JobCreate,
+        JobStatus,
+        Problem,
+        StepReleaseExcitation,
+    )
     from eigenscope_client.types import File
 
     service = h.start_embedded(tmp_path / "svc")
@@ -50,15 +60,20 @@ def test_generated_client_runs_a_job(tmp_path: Path, truth_clip: tuple[Path, dic
         client = Client(base_url=service.base_url, timeout=None)
         clip_path, truth = truth_clip
         with clip_path.open("rb") as fh:
-            clip = create_clip.sync(client=client, body=ClipUpload(file=File(payload=fh, file_name=clip_path.name)))
-        assert not isinstance(clip, Problem) and clip is not None, clip
-        assert clip.frames == 64 and clip.has_depth
+            clip = create_clip.sync(
+                client=client, body=ClipUpload(file=File(payload=fh, file_name=clip_path.name))
+            )
+        assert isinstance(clip, Clip), clip
+        assert clip.frames == 64
+        assert clip.has_depth
         missing = get_clip.sync(client=client, clip_id="does-not-exist")
-        assert isinstance(missing, Problem) and missing.status == 404
+        assert isinstance(missing, Problem)
+        assert missing.status == 404
 
         body = JobCreate(clip_id=clip.id, excitation=StepReleaseExcitation(type_="step_release", force_n=5.0))
         created = create_job.sync_detailed(client=client, body=body, idempotency_key="client-test")
-        assert created.status_code == 202 and isinstance(created.parsed, Job)
+        assert created.status_code == 202
+        assert isinstance(created.parsed, Job)
         job: Any = created.parsed
         deadline = time.monotonic() + 120
         while job.status in (JobStatus.QUEUED, JobStatus.RUNNING):
@@ -71,9 +86,11 @@ def test_generated_client_runs_a_job(tmp_path: Path, truth_clip: tuple[Path, dic
 
         name = job.result.artifacts.mask.rsplit("/", 1)[-1]
         artifact = get_job_artifact.sync_detailed(client=client, job_id=job.id, name=name)
-        assert artifact.status_code == 200 and artifact.content.startswith(b"\x89PNG")
+        assert artifact.status_code == 200
+        assert artifact.content.startswith(b"\x89PNG")
 
         bad = create_job.sync(client=client, body=JobCreate(clip_id="nope"))
-        assert isinstance(bad, Problem) and bad.status == 422
+        assert isinstance(bad, Problem)
+        assert bad.status == 422
     finally:
         service.stop()

@@ -63,9 +63,20 @@ def test_errors_are_declared_as_problem_json(spec: dict[str, Any]) -> None:
 
 def test_named_schemas(spec: dict[str, Any]) -> None:
     schemas = spec["components"]["schemas"]
-    for name in ("Clip", "Job", "JobCreate", "JobList", "JobStatus", "Problem", "AnalysisResult", "ClipUpload"):
+    for name in (
+        "Clip",
+        "Job",
+        "JobCreate",
+        "JobList",
+        "JobStatus",
+        "Problem",
+        "AnalysisResult",
+        "ClipUpload",
+    ):
         assert name in schemas
-    assert not any(n.startswith(("Body_", "HTTPValidation")) or n.endswith("Model") for n in schemas), list(schemas)
+    assert not any(n.startswith(("Body_", "HTTPValidation")) or n.endswith("Model") for n in schemas), list(
+        schemas
+    )
     upload = spec["paths"]["/v1/clips"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
     assert upload == {"$ref": "#/components/schemas/ClipUpload"}
     job_post = spec["paths"]["/v1/jobs"]["post"]

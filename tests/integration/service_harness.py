@@ -25,7 +25,9 @@ import httpx
 import pytest
 
 REDIS_URL = os.environ.get("EIGENSCOPE_TEST_REDIS_URL", "redis://127.0.0.1:6379/15")
-POSTGRES_ADMIN_URL = os.environ.get("EIGENSCOPE_TEST_POSTGRES_URL", "postgresql://postgres@127.0.0.1:5432/test")
+POSTGRES_ADMIN_URL = os.environ.get(
+    "EIGENSCOPE_TEST_POSTGRES_URL", "postgresql://postgres@127.0.0.1:5432/test"
+)
 
 
 def in_ci() -> bool:
@@ -100,7 +102,12 @@ class Proc:
         log_path = log_dir / f"{name}.log"
         log = log_path.open("ab")
         popen = subprocess.Popen(
-            cmd, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+            cmd,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
         )
         log.close()
         return cls(name, popen, log_path)
@@ -121,10 +128,8 @@ class Proc:
     def stop(self, *, grace_s: float = 3.0) -> None:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(self.popen.pid, signal.SIGTERM)
-        try:
+        with contextlib.suppress(subprocess.TimeoutExpired):
             self.popen.wait(timeout=grace_s)
-        except subprocess.TimeoutExpired:
-            pass
         # Whatever is left in the group (Celery pool children, a stuck server) goes now.
         with contextlib.suppress(ProcessLookupError):
             os.killpg(self.popen.pid, signal.SIGKILL)
@@ -133,7 +138,9 @@ class Proc:
 
 
 def children_of(pid: int) -> list[int]:
-    out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True, check=False)
+    out = subprocess.run(
+        ["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True, check=False
+    )
     return [int(x) for x in out.stdout.split()]
 
 
@@ -183,7 +190,9 @@ class LiveService:
             if job["status"] in ("succeeded", "failed", "cancelled"):
                 return job
             if time.monotonic() > deadline:
-                raise AssertionError(f"job {job_id} still {job['status']} after {timeout_s} s:\n{self.logs()}")
+                raise AssertionError(
+                    f"job {job_id} still {job['status']} after {timeout_s} s:\n{self.logs()}"
+                )
             time.sleep(0.02)
 
 
@@ -222,7 +231,14 @@ def start_split(tmp_path: Path, *, workers: int = 1, **settings: str) -> LiveSer
     try:
         service.procs.append(Proc.start("api", api, env=env, log_dir=tmp_path))
         for i in range(workers):
-            cmd = [sys.executable, "-m", "eigenscope", "worker", "--hostname", f"w{i}-{uuid.uuid4().hex[:6]}@%h"]
+            cmd = [
+                sys.executable,
+                "-m",
+                "eigenscope",
+                "worker",
+                "--hostname",
+                f"w{i}-{uuid.uuid4().hex[:6]}@%h",
+            ]
             service.procs.append(Proc.start(f"worker{i}", cmd, env=env, log_dir=tmp_path))
         service.wait_ready()
         wait_worker_ready(service)

@@ -1,4 +1,4 @@
-"""Error paths over real HTTP against ``eigenscope serve``: every error is problem+json with the right status."""
+"""Error paths over real HTTP against ``eigenscope serve``: each error is problem+json with its status."""
 
 from __future__ import annotations
 
@@ -22,12 +22,15 @@ def assert_problem(response: httpx.Response, status: int) -> dict[str, Any]:
     assert response.headers["content-type"].startswith(PROBLEM), response.headers
     doc: dict[str, Any] = response.json()
     assert doc["status"] == status
-    assert doc["title"] and doc["detail"]
+    assert doc["title"]
+    assert doc["detail"]
     return doc
 
 
 def upload_bytes(service: h.LiveService, name: str, data: bytes) -> httpx.Response:
-    return service.client.post("/v1/clips", files={"file": (name, io.BytesIO(data), "application/octet-stream")})
+    return service.client.post(
+        "/v1/clips", files={"file": (name, io.BytesIO(data), "application/octet-stream")}
+    )
 
 
 def test_unknown_ids_are_404(embedded: h.LiveService) -> None:
@@ -73,14 +76,18 @@ def test_oversize_upload_is_413(embedded: h.LiveService) -> None:
 
 
 def test_missing_file_field_is_422(embedded: h.LiveService) -> None:
-    response = embedded.client.post("/v1/clips", files={"clip": ("a.npz", b"123", "application/octet-stream")})
+    response = embedded.client.post(
+        "/v1/clips", files={"clip": ("a.npz", b"123", "application/octet-stream")}
+    )
     doc = assert_problem(response, 422)
     assert doc["errors"][0]["loc"] == ["body", "file"]
 
 
 def test_bad_job_json_and_values_are_422(embedded: h.LiveService, truth_clip: tuple[Path, Any]) -> None:
     clip_id = embedded.upload(truth_clip[0]).json()["id"]
-    bad_json = embedded.client.post("/v1/jobs", content=b"{not json", headers={"content-type": "application/json"})
+    bad_json = embedded.client.post(
+        "/v1/jobs", content=b"{not json", headers={"content-type": "application/json"}
+    )
     assert_problem(bad_json, 422)
     cases = [
         {},
@@ -134,25 +141,32 @@ def test_idempotency_key(embedded: h.LiveService, truth_clip: tuple[Path, Any]) 
     assert first.status_code == second.status_code == 202
     assert first.json()["id"] == second.json()["id"]
     other = dict(body, excitation={"type": "impulse", "impulse_ns": 0.3})
-    assert "Idempotency-Key" in assert_problem(embedded.client.post("/v1/jobs", json=other, headers=headers), 422)[
-        "detail"
-    ]
+    assert (
+        "Idempotency-Key"
+        in assert_problem(embedded.client.post("/v1/jobs", json=other, headers=headers), 422)["detail"]
+    )
     embedded.wait_job(first.json()["id"])
 
 
-def test_listing_is_newest_first_with_cursor_and_filter(embedded: h.LiveService, truth_clip: tuple[Path, Any]) -> None:
+def test_listing_is_newest_first_with_cursor_and_filter(
+    embedded: h.LiveService, truth_clip: tuple[Path, Any]
+) -> None:
     clip_id = embedded.upload(truth_clip[0]).json()["id"]
     ids = [embedded.client.post("/v1/jobs", json={"clip_id": clip_id}).json()["id"] for _ in range(3)]
     for job_id in ids:
         embedded.wait_job(job_id)
     page1 = embedded.client.get("/v1/jobs", params={"limit": 2, "clip_id": clip_id}).json()
     assert [j["id"] for j in page1["items"]] == ids[::-1][:2]
-    page2 = embedded.client.get("/v1/jobs", params={"limit": 2, "clip_id": clip_id, "cursor": page1["next_cursor"]})
+    page2 = embedded.client.get(
+        "/v1/jobs", params={"limit": 2, "clip_id": clip_id, "cursor": page1["next_cursor"]}
+    )
     assert [j["id"] for j in page2.json()["items"]] == ids[:1]
     assert page2.json()["next_cursor"] is None
     done = embedded.client.get("/v1/jobs", params={"status": ["succeeded"], "clip_id": clip_id}).json()
     assert {j["id"] for j in done["items"]} == set(ids)
-    assert embedded.client.get("/v1/jobs", params={"status": "queued", "clip_id": clip_id}).json()["items"] == []
+    assert (
+        embedded.client.get("/v1/jobs", params={"status": "queued", "clip_id": clip_id}).json()["items"] == []
+    )
 
 
 def test_health_ready_metrics(embedded: h.LiveService) -> None:

@@ -1,0 +1,127 @@
+"""One delivery of a job (``workers.execution.execute_job``) against a real store, with stand-in runners."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from api_schemas import AnalysisResult, Spectrum
+from service.settings import Settings
+from service.storage import Storage
+from service.store import Store
+from workers.execution import execute_job
+from workers.pipeline.errors import ClipError
+
+
+def result() -> AnalysisResult:
+    return AnalysisResult(
+        eigenfrequency_hz=4.0,
+        objects=[],
+        spectrum=Spectrum(frequencies_hz=[0.0], power=[0.0]),
+        method="default",
+        parameters={},
+        fps=30.0,
+        fps_source="bundle",
+        frames_used=[0, 16],
+        frame_size_px=[48, 32],
+        version="test",
+    )
+
+
+@pytest.fixture
+def job_id(store: Store, settings: Settings, small_clip: Path) -> str:
+    storage = Storage(settings.data_path)
+    storage.ensure()
+    (storage.root / "clips" / "c1").mkdir(parents=True)
+    (storage.root / "clips" / "c1" / "clip.npz").write_bytes(small_clip.read_bytes())
+    store.add_clip(clip_id="c1", filename="a.npz", path="clips/c1/clip.npz", info={}, size_bytes=1)
+    job, _ = store.create_job(
+        clip_id="c1", excitation={"type": "step_release", "force_n": 2.0}, parameters={"frames": 16}
+    )
+    return job.id
+
+
+def test_success_publishes_outputs(store: Store, settings: Settings, job_id: str) -> None:
+    seen: dict[str, Any] = {}
+
+    def runner(
+        clip_path: Any, out_dir: Any, *, excitation: Any, parameters: Any, progress: Any
+    ) -> AnalysisResult:
+        seen.update(excitation=excitation, parameters=parameters)
+        progress("flow", 0.5)
+        (Path(out_dir) / "mask.png").write_bytes(b"\x89PNG")
+        return result()
+
+    outcome = execute_job(store, settings.data_path, job_id, runner=runner, progress_interval_s=0)
+    assert outcome.status == "succeeded"
+    job = store.get_job(job_id)
+    assert job.status == "succeeded"
+    assert job.progress == 1.0
+    assert job.result is not None
+    assert job.result["artifacts"] == {"mask": "mask.png"}
+    assert (settings.data_path / "jobs" / job_id / "mask.png").read_bytes() == b"\x89PNG"
+    assert seen["excitation"].force_n == 2.0
+    assert seen["parameters"].frames == 16
+    assert list((settings.data_path / "tmp").iterdir()) == []
+    # A second delivery of the same message does nothing.
+    assert execute_job(store, settings.data_path, job_id, runner=runner).status == "finished"
+
+
+def test_domain_error_fails_the_job_with_a_problem(store: Store, settings: Settings, job_id: str) -> None:
+    def runner(*_a: Any, **_k: Any) -> AnalysisResult:
+        raise ClipError("npz: 'rgb' is truncated at frame 3")
+
+    assert execute_job(store, settings.data_path, job_id, runner=runner).status == "failed"
+    job = store.get_job(job_id)
+    assert job.status == "failed"
+    assert job.error is not None
+    assert job.error["status"] == 422
+    assert "truncated" in job.error["detail"]
+    assert job.error["type"].endswith("/invalid-clip")
+
+
+def test_crash_is_retried_then_failed(store: Store, settings: Settings, job_id: str) -> None:
+    def runner(*_a: Any, **_k: Any) -> AnalysisResult:
+        raise RuntimeError("segfault-ish")
+
+    first = execute_job(store, settings.data_path, job_id, runner=runner)
+    assert first.status == "retry"
+    assert first.retry_in_s is not None
+    assert store.get_job(job_id).status == "queued"
+    second = execute_job(store, settings.data_path, job_id, runner=runner)  # max_attempts=2
+    assert second.status == "failed"
+    job = store.get_job(job_id)
+    assert job.attempts == 2
+    assert job.error is not None
+    assert "RuntimeError" in job.error["detail"]
+
+
+def test_cancel_while_running_stops_the_runner(store: Store, settings: Settings, job_id: str) -> None:
+    def runner(clip_path: Any, out_dir: Any, *, progress: Any, **_k: Any) -> AnalysisResult:
+        progress("flow", 0.1)
+        store.cancel_job(job_id)
+        progress("spectrum", 0.6)  # raises: the job is no longer ours
+        raise AssertionError("not reached")
+
+    assert (
+        execute_job(store, settings.data_path, job_id, runner=runner, progress_interval_s=0).status
+        == "aborted"
+    )
+    job = store.get_job(job_id)
+    assert job.status == "cancelled"
+    assert job.result is None
+    assert not (settings.data_path / "jobs" / job_id).exists()
+
+
+def test_deleted_clip_fails_the_job(store: Store, settings: Settings, job_id: str) -> None:
+    (settings.data_path / "clips" / "c1" / "clip.npz").unlink()
+
+    def runner(*_a: Any, **_k: Any) -> AnalysisResult:
+        raise AssertionError("must not run")
+
+    assert execute_job(store, settings.data_path, job_id, runner=runner).status == "failed"
+    error = store.get_job(job_id).error
+    assert error is not None
+    assert error["status"] == 410
