@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -25,8 +25,9 @@ from workers.pipeline.flow import (
     resample_uniform,
 )
 from workers.pipeline.mechanics import (
+    depth_track,
     detect_release,
-    metric_amplitude,
+    fit_component,
     object_motion,
     register_translation,
     release_amplitude,
@@ -34,7 +35,14 @@ from workers.pipeline.mechanics import (
     silhouette,
     stiffness_and_mass,
 )
-from workers.pipeline.segmentation import SegmentationConfig, frequency_map, segment, upsample_labels
+from workers.pipeline.segmentation import (
+    Exclusion,
+    SegmentationConfig,
+    exclude_background_surfaces,
+    frequency_map,
+    segment,
+    upsample_labels,
+)
 from workers.pipeline.spectrum import Peak, background_spectrum, find_peaks, fit_ringdown, pixel_spectra
 
 Method = Literal["default", "paper"]
@@ -42,8 +50,14 @@ Method = Literal["default", "paper"]
 Progress = Callable[[str, float], None]
 
 DEFAULT_MAX_FRAMES = 256
-#: Relative standard uncertainty of flow-measured amplitudes (calibrated on synthetic ground truth).
+#: Relative standard uncertainty of flow-measured amplitudes (dense flow is biased low near edges).
 FLOW_AMPLITUDE_REL_SD = 0.03
+#: ... of registration-measured amplitudes (texture interpolation, residual non-rigidity).
+REGISTRATION_REL_SD = 0.004
+#: Relative systematic uncertainty of a depth sensor's distance (calibration, plane fit).
+DEPTH_REL_SD = 0.004
+#: Relative uncertainty assumed for a user-given constant distance (depth_m).
+DEPTH_OVERRIDE_REL_SD = 0.02
 #: Objects whose pixels move this coherently are registered as rigid bodies for their amplitude.
 RIGID_COHERENCE = 0.7
 
@@ -59,13 +73,19 @@ class Excitation:
     uncertainty : float
         Standard uncertainty of ``value``.
     object_id : int or None
-        The object it applies to; the main (strongest) object when None.
+        The object it applies to, by id.
+    point_px : (x, y) or None
+        ... or by a point on it (input pixels).
+    box_px : (x, y, w, h) or None
+        ... or by a box around it (input pixels). With none of the three: the main (strongest) object.
     """
 
     kind: Literal["step_release", "impulse"]
     value: float
     uncertainty: float = 0.0
     object_id: int | None = None
+    point_px: tuple[float, float] | None = None
+    box_px: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("step_release", "impulse"):
@@ -175,6 +195,8 @@ class ObjectMeasurement:
     null_reasons: list[str] = field(default_factory=list)
     #: How the amplitude was measured: ``registration`` (rigid body, sub-pixel) or ``flow``.
     amplitude_source: str = "flow"
+    #: What else was seen: excluded pixels, out-of-plane motion, ...
+    notes: list[str] = field(default_factory=list)
     #: Displacement of the object along its axis, input pixels, per frame of the window (for plots).
     displacement_px: NDArray[np.float64] | None = None
     #: Fitted model displacement at the same frames (NaN before release), input pixels.
@@ -376,7 +398,7 @@ def analyze(
     reader: ClipReader,
     *,
     config: AnalysisConfig | None = None,
-    excitation: Excitation | None = None,
+    excitation: Excitation | Sequence[Excitation] | None = None,
     progress: Progress | None = None,
 ) -> Analysis:
     """Measure the vibrating objects of a clip.
@@ -386,8 +408,9 @@ def analyze(
     reader : ClipReader
         An open clip (see :func:`workers.pipeline.clipio.open_clip`).
     config : AnalysisConfig, optional
-    excitation : Excitation, optional
-        Without it, frequencies, damping and masks are measured and stiffness and mass are None.
+    excitation : Excitation or sequence of Excitation, optional
+        One per excited object (by id, image point or box; the main object when none is named). Objects
+        without one get frequencies, damping and masks, and stiffness and mass None.
     progress : callable, optional
         ``progress(stage, fraction)``.
 
@@ -396,18 +419,25 @@ def analyze(
     Analysis
     """
     config = config or AnalysisConfig()
+    if excitation is None:
+        excitations: list[Excitation] = []
+    elif isinstance(excitation, Excitation):
+        excitations = [excitation]
+    else:
+        excitations = list(excitation)
     if config.method == "paper":
         from workers.pipeline.paper import analyze_paper
 
-        return analyze_paper(reader, config=config, excitation=excitation, progress=progress)
-    return _analyze_default(reader, config=config, excitation=excitation, progress=progress)
+        main = next((e for e in excitations if e.object_id in (None, 1)), None)
+        return analyze_paper(reader, config=config, excitation=main, progress=progress)
+    return _analyze_default(reader, config=config, excitations=excitations, progress=progress)
 
 
 def _analyze_default(
     reader: ClipReader,
     *,
     config: AnalysisConfig,
-    excitation: Excitation | None,
+    excitations: list[Excitation],
     progress: Progress | None,
 ) -> Analysis:
     watch = _Stopwatch()
@@ -456,20 +486,22 @@ def _analyze_default(
     if progress:
         progress("segmentation", 0.88)
     seg = segment(spectra, peaks, grid_shape=grid, band_hz=band, config=config.segmentation)
+    labels_grid = seg.labels
+    exclusions: list[Exclusion] = []
+    if buffers.depth is not None and seg.peaks:
+        labels_grid, exclusions = exclude_background_surfaces(labels_grid, buffers.depth)
     fmap, fvalid = frequency_map(spectra, grid_shape=grid, band_hz=band)
-    labels_full = upsample_labels(seg.labels, (info.height, info.width))
+    labels_full = upsample_labels(labels_grid, (info.height, info.width))
     watch.lap("segmentation")
 
     if progress:
         progress("mechanics", 0.93)
     intrinsics: Intrinsics | None = info.intrinsics
+    by_label = _excitations_by_label(list(excitations), labels_full, len(seg.peaks))
     objects: list[ObjectMeasurement] = []
     for label, peak in enumerate(seg.peaks, start=1):
-        mask = seg.labels == label
+        mask = labels_grid == label
         full_mask = labels_full == label
-        obj_exc = None
-        if excitation is not None and (excitation.object_id in (None, label)):
-            obj_exc = excitation if (excitation.object_id == label or label == 1) else None
         objects.append(
             _measure_object(
                 label=label,
@@ -481,13 +513,9 @@ def _analyze_default(
                 pixel_scale=pixel_scale,
                 intrinsics=intrinsics,
                 depth_override=config.depth_m,
-                excitation=obj_exc,
-                first_frame=start,
+                excitation=by_label.get(label),
+                excluded=[e.reason for e in exclusions if e.label == label],
             )
-        )
-    if excitation is not None and excitation.object_id is not None and excitation.object_id > len(objects):
-        raise ParameterError(
-            f"excitation names object {excitation.object_id} but only {len(objects)} object(s) were found"
         )
     if not objects:
         quality.append(
@@ -535,6 +563,59 @@ def _analyze_default(
     )
 
 
+def _excitations_by_label(
+    excitations: list[Excitation], labels: NDArray[np.uint16], count: int
+) -> dict[int, Excitation]:
+    """Resolve each excitation to an object label: by id, by an image point, by a box, or the main one."""
+    out: dict[int, Excitation] = {}
+    for exc in excitations:
+        label: int
+        if exc.object_id is not None:
+            label = exc.object_id
+            where = f"object {label}"
+        elif exc.point_px is not None:
+            x, y = (round(v) for v in exc.point_px)
+            where = f"point ({x}, {y})"
+            if not (0 <= y < labels.shape[0] and 0 <= x < labels.shape[1]):
+                raise ParameterError(
+                    f"excitation {where} is outside the {labels.shape[1]}x{labels.shape[0]} frame"
+                )
+            label = int(labels[y, x])
+            if label == 0:
+                # Nearest object within 5 % of the frame diagonal.
+                ys, xs = np.nonzero(labels)
+                if len(xs):
+                    d2 = (xs - x) ** 2 + (ys - y) ** 2
+                    i = int(np.argmin(d2))
+                    if d2[i] <= (0.05 * math.hypot(*labels.shape)) ** 2:
+                        label = int(labels[ys[i], xs[i]])
+        elif exc.box_px is not None:
+            x, y, w, h = (round(v) for v in exc.box_px)
+            where = f"box ({x}, {y}, {w}, {h})"
+            crop = labels[max(0, y) : max(0, y + h), max(0, x) : max(0, x + w)]
+            counts = np.bincount(crop.ravel(), minlength=count + 1)[1:]
+            label = int(np.argmax(counts)) + 1 if counts.size and counts.max() > 0 else 0
+        else:
+            label = 1
+            where = "the main object"
+        if not 1 <= label <= count:
+            raise ParameterError(
+                f"excitation for {where} matches no object: {count} object(s) were found; "
+                "name one by id, or by a point or box on it"
+            )
+        if label in out:
+            raise ParameterError(f"two excitations apply to object {label}; give at most one per object")
+        out[label] = exc
+    return out
+
+
+def _outline_grid(outline: NDArray[np.bool_], grid: tuple[int, int]) -> NDArray[np.bool_]:
+    import cv2
+
+    small = cv2.resize(outline.astype(np.uint8), (grid[1], grid[0]), interpolation=cv2.INTER_NEAREST)
+    return np.asarray(small.astype(bool))
+
+
 def _measure_object(
     *,
     label: int,
@@ -547,12 +628,14 @@ def _measure_object(
     intrinsics: Intrinsics | None,
     depth_override: float | None,
     excitation: Excitation | None,
-    first_frame: int,
+    excluded: list[str],
 ) -> ObjectMeasurement:
     motion = object_motion(buffers.flow, mask, pixel_scale=pixel_scale)
     velocity = motion.velocity_px
     axis = motion.axis_px
     tracking = "flow"
+    shifts: NDArray[np.float64] | None = None  # image displacement per frame vs the reference, input px
+    region = mask  # object pixels in the reference frame, grid
     if buffers.gray is not None and motion.coherence >= RIGID_COHERENCE:
         ref = int(np.argmax(np.abs(velocity)))
         position = np.concatenate([[0.0], np.cumsum(velocity)])
@@ -566,6 +649,10 @@ def _measure_object(
             axis = (float(new_axis[0]), float(new_axis[1]))
             velocity = np.diff(disp2d @ new_axis)
             tracking = "registration"
+            shifts = disp2d
+            grid_outline = _outline_grid(outline, mask.shape)
+            if grid_outline.sum() >= 16:
+                region = grid_outline
     onset = detect_release(velocity)
     fit = fit_ringdown(
         velocity,
@@ -579,24 +666,62 @@ def _measure_object(
     amp_px = release_amplitude(fit, t_release_s=t_rel, excitation=kind)
     amp_sd_px = fit.amplitude_sd * math.exp(-fit.decay_per_s * t_rel)
     release_time = buffers.start_s + float(buffers.times_s[onset]) + t_rel
+    times_from_onset = buffers.times_s - buffers.times_s[onset]
 
     null_reasons: list[str] = []
-    depth = _object_depth(buffers.depth, mask)
-    depth_source_sd = 0.0
-    if depth is None and depth_override is not None:
-        depth = depth_override
+    notes: list[str] = list(excluded)
     amp_m = amp_sd_m = None
     direction = None
+    depth: float | None = None
+    depth_rel_sd = 0.0
+    z_amp = z_sd = 0.0
+    if buffers.depth is not None:
+        grid_shifts = None if shifts is None else shifts / pixel_scale
+        z_track = depth_track(buffers.depth, region, shifts_px=grid_shifts)
+        finite = z_track[np.isfinite(z_track)]
+        if finite.size:
+            depth = float(np.median(finite))
+            spread = float(np.median(np.abs(finite - depth))) * 1.4826 / math.sqrt(finite.size)
+            depth_rel_sd = math.hypot(spread / depth, DEPTH_REL_SD)
+            z_amp, z_sd, _ = fit_component(z_track, times_from_onset, fit, start_index=onset)
+            if not (math.isfinite(z_sd) and abs(z_amp) > 2.5 * z_sd):
+                z_amp, z_sd = 0.0, 0.0
+    if depth is None and depth_override is not None:
+        depth = depth_override
+        depth_rel_sd = DEPTH_OVERRIDE_REL_SD
     if depth is None:
         null_reasons.append("no depth: give a clip with depth, or depth_m with the intrinsics")
     elif intrinsics is None:
         null_reasons.append("no camera intrinsics: give fx, fy (and cx, cy) for metric amplitude")
     else:
-        amp_m = metric_amplitude(amp_px, axis, depth_m=depth, intrinsics=intrinsics)
-        rel = math.sqrt((amp_sd_px / max(amp_px, 1e-12)) ** 2 + FLOW_AMPLITUDE_REL_SD**2 + depth_source_sd**2)
-        amp_sd_m = amp_m * rel
+        # Envelope amplitudes at the fit start: image (px, along the axis) and depth (m, signed).
+        a_img = fit.amplitude
         ax, ay = axis
-        direction = (ax, ay, 0.0)
+        ys, xs = np.nonzero(full_mask)
+        u = float(xs.mean()) if len(xs) else intrinsics.cx
+        v = float(ys.mean()) if len(ys) else intrinsics.cy
+        # Pinhole: u = fx X / Z + cx, so dX = du Z / fx + (u - cx) dZ / fx (likewise for y).
+        dx = a_img * ax * depth / intrinsics.fx + (u - intrinsics.cx) * z_amp / intrinsics.fx
+        dy = a_img * ay * depth / intrinsics.fy + (v - intrinsics.cy) * z_amp / intrinsics.fy
+        vec = np.array([dx, dy, z_amp])
+        a3 = float(np.linalg.norm(vec))
+        if a3 > 0 and a_img > 0:
+            amp_m = amp_px * a3 / a_img
+            # An oscillation's axis has no sign: report it with its largest component positive.
+            unit = vec / a3 * (1.0 if vec[int(np.argmax(np.abs(vec)))] >= 0 else -1.0)
+            direction = (float(unit[0]), float(unit[1]), float(unit[2]))
+            sys_rel = REGISTRATION_REL_SD if tracking == "registration" else FLOW_AMPLITUDE_REL_SD
+            a_xy = math.hypot(dx, dy)
+            rel_xy = math.sqrt((amp_sd_px / max(amp_px, 1e-12)) ** 2 + sys_rel**2 + depth_rel_sd**2)
+            var = (a_xy / a3) ** 2 * (a_xy * rel_xy) ** 2 + (abs(z_amp) / a3) ** 2 * z_sd**2
+            amp_sd_m = amp_m * math.sqrt(var) / a3
+            if abs(direction[2]) >= 0.05:
+                notes.append(
+                    f"motion has a component along the line of sight ({abs(direction[2]) * 100:.0f} %), "
+                    "measured from depth"
+                )
+        else:
+            null_reasons.append("amplitude is zero: the object did not move measurably")
 
     k = k_sd = m = m_sd = None
     if excitation is None:
@@ -617,7 +742,7 @@ def _measure_object(
 
     n = len(velocity)
     disp = np.concatenate([[0.0], np.cumsum(velocity)])
-    t = buffers.times_s[: n + 1] - buffers.times_s[onset]
+    t = times_from_onset[: n + 1]
     model = np.full(n + 1, np.nan)
     after = t >= t_rel
     model[after] = fit.displacement(t[after])
@@ -647,6 +772,7 @@ def _measure_object(
         snr_db=fit.snr_db,
         null_reasons=null_reasons,
         amplitude_source=tracking,
+        notes=notes,
         displacement_px=disp,
         model_displacement_px=model,
     )

@@ -383,3 +383,109 @@ def stiffness_and_mass(
         rel_m = math.sqrt(rel_v**2 + rel_a**2 + rel_w**2)
         rel_k = math.sqrt(rel_v**2 + rel_a**2 + rel_w**2)  # k = J ω / A: one power of ω
     return Mechanics(stiffness_n_per_m=k, stiffness_sd=k * rel_k, mass_kg=m, mass_sd=m * rel_m)
+
+
+def depth_track(
+    depth: NDArray[np.float32],
+    region: NDArray[np.bool_],
+    *,
+    shifts_px: NDArray[np.float64] | None = None,
+    erode_px: int = 2,
+) -> NDArray[np.float64]:
+    """The object's distance from the camera in every frame.
+
+    Parameters
+    ----------
+    depth : ndarray of float32, shape (T, h, w)
+        Depth in metres on the flow grid, NaN where invalid.
+    region : ndarray of bool, shape (h, w)
+        The object's pixels in the reference frame.
+    shifts_px : ndarray of float64, shape (T, 2), optional
+        The object's image displacement in each frame relative to the reference, grid pixels; the
+        region is moved with it so that it always samples the object's own surface.
+    erode_px : int
+        Margin removed from the region's edge.
+
+    Returns
+    -------
+    ndarray of float64, shape (T,)
+        Median depth over the (moved) region, metres; NaN where no pixel had a reading.
+    """
+    import cv2
+
+    core = region.astype(np.uint8)
+    if erode_px > 0:
+        eroded = cv2.erode(core, np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8))
+        if eroded.sum() >= 16:
+            core = eroded
+    ys, xs = np.nonzero(core)
+    t_count, h, w = depth.shape
+    out = np.full(t_count, np.nan)
+    for k in range(t_count):
+        if shifts_px is not None:
+            dx, dy = np.rint(shifts_px[k]).astype(int)
+            yy, xx = ys + dy, xs + dx
+            ok = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+            values = depth[k, yy[ok], xx[ok]]
+        else:
+            values = depth[k, ys, xs]
+        values = values[np.isfinite(values)]
+        if values.size:
+            out[k] = float(np.median(values))
+    return out
+
+
+def fit_component(
+    positions: NDArray[np.float64],
+    times_s: NDArray[np.float64],
+    fit: RingdownFit,
+    *,
+    start_index: int,
+) -> tuple[float, float, float]:
+    """Amplitude and phase of a second displacement signal that rings with a fitted ring-down.
+
+    With ω and σ fixed by ``fit``, x(t) = c + a e^{-σt} cos ωt + b e^{-σt} sin ωt is linear in (c, a, b).
+
+    Parameters
+    ----------
+    positions : ndarray of float64, shape (T,)
+        Displacement per frame (NaN samples are ignored).
+    times_s : ndarray of float64, shape (T,)
+        Frame times relative to the fit's first sample.
+    fit : RingdownFit
+    start_index : int
+        First frame used (the release).
+
+    Returns
+    -------
+    amplitude : float
+        Signed envelope amplitude at the fit start: positive when in phase with ``fit``.
+    amplitude_sd : float
+        Its standard uncertainty.
+    phase_offset_rad : float
+        Phase relative to ``fit``.
+    """
+    t = times_s[start_index:]
+    x = positions[start_index:]
+    ok = np.isfinite(x)
+    t, x = t[ok], x[ok]
+    if len(x) < 5:
+        return 0.0, float("inf"), 0.0
+    omega = 2 * math.pi * fit.frequency_hz
+    env = np.exp(-fit.decay_per_s * t)
+    basis = np.stack([np.ones_like(t), env * np.cos(omega * t), env * np.sin(omega * t)], axis=1)
+    coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
+    res = x - basis @ coef
+    dof = max(len(x) - 3, 1)
+    s2 = float(res @ res) / dof
+    try:
+        cov = np.linalg.inv(basis.T @ basis) * s2
+        sd = math.sqrt(max(float(cov[1, 1] + cov[2, 2]) / 2, 0.0))
+    except np.linalg.LinAlgError:
+        sd = float("inf")
+    a, b = float(coef[1]), float(coef[2])
+    amplitude = math.hypot(a, b)
+    phase = math.atan2(-b, a)
+    offset = (phase - fit.phase_rad + math.pi) % (2 * math.pi) - math.pi
+    sign = 1.0 if abs(offset) <= math.pi / 2 else -1.0
+    return sign * amplitude, sd, offset
