@@ -18,7 +18,9 @@ class Problem(BaseModel):
     title: str = Field(description="Short, human-readable summary of the problem type.")
     status: int = Field(ge=100, le=599, description="HTTP status code.")
     detail: str | None = Field(default=None, description="Explanation specific to this occurrence.")
-    instance: str | None = Field(default=None, description="URI of this occurrence (usually the request path).")
+    instance: str | None = Field(
+        default=None, description="URI of this occurrence (usually the request path)."
+    )
     errors: list[dict[str, object]] | None = Field(
         default=None, description="Field-level errors, each with `loc` and `msg`."
     )
