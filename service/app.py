@@ -51,6 +51,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "embedded" if settings.embedded else "redis",
             ctx.store.engine.url.render_as_string(hide_password=True),
         )
+        if ctx.keys.enabled:
+            log.info(
+                "API keys: %d configured; /v1 needs `Authorization: Bearer <key>`", len(ctx.keys.tenants)
+            )
+        else:
+            log.warning(
+                "no API keys configured (EIGENSCOPE_API_KEYS / EIGENSCOPE_API_KEYS_FILE): the API is OPEN, "
+                "anyone who can reach it can read and delete every clip and job"
+            )
         try:
             yield
         finally:

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import logging
+import time
+import unicodedata
+from pathlib import PurePosixPath
 from typing import Any
 
 from starlette.concurrency import run_in_threadpool
@@ -13,7 +16,11 @@ from service.context import ServiceContext
 from service.errors import InsufficientStorageError, ServiceError
 from service.multipart import receive_file
 from service.probing import probe_clip
-from service.store import ClipRecord, new_id
+from service.retention import expiry
+from service.store import ClipRecord, new_id, storage_quota_error
+
+#: Slack for the multipart framing when the Content-Length is compared with a quota.
+_FORM_OVERHEAD = 64 * 1024
 
 log = logging.getLogger(__name__)
 
@@ -32,48 +39,76 @@ def clip_view(clip: ClipRecord) -> ClipInfoModel:
     )
 
 
-async def upload_clip(ctx: ServiceContext, request: Request) -> ClipInfoModel:
-    """Stream the request's ``file`` field to storage, validate it in the probe, and record it."""
-    limit = ctx.settings.max_upload_bytes
-    declared = request.headers.get("content-length")
-    if declared and declared.isdigit() and int(declared) > ctx.storage.free_bytes():
+def display_name(filename: str | None) -> str:
+    """The upload's file name for display only: last path component, no control characters, 255 max.
+
+    It is never used to build a path (the stored file is ``clips/<id>/clip<ext>``).
+    """
+    name = PurePosixPath((filename or "").replace("\\", "/")).name
+    name = "".join(c for c in name if unicodedata.category(c)[0] != "C").strip()
+    return name[-255:] or "clip"
+
+
+async def upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> ClipInfoModel:
+    """Stream the request's ``file`` field to storage, validate it in the probe, and record it.
+
+    Refused before the body is read: 503 when the database or the storage is unavailable, 429 when the
+    key's stored bytes are at their quota (or the declared size would pass it), 507 when the disk is too
+    full. A refused or failed upload leaves neither a file nor a record.
+    """
+    settings = ctx.settings
+    quota = settings.max_stored_mb_per_key * 1024 * 1024
+    used = (await run_in_threadpool(ctx.store.usage, tenant)).stored_bytes
+    declared_text = request.headers.get("content-length")
+    declared = int(declared_text) if declared_text and declared_text.isdigit() else None
+    if used >= quota or (declared is not None and used + declared - _FORM_OVERHEAD > quota):
+        raise storage_quota_error(used, declared or 0, quota, settings.quota_retry_after_s)
+    if declared is not None and declared > ctx.storage.free_bytes():
         raise InsufficientStorageError(
-            f"the server has less free storage than the {int(declared)} bytes of this upload; try again later"
+            f"the server has less free storage than the {declared} bytes of this upload; try again later"
         )
-    sink = ctx.storage.new_upload(limit)
+    sink = ctx.storage.new_upload(settings.max_upload_bytes)
+    clip_id = new_id()
+    kept = False
     try:
         received = await receive_file(request, sink)
         sink.close()
         info = await run_in_threadpool(
             probe_clip,
             sink.path,
-            timeout_s=ctx.settings.probe_timeout_s,
-            memory_mb=ctx.settings.probe_memory_mb,
+            timeout_s=settings.probe_timeout_s,
+            memory_mb=settings.probe_memory_mb,
+            max_frames=settings.max_frames,
+            max_pixels=settings.max_pixels_per_frame,
         )
-        clip_id = new_id()
-        filename = (received.filename or "clip")[-255:]
         relative = await run_in_threadpool(ctx.storage.keep_clip, sink, clip_id, received.filename)
+        kept = True
         record = await run_in_threadpool(
             ctx.store.add_clip,
             clip_id=clip_id,
-            filename=filename,
+            filename=display_name(received.filename),
             path=relative,
             info=info,
             size_bytes=sink.size,
+            owner=tenant,
+            expires_at=expiry(time.time(), settings.retention_s),
+            max_stored_bytes=quota,
+            retry_after_s=settings.quota_retry_after_s,
         )
-    except ServiceError as exc:
-        ctx.metrics.clips_rejected.labels(exc.code).inc()
+    except BaseException as exc:
+        if isinstance(exc, ServiceError):
+            ctx.metrics.clips_rejected.labels(exc.code).inc()
         sink.discard()
-        raise
-    except BaseException:
-        sink.discard()
+        if kept:
+            ctx.storage.delete_clip(clip_id)
         raise
     ctx.metrics.uploaded_bytes.inc(sink.size)
-    log.info("clip %s: %s, %d bytes, %s", record.id, info.get("format"), record.size_bytes, filename)
+    log.info("clip %s: %s, %d bytes, %r", record.id, info.get("format"), record.size_bytes, record.filename)
     return clip_view(record)
 
 
-def delete_clip(ctx: ServiceContext, clip_id: str) -> None:
-    """Delete a clip unless an active job uses it (409); finished jobs keep their results."""
-    ctx.store.delete_clip(clip_id)
+def delete_clip(ctx: ServiceContext, clip_id: str, tenant: str) -> None:
+    """Delete one of ``tenant``'s clips unless an active job uses it (409); finished jobs keep their
+    results."""
+    ctx.store.delete_clip(clip_id, tenant)
     ctx.storage.delete_clip(clip_id)

@@ -8,8 +8,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from service.auth import KeyRing
+from service.errors import UnavailableError
 from service.metrics import Metrics
 from service.queue import JobQueue
+from service.retention import cleanup
 from service.settings import Settings
 from service.storage import Storage
 from service.store import Store
@@ -46,8 +49,11 @@ class ServiceContext:
     storage: Storage
     queue: JobQueue
     metrics: Metrics
+    keys: KeyRing = field(default_factory=lambda: KeyRing({}))
+    schema_ready: bool = False
     _stop: threading.Event = field(default_factory=threading.Event)
     _sweeper: threading.Thread | None = None
+    _last_cleanup: float = float("-inf")
 
     @classmethod
     def build(cls, settings: Settings) -> ServiceContext:
@@ -60,12 +66,20 @@ class ServiceContext:
             storage=Storage(settings.data_path),
             queue=JobQueue(settings),
             metrics=Metrics(store),
+            keys=KeyRing.from_settings(settings),
         )
 
     def start(self) -> None:
-        """Create the storage tree and the tables, then start the sweeper thread."""
-        self.storage.ensure()
-        self.store.create_schema()
+        """Create the storage tree and the tables, then start the sweeper thread.
+
+        An unreachable database or storage does not stop the API from starting: ``/readyz`` reports it,
+        requests that need it answer 503, and the sweeper creates the tables once the database is back.
+        """
+        try:
+            self.storage.ensure()
+        except OSError as exc:
+            log.error("storage %s cannot be prepared: %s", self.storage.root, exc)
+        self.ensure_schema()
         self._stop.clear()
         self._sweeper = threading.Thread(target=self._sweep_loop, name="eigenscope-sweeper", daemon=True)
         self._sweeper.start()
@@ -91,8 +105,23 @@ class ServiceContext:
                 log.warning("could not flag job %s for republishing", job_id, exc_info=True)
             return False
 
+    def ensure_schema(self) -> bool:
+        """Create the tables if not done yet; False while the database cannot be reached."""
+        if not self.schema_ready:
+            try:
+                self.store.create_schema()
+                self.schema_ready = True
+            except Exception as exc:
+                log.error("job database unavailable, tables not created yet: %s", exc)
+        return self.schema_ready
+
     def sweep(self) -> list[str]:
-        """Requeue jobs of dead workers, republish lost messages, tidy temp files. Returns published ids."""
+        """Requeue jobs of dead workers, republish lost messages, tidy temp files, remove expired data.
+
+        Returns the ids of the jobs published again.
+        """
+        if not self.ensure_schema():
+            return []
         published = []
         for job_id in self.store.recover_stale_jobs(requeue_after_s=self.settings.requeue_after_s):
             if self.publish(job_id):
@@ -104,12 +133,19 @@ class ServiceContext:
         _remove_older_than(
             self.storage.root / "tmp", "job-*", 2 * self.settings.task_hard_time_limit_s + _CLEANUP_AGE_S
         )
+        _remove_older_than(self.storage.root / "tmp", "old-*", _CLEANUP_AGE_S)
+        now = time.monotonic()
+        if now - self._last_cleanup >= self.settings.cleanup_interval_s:
+            self._last_cleanup = now
+            cleanup(self.store, self.storage, orphan_grace_s=self.settings.orphan_grace_s)
         return published
 
     def _sweep_loop(self) -> None:
         while True:
             try:
                 self.sweep()
+            except UnavailableError as exc:
+                log.warning("sweeper pass skipped: %s", exc.detail)
             except Exception:
                 log.warning("sweeper pass failed", exc_info=True)
             if self._stop.wait(self.settings.sweep_interval_s):

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends, Request, Security
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.context import ServiceContext
 from service.settings import Settings
@@ -30,7 +31,26 @@ def get_storage(request: Request) -> Storage:
     return get_context(request).storage
 
 
+#: Declares the bearer scheme in the OpenAPI document; the key ring does the checking (401 problem).
+_bearer = HTTPBearer(
+    auto_error=False,
+    scheme_name="ApiKey",
+    description="`Authorization: Bearer <API key>`, when the server is configured with keys.",
+)
+
+
+def get_tenant(
+    request: Request,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)],
+) -> str:
+    """The tenant (API key) of the request; 401 problem when keys are configured and none valid is sent."""
+    header = request.headers.get("authorization")
+    return get_context(request).keys.tenant(header)
+
+
 ContextDep = Annotated[ServiceContext, Depends(get_context)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[Store, Depends(get_store)]
 StorageDep = Annotated[Storage, Depends(get_storage)]
+#: The caller's tenant id ("" when the service runs without keys).
+TenantDep = Annotated[str, Depends(get_tenant)]

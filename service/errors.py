@@ -18,13 +18,23 @@ class ServiceError(Exception):
     status: ClassVar[int] = 500
     title: ClassVar[str] = "Internal error"
     code: ClassVar[str] = "internal-error"
+    #: Seconds a client should wait before trying again (sent as ``Retry-After``), if any.
+    retry_after_s: int | None = None
 
-    def __init__(self, detail: str, *, code: str | None = None, **extra: Any) -> None:
+    def __init__(
+        self, detail: str, *, code: str | None = None, retry_after_s: int | None = None, **extra: Any
+    ) -> None:
         super().__init__(detail)
         self.detail = detail
         if code is not None:
             self.code = code  # type: ignore[misc]
+        if retry_after_s is not None:
+            self.retry_after_s = retry_after_s
         self.extra = extra
+
+    def headers(self) -> dict[str, str]:
+        """HTTP headers that go with the problem document."""
+        return {"Retry-After": str(self.retry_after_s)} if self.retry_after_s is not None else {}
 
     @property
     def type_uri(self) -> str:
@@ -42,6 +52,15 @@ class ServiceError(Exception):
             doc["instance"] = instance
         doc.update(self.extra)
         return doc
+
+
+class UnauthorizedError(ServiceError):
+    status = 401
+    title = "Unauthorized"
+    code = "unauthorized"
+
+    def headers(self) -> dict[str, str]:
+        return {**super().headers(), "WWW-Authenticate": 'Bearer realm="eigenscope"'}
 
 
 class NotFoundError(ServiceError):
@@ -79,6 +98,15 @@ class InvalidClipError(InvalidInputError):
     code = "invalid-clip"
 
 
+class QuotaExceededError(ServiceError):
+    """A per-key limit (active jobs, stored bytes) is reached: 429 with ``Retry-After``."""
+
+    status = 429
+    title = "Too many requests"
+    code = "quota-exceeded"
+    retry_after_s = 30
+
+
 class InsufficientStorageError(ServiceError):
     status = 507
     title = "Insufficient storage"
@@ -89,6 +117,15 @@ class UnavailableError(ServiceError):
     status = 503
     title = "Service unavailable"
     code = "unavailable"
+    retry_after_s = 5
+
+
+class DatabaseUnavailableError(UnavailableError):
+    code = "database-unavailable"
+
+
+class StorageUnavailableError(UnavailableError):
+    code = "storage-unavailable"
 
 
 #: Codes of :mod:`workers.pipeline.errors` (and the probe) mapped to API errors.

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import time
 from collections.abc import Sequence
 from typing import Any
 
 from api_schemas import JobCreate, JobList, JobModel
 from service.context import ServiceContext
 from service.errors import InvalidInputError, NotFoundError
+from service.retention import expiry
 from service.store import ClipRecord, JobRecord, dumps_canonical
 
 log = logging.getLogger(__name__)
@@ -97,15 +99,19 @@ def request_hash(body: JobCreate) -> str:
 
 
 def create_job(
-    ctx: ServiceContext, body: JobCreate, *, idempotency_key: str | None
+    ctx: ServiceContext, body: JobCreate, *, tenant: str, idempotency_key: str | None
 ) -> tuple[JobRecord, bool]:
-    """Validate against the clip, insert the job and publish it. Returns ``(job, created)``."""
+    """Validate against the clip, insert the job and publish it. Returns ``(job, created)``.
+
+    The clip must be ``tenant``'s (another key's clip is reported as missing); a key at its limit of
+    active jobs gets 429.
+    """
     digest = request_hash(body)
     if idempotency_key is not None:
-        existing = ctx.store.job_by_idempotency_key(idempotency_key, digest)
+        existing = ctx.store.job_by_idempotency_key(idempotency_key, digest, tenant)
         if existing is not None:
             return existing, False
-    clip = ctx.store.find_clip(body.clip_id)
+    clip = ctx.store.find_clip(body.clip_id, tenant)
     if clip is None:
         raise InvalidInputError(
             f"clip {body.clip_id!r} does not exist (never uploaded, or deleted); "
@@ -120,6 +126,10 @@ def create_job(
         parameters=body.parameters.model_dump(mode="json", exclude_none=True),
         idempotency_key=idempotency_key,
         request_hash=digest,
+        owner=tenant,
+        expires_at=expiry(time.time(), ctx.settings.retention_s),
+        max_active_jobs=ctx.settings.max_active_jobs_per_key,
+        retry_after_s=ctx.settings.quota_retry_after_s,
     )
     if created:
         ctx.metrics.jobs_created.inc()
@@ -131,19 +141,22 @@ def create_job(
 def list_jobs(
     ctx: ServiceContext,
     *,
+    tenant: str,
     statuses: Sequence[str],
     clip_id: str | None,
     limit: int,
     cursor: str | None,
     root_path: str = "",
 ) -> JobList:
-    jobs, next_cursor = ctx.store.list_jobs(statuses=statuses, clip_id=clip_id, limit=limit, cursor=cursor)
+    jobs, next_cursor = ctx.store.list_jobs(
+        statuses=statuses, clip_id=clip_id, limit=limit, cursor=cursor, owner=tenant
+    )
     return JobList(items=[job_view(j, root_path=root_path) for j in jobs], next_cursor=next_cursor)
 
 
-def artifact_file(ctx: ServiceContext, job_id: str, name: str) -> Any:
+def artifact_file(ctx: ServiceContext, job_id: str, name: str, *, tenant: str) -> Any:
     """The path of a finished job's artifact (only names the result lists, plus ``result.json``)."""
-    job = ctx.store.get_job(job_id)
+    job = ctx.store.get_job(job_id, tenant)
     if job.status != "succeeded" or job.result is None:
         raise NotFoundError(
             f"job {job_id} is {job.status}; artifacts exist once it has succeeded", code="artifact-not-found"

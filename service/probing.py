@@ -21,7 +21,14 @@ log = logging.getLogger(__name__)
 _PASS_ENV = ("PATH", "PYTHONPATH", "HOME", "LANG", "LC_ALL", "TMPDIR", "VIRTUAL_ENV")
 
 
-def probe_clip(path: Path, *, timeout_s: float, memory_mb: int) -> dict[str, Any]:
+def probe_clip(
+    path: Path,
+    *,
+    timeout_s: float,
+    memory_mb: int,
+    max_frames: int | None = None,
+    max_pixels: int | None = None,
+) -> dict[str, Any]:
     """Describe the clip at ``path`` (see :func:`workers.probe.probe`), or raise the matching API error.
 
     Raises
@@ -42,6 +49,10 @@ def probe_clip(path: Path, *, timeout_s: float, memory_mb: int) -> dict[str, Any
         "--cpu-s",
         str(int(timeout_s) + 1),
     ]
+    if max_frames is not None:
+        cmd += ["--max-frames", str(max_frames)]
+    if max_pixels is not None:
+        cmd += ["--max-pixels", str(max_pixels)]
     try:
         proc = subprocess.run(
             cmd, capture_output=True, timeout=timeout_s, env=env, stdin=subprocess.DEVNULL, check=False

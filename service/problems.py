@@ -49,8 +49,7 @@ async def _service_error(request: Request, exc: Exception) -> ProblemResponse:
     assert isinstance(exc, ServiceError)
     if exc.status >= 500:
         log.error("%s %s: %s", request.method, request.url.path, exc.detail)
-    headers = {"Retry-After": "5"} if exc.status == 503 else None
-    return problem_response(exc.problem(instance=request.url.path), headers)
+    return problem_response(exc.problem(instance=request.url.path), exc.headers() or None)
 
 
 async def _validation_error(request: Request, exc: Exception) -> ProblemResponse:

@@ -55,7 +55,44 @@ class Settings(BaseSettings):
     retry_after_s: int = Field(default=1, ge=1, description="Suggested polling interval for clients.")
     log_level: str = Field(default="INFO")
 
-    @field_validator("redis_url", "database_url", mode="before")
+    # Access, limits and retention -----------------------------------------------------------
+    api_keys: str | None = Field(
+        default=None,
+        repr=False,
+        description="Comma-separated API keys. With keys (here or in API_KEYS_FILE) every /v1 route needs "
+        "`Authorization: Bearer <key>`; without any the service runs open.",
+    )
+    api_keys_file: Path | None = Field(
+        default=None,
+        description="File of API keys, one a line: the key itself or `sha256:<hex digest>`; `#` comments.",
+    )
+    max_active_jobs_per_key: int = Field(
+        default=50, ge=1, description="Queued plus running jobs one key may have (429 beyond)."
+    )
+    max_stored_mb_per_key: int = Field(
+        default=20480, ge=1, description="Bytes of clips and artifacts one key may keep, MiB (429 beyond)."
+    )
+    quota_retry_after_s: int = Field(default=30, ge=1, description="Retry-After of a 429 over a quota.")
+    max_frames: int = Field(default=100_000, ge=8, description="Most frames an uploaded clip may hold.")
+    max_pixels_per_frame: int = Field(
+        default=4096 * 4096, ge=64, description="Largest frame of an uploaded clip, width x height."
+    )
+    retention_s: float = Field(
+        default=7 * 24 * 3600,
+        ge=0,
+        description="Clips, jobs and artifacts are deleted this long after creation (0: keep forever).",
+    )
+    cleanup_interval_s: float = Field(default=60, gt=0, description="How often expired data is removed.")
+    orphan_grace_s: float = Field(
+        default=3600, ge=0, description="Files with no record older than this are removed by the cleanup."
+    )
+    test_hooks: bool = Field(
+        default=False,
+        description="Fault-injection hooks for the test suite (a clip named `__eigenscope_kill_worker__*` "
+        "kills the worker running it). Never enable in production.",
+    )
+
+    @field_validator("redis_url", "database_url", "api_keys", "api_keys_file", mode="before")
     @classmethod
     def _blank_is_unset(cls, value: Any) -> Any:
         if isinstance(value, str) and not value.strip():
@@ -119,5 +156,7 @@ class Settings(BaseSettings):
                 continue
             if name == "data_dir":
                 value = self.data_path
+            if name == "api_keys_file":
+                value = Path(value).expanduser().resolve()
             env[f"EIGENSCOPE_{name.upper()}"] = str(value)
         return env

@@ -18,7 +18,12 @@ import uuid
 from pathlib import Path
 from typing import BinaryIO
 
-from service.errors import InsufficientStorageError, NotFoundError, PayloadTooLargeError
+from service.errors import (
+    InsufficientStorageError,
+    NotFoundError,
+    PayloadTooLargeError,
+    StorageUnavailableError,
+)
 
 _SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,12}(\.[A-Za-z0-9]{1,6})?$")
 _ARTIFACT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
@@ -103,15 +108,32 @@ class Storage:
     # Clips -----------------------------------------------------------------------------------
 
     def new_upload(self, limit_bytes: int) -> UploadSink:
-        return UploadSink(self.root / "tmp" / f"upload-{uuid.uuid4().hex}", limit_bytes)
+        """A new file in ``tmp/``; :class:`StorageUnavailableError` if the storage cannot be written."""
+        try:
+            return UploadSink(self.root / "tmp" / f"upload-{uuid.uuid4().hex}", limit_bytes)
+        except OSError as exc:
+            raise StorageUnavailableError(
+                f"the clip storage cannot be written ({exc.strerror or type(exc).__name__}); try again later"
+            ) from exc
 
     def keep_clip(self, sink: UploadSink, clip_id: str, filename: str | None) -> str:
-        """Move a finished upload into place; returns its path relative to the root."""
-        sink.close()
+        """Move a finished upload into place; returns its path relative to the root.
+
+        On failure nothing is left in ``clips/`` (the caller discards the upload).
+        """
         folder = self.root / "clips" / clip_id
-        folder.mkdir(parents=True, exist_ok=False)
-        target = folder / f"clip{safe_suffix(filename)}"
-        os.replace(sink.path, target)
+        try:
+            sink.close()
+            folder.mkdir(parents=True, exist_ok=False)
+            target = folder / f"clip{safe_suffix(filename)}"
+            os.replace(sink.path, target)
+        except OSError as exc:
+            shutil.rmtree(folder, ignore_errors=True)
+            if exc.errno == 28:  # ENOSPC
+                raise InsufficientStorageError("the server's storage is full; try again later") from exc
+            raise StorageUnavailableError(
+                f"the clip storage cannot be written ({exc.strerror or type(exc).__name__}); try again later"
+            ) from exc
         return target.relative_to(self.root).as_posix()
 
     def clip_path(self, relative: str) -> Path:
@@ -155,3 +177,43 @@ class Storage:
 
     def delete_job_outputs(self, job_id: str) -> None:
         shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
+
+    # Retention -------------------------------------------------------------------------------
+
+    def entries_older_than(self, kind: str, cutoff: float) -> list[str]:
+        """Names of the ``clips/`` or ``jobs/`` folders last changed before ``cutoff`` (epoch seconds)."""
+        folder = self.root / kind
+        names = []
+        try:
+            entries = list(os.scandir(folder))
+        except FileNotFoundError:
+            return []
+        for entry in entries:
+            try:
+                if entry.stat(follow_symlinks=False).st_mtime < cutoff:
+                    names.append(entry.name)
+            except OSError:
+                continue
+        return names
+
+    def remove_entry(self, kind: str, name: str) -> None:
+        """Remove ``clips/<name>`` or ``jobs/<name>`` (a folder or a stray file)."""
+        if kind not in ("clips", "jobs") or "/" in name or name in ("", ".", ".."):
+            raise ValueError(f"not a storage entry: {kind}/{name}")
+        path = self.root / kind / name
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
+def tree_bytes(path: Path) -> int:
+    """Total size of the files under ``path``."""
+    total = 0
+    for dirpath, _dirs, files in os.walk(path):
+        for name in files:
+            try:
+                total += (Path(dirpath) / name).stat().st_size
+            except OSError:
+                continue
+    return total

@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import base64
 import binascii
+import hashlib
 import json
 import os
+import secrets
 import socket
 import time
 import uuid
@@ -28,25 +30,37 @@ from typing import Any, ClassVar
 
 from sqlalchemy import (
     JSON,
+    BigInteger,
     DateTime,
     Engine,
     Float,
     Integer,
     String,
     create_engine,
+    delete,
     event,
     func,
+    inspect,
     select,
     text,
     update,
 )
-from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
+from sqlalchemy.exc import IntegrityError, InterfaceError, OperationalError, ProgrammingError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 
-from service.errors import ConflictError, InvalidInputError, NotFoundError
+from service.errors import (
+    ConflictError,
+    DatabaseUnavailableError,
+    InvalidInputError,
+    NotFoundError,
+    QuotaExceededError,
+)
 
 ACTIVE = ("queued", "running")
 TERMINAL = ("succeeded", "failed", "cancelled")
+
+#: ``owner`` argument meaning "any tenant" (the workers and the cleanup, never a request).
+ANY_OWNER = None
 
 
 def utcnow() -> datetime:
@@ -54,8 +68,8 @@ def utcnow() -> datetime:
 
 
 def new_id() -> str:
-    """A fresh resource id: 32 lowercase hex digits."""
-    return uuid.uuid4().hex
+    """A fresh, unguessable resource id: 128 random bits as 32 lowercase hex digits."""
+    return secrets.token_hex(16)
 
 
 def normalize_database_url(url: str) -> str:
@@ -77,8 +91,10 @@ class ClipRow(Base):
     filename: Mapped[str] = mapped_column(String(255))
     path: Mapped[str] = mapped_column(String(512), doc="Relative to the data directory.")
     info: Mapped[dict[str, Any]] = mapped_column(JSON)
-    size_bytes: Mapped[int] = mapped_column(Integer)
+    size_bytes: Mapped[int] = mapped_column(BigInteger)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    owner: Mapped[str] = mapped_column(String(64), default="", server_default="", index=True)
+    expires_at: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
 
 
 class JobRow(Base):
@@ -105,6 +121,20 @@ class JobRow(Base):
     lease_until: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
     enqueued_at: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
     version: Mapped[int] = mapped_column(Integer, default=0)
+    owner: Mapped[str] = mapped_column(String(64), default="", server_default="", index=True)
+    expires_at: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
+    output_bytes: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+
+
+#: Columns added after the first release: ``create_schema`` adds them to older tables.
+_ADDED_COLUMNS: dict[str, dict[str, str]] = {
+    "eigenscope_clips": {"owner": "VARCHAR(64) NOT NULL DEFAULT ''", "expires_at": "FLOAT"},
+    "eigenscope_jobs": {
+        "owner": "VARCHAR(64) NOT NULL DEFAULT ''",
+        "expires_at": "FLOAT",
+        "output_bytes": "BIGINT NOT NULL DEFAULT 0",
+    },
+}
 
 
 def _aware(value: datetime | None) -> datetime | None:
@@ -121,12 +151,23 @@ class ClipRecord:
     info: dict[str, Any]
     size_bytes: int
     created_at: datetime
+    owner: str = ""
+    expires_at: float | None = None
 
     @classmethod
     def of(cls, row: ClipRow) -> ClipRecord:
         created = _aware(row.created_at)
         assert created is not None
-        return cls(row.id, row.filename, row.path, dict(row.info), row.size_bytes, created)
+        return cls(
+            row.id,
+            row.filename,
+            row.path,
+            dict(row.info),
+            int(row.size_bytes),
+            created,
+            row.owner or "",
+            row.expires_at,
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +188,9 @@ class JobRecord:
     result: dict[str, Any] | None
     lease_owner: str | None
     lease_until: float | None
+    owner: str = ""
+    expires_at: float | None = None
+    output_bytes: int = 0
 
     @classmethod
     def of(cls, row: JobRow) -> JobRecord:
@@ -169,6 +213,9 @@ class JobRecord:
             result=row.result,
             lease_owner=row.lease_owner,
             lease_until=row.lease_until,
+            owner=row.owner or "",
+            expires_at=row.expires_at,
+            output_bytes=int(row.output_bytes or 0),
         )
 
 
@@ -282,7 +329,10 @@ class Store:
                 conn.exec_driver_sql("BEGIN IMMEDIATE")
 
             return engine
-        return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=5)
+        connect_args = {"connect_timeout": 5} if url.startswith("postgresql") else {}
+        return create_engine(
+            url, pool_pre_ping=True, pool_size=5, max_overflow=5, pool_timeout=10, connect_args=connect_args
+        )
 
     # Life cycle -----------------------------------------------------------------------------
 
@@ -291,11 +341,24 @@ class Store:
         for attempt in range(5):
             try:
                 Base.metadata.create_all(self.engine)
+                self._add_missing_columns()
                 return
             except (IntegrityError, ProgrammingError, OperationalError):
                 if attempt == 4:
                     raise
                 time.sleep(0.2 * (attempt + 1))
+
+    def _add_missing_columns(self) -> None:
+        """Bring tables made by an older release up to date (new columns only; nothing is dropped)."""
+        inspector = inspect(self.engine)
+        for table, columns in _ADDED_COLUMNS.items():
+            present = {c["name"] for c in inspector.get_columns(table)}
+            missing = {name: ddl for name, ddl in columns.items() if name not in present}
+            if not missing:
+                continue
+            with self.engine.begin() as conn:
+                for name, ddl in missing.items():
+                    conn.exec_driver_sql(f"ALTER TABLE {table} ADD COLUMN {name} {ddl}")
 
     def ping(self) -> None:
         """Raise if the database cannot be reached."""
@@ -307,37 +370,95 @@ class Store:
 
     @contextmanager
     def _tx(self) -> Iterator[Session]:
-        with self._sessions() as session, session.begin():
-            yield session
+        """A transaction; a database that cannot be reached becomes :class:`DatabaseUnavailableError`."""
+        try:
+            with self._sessions() as session, session.begin():
+                yield session
+        except (OperationalError, InterfaceError) as exc:
+            raise DatabaseUnavailableError(
+                f"the job database is unavailable ({type(exc.orig).__name__}); try again shortly"
+            ) from exc
+
+    def _lock_owner(self, s: Session, owner: str) -> None:
+        """Serialise quota checks of one tenant (SQLite transactions are serial already)."""
+        if self.engine.dialect.name == "postgresql":
+            key = int.from_bytes(
+                hashlib.sha256(f"eigenscope:{owner}".encode()).digest()[:8], "big", signed=True
+            )
+            s.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": key})
+
+    def usage(self, owner: str) -> Usage:
+        """What ``owner`` holds: active jobs and stored bytes (clips plus job outputs)."""
+        with self._tx() as s:
+            return self._usage(s, owner)
+
+    @staticmethod
+    def _usage(s: Session, owner: str) -> Usage:
+        clip_bytes = s.scalar(
+            select(func.coalesce(func.sum(ClipRow.size_bytes), 0)).where(ClipRow.owner == owner)
+        )
+        job_bytes = s.scalar(
+            select(func.coalesce(func.sum(JobRow.output_bytes), 0)).where(JobRow.owner == owner)
+        )
+        active = s.scalar(
+            select(func.count()).select_from(JobRow).where(JobRow.owner == owner, JobRow.status.in_(ACTIVE))
+        )
+        return Usage(active_jobs=int(active or 0), stored_bytes=int(clip_bytes or 0) + int(job_bytes or 0))
 
     # Clips ----------------------------------------------------------------------------------
 
     def add_clip(
-        self, *, clip_id: str, filename: str, path: str, info: dict[str, Any], size_bytes: int
+        self,
+        *,
+        clip_id: str,
+        filename: str,
+        path: str,
+        info: dict[str, Any],
+        size_bytes: int,
+        owner: str = "",
+        expires_at: float | None = None,
+        max_stored_bytes: int | None = None,
+        retry_after_s: int | None = None,
     ) -> ClipRecord:
+        """Record an uploaded clip; with ``max_stored_bytes`` refuse (429) if the owner would exceed it."""
         row = ClipRow(
-            id=clip_id, filename=filename, path=path, info=info, size_bytes=size_bytes, created_at=utcnow()
+            id=clip_id,
+            filename=filename,
+            path=path,
+            info=info,
+            size_bytes=size_bytes,
+            created_at=utcnow(),
+            owner=owner,
+            expires_at=expires_at,
         )
         with self._tx() as s:
+            if max_stored_bytes is not None:
+                self._lock_owner(s, owner)
+                used = self._usage(s, owner).stored_bytes
+                if used + size_bytes > max_stored_bytes:
+                    raise storage_quota_error(used, size_bytes, max_stored_bytes, retry_after_s)
             s.add(row)
         return ClipRecord.of(row)
 
-    def find_clip(self, clip_id: str) -> ClipRecord | None:
+    def find_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord | None:
+        """The clip, if it exists and belongs to ``owner`` (any owner when None)."""
         with self._tx() as s:
             row = s.get(ClipRow, clip_id)
-            return ClipRecord.of(row) if row is not None else None
+            if row is None or (owner is not None and row.owner != owner):
+                return None
+            return ClipRecord.of(row)
 
-    def get_clip(self, clip_id: str) -> ClipRecord:
-        clip = self.find_clip(clip_id)
+    def get_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord:
+        clip = self.find_clip(clip_id, owner)
         if clip is None:
             raise NotFoundError(f"no clip with id {clip_id!r}", code="clip-not-found")
         return clip
 
-    def delete_clip(self, clip_id: str) -> ClipRecord:
+    def delete_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord:
         """Delete the clip's record; refuse while a queued or running job uses it."""
         with self._tx() as s:
             row = s.get(ClipRow, clip_id)
-            if row is None:
+            if row is None or (owner is not None and row.owner != owner):
                 raise NotFoundError(f"no clip with id {clip_id!r}", code="clip-not-found")
             active = s.scalars(
                 select(JobRow.id).where(JobRow.clip_id == clip_id, JobRow.status.in_(ACTIVE)).limit(5)
@@ -362,14 +483,20 @@ class Store:
         parameters: dict[str, Any],
         idempotency_key: str | None = None,
         request_hash: str | None = None,
+        owner: str = "",
+        expires_at: float | None = None,
+        max_active_jobs: int | None = None,
+        retry_after_s: int | None = None,
     ) -> tuple[JobRecord, bool]:
-        """Insert a queued job; returns ``(job, created)``.
+        """Insert a queued job on one of ``owner``'s clips; returns ``(job, created)``.
 
-        With an ``idempotency_key`` already used for the same ``request_hash`` the earlier job is returned
-        with ``created=False``; used for another request it raises :class:`InvalidInputError`.
+        With an ``idempotency_key`` already used (by this owner) for the same ``request_hash`` the earlier
+        job is returned with ``created=False``; used for another request it raises
+        :class:`InvalidInputError`. With ``max_active_jobs`` an owner who already has that many queued or
+        running jobs gets :class:`QuotaExceededError`.
         """
         if idempotency_key is not None:
-            existing = self.job_by_idempotency_key(idempotency_key, request_hash)
+            existing = self.job_by_idempotency_key(idempotency_key, request_hash, owner)
             if existing is not None:
                 return existing, False
         row = JobRow(
@@ -382,34 +509,51 @@ class Store:
             excitation=excitation,
             parameters=parameters,
             created_at=utcnow(),
-            idempotency_key=idempotency_key,
+            idempotency_key=_scoped_key(owner, idempotency_key),
             request_hash=request_hash,
             enqueued_at=time.time(),
             version=0,
+            owner=owner,
+            expires_at=expires_at,
+            output_bytes=0,
         )
         try:
             with self._tx() as s:
-                if s.get(ClipRow, clip_id) is None:
+                clip = s.get(ClipRow, clip_id)
+                if clip is None or clip.owner != owner:
                     raise InvalidInputError(
                         f"clip {clip_id!r} does not exist (never uploaded, or deleted); "
                         "upload it with POST /v1/clips and use the returned id",
                         code="clip-not-found",
                     )
+                if max_active_jobs is not None:
+                    self._lock_owner(s, owner)
+                    active = self._usage(s, owner).active_jobs
+                    if active >= max_active_jobs:
+                        raise QuotaExceededError(
+                            f"this API key already has {active} queued or running jobs, the most allowed "
+                            f"(EIGENSCOPE_MAX_ACTIVE_JOBS_PER_KEY={max_active_jobs}); wait for some to "
+                            "finish",
+                            code="too-many-jobs",
+                            retry_after_s=retry_after_s,
+                            limit=max_active_jobs,
+                        )
                 s.add(row)
         except IntegrityError:
             if idempotency_key is None:
                 raise
             # Lost a race with a request carrying the same key.
-            existing = self.job_by_idempotency_key(idempotency_key, request_hash)
+            existing = self.job_by_idempotency_key(idempotency_key, request_hash, owner)
             if existing is None:
                 raise
             return existing, False
         return JobRecord.of(row), True
 
-    def job_by_idempotency_key(self, key: str, request_hash: str | None) -> JobRecord | None:
-        """The job created with ``key``; raises :class:`InvalidInputError` if it was for another request."""
+    def job_by_idempotency_key(self, key: str, request_hash: str | None, owner: str = "") -> JobRecord | None:
+        """The job ``owner`` created with ``key``; raises :class:`InvalidInputError` if it was for another
+        request."""
         with self._tx() as s:
-            row = s.scalars(select(JobRow).where(JobRow.idempotency_key == key)).first()
+            row = s.scalars(select(JobRow).where(JobRow.idempotency_key == _scoped_key(owner, key))).first()
             if row is None:
                 return None
             if row.request_hash != request_hash:
@@ -420,13 +564,16 @@ class Store:
                 )
             return JobRecord.of(row)
 
-    def find_job(self, job_id: str) -> JobRecord | None:
+    def find_job(self, job_id: str, owner: str | None = ANY_OWNER) -> JobRecord | None:
+        """The job, if it exists and belongs to ``owner`` (any owner when None)."""
         with self._tx() as s:
             row = s.scalars(select(JobRow).where(JobRow.id == job_id)).first()
-            return JobRecord.of(row) if row is not None else None
+            if row is None or (owner is not None and row.owner != owner):
+                return None
+            return JobRecord.of(row)
 
-    def get_job(self, job_id: str) -> JobRecord:
-        job = self.find_job(job_id)
+    def get_job(self, job_id: str, owner: str | None = ANY_OWNER) -> JobRecord:
+        job = self.find_job(job_id, owner)
         if job is None:
             raise NotFoundError(f"no job with id {job_id!r}", code="job-not-found")
         return job
@@ -438,9 +585,12 @@ class Store:
         clip_id: str | None = None,
         limit: int = 20,
         cursor: str | None = None,
+        owner: str | None = ANY_OWNER,
     ) -> tuple[list[JobRecord], str | None]:
         """Jobs newest first; returns the page and the cursor of the next page (None on the last)."""
         query = select(JobRow).order_by(JobRow.seq.desc()).limit(limit + 1)
+        if owner is not None:
+            query = query.where(JobRow.owner == owner)
         if statuses:
             query = query.where(JobRow.status.in_(list(statuses)))
         if clip_id is not None:
@@ -453,10 +603,10 @@ class Store:
             return rows[:limit], _encode_cursor(rows[limit - 1].seq)
         return rows, None
 
-    def cancel_job(self, job_id: str) -> JobRecord:
+    def cancel_job(self, job_id: str, owner: str | None = ANY_OWNER) -> JobRecord:
         """Cancel a queued or running job (a running worker stops at its next progress report)."""
         for _ in range(20):
-            job = self.get_job(job_id)
+            job = self.get_job(job_id, owner)
             if job.status == "cancelled":
                 return job
             if job.status in ("succeeded", "failed"):
@@ -623,8 +773,9 @@ class Store:
         }
         return self._owned_update(job_id, owner, values)
 
-    def complete_job(self, job_id: str, owner: str, result: dict[str, Any]) -> bool:
+    def complete_job(self, job_id: str, owner: str, result: dict[str, Any], *, output_bytes: int = 0) -> bool:
         values = {
+            "output_bytes": int(output_bytes),
             "status": "succeeded",
             "stage": "done",
             "progress": 1.0,
@@ -657,6 +808,78 @@ class Store:
             "enqueued_at": time.time(),
         }
         return self._owned_update(job_id, owner, values)
+
+    # Retention ---------------------------------------------------------------------------------
+
+    def expired_jobs(self, now: float, limit: int = 500) -> list[JobRecord]:
+        """Finished jobs whose time is up (active jobs are kept until they finish)."""
+        query = (
+            select(JobRow)
+            .where(JobRow.expires_at.is_not(None), JobRow.expires_at < now, JobRow.status.in_(TERMINAL))
+            .limit(limit)
+        )
+        with self._tx() as s:
+            return [JobRecord.of(r) for r in s.scalars(query).all()]
+
+    def expired_clips(self, now: float, limit: int = 500) -> list[ClipRecord]:
+        """Clips whose time is up and that no queued or running job uses."""
+        busy = select(JobRow.clip_id).where(JobRow.status.in_(ACTIVE))
+        query = (
+            select(ClipRow)
+            .where(ClipRow.expires_at.is_not(None), ClipRow.expires_at < now, ClipRow.id.not_in(busy))
+            .limit(limit)
+        )
+        with self._tx() as s:
+            return [ClipRecord.of(r) for r in s.scalars(query).all()]
+
+    def delete_finished_job(self, job_id: str) -> bool:
+        """Delete a job's record if it is finished; True if it was deleted."""
+        with self._tx() as s:
+            res = s.execute(delete(JobRow).where(JobRow.id == job_id, JobRow.status.in_(TERMINAL)))
+            return bool(res.rowcount)  # type: ignore[attr-defined]
+
+    def existing_ids(self, clip_ids: Sequence[str], job_ids: Sequence[str]) -> tuple[set[str], set[str]]:
+        """Which of these clip and job ids have records."""
+        clips: set[str] = set()
+        jobs: set[str] = set()
+        with self._tx() as s:
+            for start in range(0, len(clip_ids), 500):
+                chunk = list(clip_ids[start : start + 500])
+                clips |= set(s.scalars(select(ClipRow.id).where(ClipRow.id.in_(chunk))).all())
+            for start in range(0, len(job_ids), 500):
+                chunk = list(job_ids[start : start + 500])
+                jobs |= set(s.scalars(select(JobRow.id).where(JobRow.id.in_(chunk))).all())
+        return clips, jobs
+
+
+@dataclass(frozen=True, slots=True)
+class Usage:
+    """What one tenant holds."""
+
+    active_jobs: int
+    stored_bytes: int
+
+
+def storage_quota_error(used: int, adding: int, limit: int, retry_after_s: int | None) -> QuotaExceededError:
+    mib = 1024 * 1024
+    return QuotaExceededError(
+        f"this API key stores {used / mib:.1f} MiB; {adding / mib:.1f} MiB more would exceed its quota of "
+        f"{limit / mib:.0f} MiB (EIGENSCOPE_MAX_STORED_MB_PER_KEY); delete clips or wait for old ones to "
+        "expire",
+        code="storage-quota-exceeded",
+        retry_after_s=retry_after_s,
+        limit_bytes=limit,
+        used_bytes=used,
+    )
+
+
+def _scoped_key(owner: str, key: str | None) -> str | None:
+    """Idempotency keys are per tenant: two keys' clients may pick the same string."""
+    if key is None:
+        return None
+    if not owner:
+        return key
+    return f"{owner}:{hashlib.sha256(key.encode()).hexdigest()}"  # fits the 255-character column
 
 
 def dumps_canonical(value: Any) -> str:

@@ -16,7 +16,9 @@ tested with a real store and a stand-in runner. The job row is the source of tru
 from __future__ import annotations
 
 import logging
+import os
 import shutil
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -34,7 +36,7 @@ from api_schemas import (
     StepReleaseExcitation,
 )
 from service.errors import PROBLEM_BASE
-from service.store import ClaimOutcome, Store, lease_owner_token
+from service.store import ClaimOutcome, ClipRecord, Store, lease_owner_token
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +46,10 @@ _EXCITATION: TypeAdapter[StepReleaseExcitation | ImpulseExcitation] = TypeAdapte
 
 #: HTTP-ish status recorded in a failed job's problem, by domain error code.
 _ERROR_STATUS = {"unsupported-format": 415, "clip-too-large": 413}
+#: With ``EIGENSCOPE_TEST_HOOKS=1`` only: a clip uploaded under a name starting with this kills the
+#: worker process that runs its job, every time (fault-injection for the test suite).
+KILL_WORKER_MARKER = "__eigenscope_kill_worker__"
+
 _ERROR_TITLE = {
     "invalid-clip": "Invalid clip",
     "unsupported-format": "Unsupported clip format",
@@ -141,6 +147,7 @@ def execute_job(
     progress_interval_s: float = 0.25,
     soft_time_limit_s: float | None = None,
     timeout_errors: tuple[type[BaseException], ...] = (),
+    test_hooks: bool = False,
 ) -> Outcome:
     """Run one delivery of job ``job_id``; see the module docstring.
 
@@ -153,8 +160,11 @@ def execute_job(
         :func:`workers.runner.run_analysis` or a stand-in with its signature.
     timeout_errors : tuple of exception types
         Raised into the runner when the soft time limit strikes (Celery's ``SoftTimeLimitExceeded``).
+    test_hooks : bool
+        Enable fault injection (``EIGENSCOPE_TEST_HOOKS``; see :data:`KILL_WORKER_MARKER`). Off in
+        production: without it no request can trigger a hook.
     """
-    from service.storage import Storage
+    from service.storage import Storage, tree_bytes
 
     storage = Storage(storage_root)
     owner = lease_owner_token()
@@ -189,6 +199,8 @@ def execute_job(
     except ValidationError as exc:
         return fail(problem("invalid-parameter", "Invalid parameter", 422, f"stored job is invalid: {exc}"))
 
+    if test_hooks and clip is not None:
+        _fault_injection(clip)
     workdir = storage.new_job_workdir(job_id, job.attempts)
     try:
         with _Lease(store, job_id, owner) as lease:
@@ -200,8 +212,11 @@ def execute_job(
                 )
                 if lease.lost.is_set() or not store.renew_lease(job_id, owner):
                     raise JobAbortedError(job_id)
+                output_bytes = tree_bytes(workdir)
                 storage.publish_job_outputs(job_id, workdir)
-                if not store.complete_job(job_id, owner, result.model_dump(mode="json")):
+                if not store.complete_job(
+                    job_id, owner, result.model_dump(mode="json"), output_bytes=output_bytes
+                ):
                     log.info("job %s was cancelled as it finished", job_id)
                 return Outcome("succeeded")
             except JobAbortedError:
@@ -238,6 +253,13 @@ def execute_job(
                 )
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _fault_injection(clip: ClipRecord) -> None:
+    """Test hooks (only called with ``test_hooks``): see :data:`KILL_WORKER_MARKER`."""
+    if clip.filename.startswith(KILL_WORKER_MARKER):
+        log.warning("test hook: killing worker process %d (clip %s)", os.getpid(), clip.id)
+        os.kill(os.getpid(), signal.SIGKILL)
 
 
 def _is_domain_error(exc: BaseException) -> bool:

@@ -51,7 +51,12 @@ def probe(path: str, args: argparse.Namespace) -> dict[str, Any]:
     overrides = ClipOverrides(
         fps=args.fps, fx=args.fx, fy=args.fy, cx=args.cx, cy=args.cy, depth_scale=args.depth_scale
     )
-    limits = ReadLimits(max_frames=args.max_frames) if args.max_frames else ReadLimits()
+    caps: dict[str, int] = {}
+    if args.max_frames:
+        caps["max_frames"] = args.max_frames
+    if args.max_pixels:
+        caps["max_pixels_per_frame"] = args.max_pixels
+    limits = ReadLimits(**caps)
     with open_clip(path, overrides=overrides, limits=limits) as reader:
         info = reader.info
         for _frame in reader.frames(0, 1):
@@ -79,7 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     for name in ("fps", "fx", "fy", "cx", "cy"):
         parser.add_argument(f"--{name}", type=float, default=None)
     parser.add_argument("--depth-scale", type=float, default=None)
-    parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--max-frames", type=int, default=None, help="most frames a clip may hold")
+    parser.add_argument("--max-pixels", type=int, default=None, help="largest frame, width x height")
     parser.add_argument("--memory-mb", type=int, default=None, help="address-space cap, MiB")
     parser.add_argument("--cpu-s", type=int, default=None, help="CPU time cap, seconds")
     return parser

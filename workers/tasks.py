@@ -42,6 +42,7 @@ def run_job(self: Task, job_id: str) -> str:
         progress_interval_s=ctx.settings.progress_interval_s,
         soft_time_limit_s=ctx.settings.task_soft_time_limit_s,
         timeout_errors=(SoftTimeLimitExceeded,),
+        test_hooks=ctx.settings.test_hooks,
     )
     if outcome.retry_in_s is not None:
         try:

@@ -9,7 +9,7 @@ from starlette.concurrency import run_in_threadpool
 
 from api_schemas import ClipInfoModel
 from service import clips
-from service.deps import ContextDep
+from service.deps import ContextDep, TenantDep
 from service.openapi import UPLOAD_REQUEST_BODY, problem_responses
 
 router = APIRouter(prefix="/v1/clips", tags=["clips"])
@@ -28,20 +28,24 @@ ClipId = Annotated[str, Path(min_length=1, max_length=64, description="Clip id f
         "422 with the reader's message for a malformed clip."
     ),
     responses={
-        **problem_responses(413, 415, 422, 507),
+        **problem_responses(401, 413, 415, 422, 429, 503, 507),
         201: {"headers": {"Location": {"description": "URL of the clip", "schema": {"type": "string"}}}},
     },
     openapi_extra=UPLOAD_REQUEST_BODY,
 )
-async def create_clip(request: Request, response: Response, ctx: ContextDep) -> ClipInfoModel:
-    clip = await clips.upload_clip(ctx, request)
+async def create_clip(
+    request: Request, response: Response, ctx: ContextDep, tenant: TenantDep
+) -> ClipInfoModel:
+    clip = await clips.upload_clip(ctx, request, tenant)
     response.headers["Location"] = f"{request.scope.get('root_path', '')}/v1/clips/{clip.id}"
     return clip
 
 
-@router.get("/{clip_id}", name="get_clip", summary="Describe a clip", responses=problem_responses(404))
-def get_clip(clip_id: ClipId, ctx: ContextDep) -> ClipInfoModel:
-    return clips.clip_view(ctx.store.get_clip(clip_id))
+@router.get(
+    "/{clip_id}", name="get_clip", summary="Describe a clip", responses=problem_responses(401, 404, 503)
+)
+def get_clip(clip_id: ClipId, ctx: ContextDep, tenant: TenantDep) -> ClipInfoModel:
+    return clips.clip_view(ctx.store.get_clip(clip_id, tenant))
 
 
 @router.delete(
@@ -50,8 +54,8 @@ def get_clip(clip_id: ClipId, ctx: ContextDep) -> ClipInfoModel:
     status_code=204,
     summary="Delete a clip",
     description="Delete the clip file. Refused (409) while a queued or running job uses it.",
-    responses=problem_responses(404, 409),
+    responses=problem_responses(401, 404, 409, 503),
 )
-async def delete_clip(clip_id: ClipId, ctx: ContextDep) -> Response:
-    await run_in_threadpool(clips.delete_clip, ctx, clip_id)
+async def delete_clip(clip_id: ClipId, ctx: ContextDep, tenant: TenantDep) -> Response:
+    await run_in_threadpool(clips.delete_clip, ctx, clip_id, tenant)
     return Response(status_code=204)

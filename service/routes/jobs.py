@@ -10,7 +10,7 @@ from fastapi.responses import FileResponse
 
 from api_schemas import JobCreate, JobList, JobModel, JobStatus
 from service import jobs
-from service.deps import ContextDep
+from service.deps import ContextDep, TenantDep
 from service.openapi import problem_responses
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
@@ -33,7 +33,7 @@ def _root(request: Request) -> str:
         "body is a 422."
     ),
     responses={
-        **problem_responses(422, 503),
+        **problem_responses(401, 422, 429, 503),
         202: {
             "headers": {
                 "Location": {"description": "URL of the job", "schema": {"type": "string"}},
@@ -50,6 +50,7 @@ def create_job(
     request: Request,
     response: Response,
     ctx: ContextDep,
+    tenant: TenantDep,
     idempotency_key: Annotated[
         str | None,
         Header(
@@ -60,7 +61,7 @@ def create_job(
         ),
     ] = None,
 ) -> JobModel:
-    job, created = jobs.create_job(ctx, body, idempotency_key=idempotency_key)
+    job, created = jobs.create_job(ctx, body, tenant=tenant, idempotency_key=idempotency_key)
     response.headers["Location"] = f"{_root(request)}/v1/jobs/{job.id}"
     response.headers["Retry-After"] = str(ctx.settings.retry_after_s)
     if not created:
@@ -72,11 +73,12 @@ def create_job(
     "",
     name="list_jobs",
     summary="List jobs, newest first",
-    responses=problem_responses(422),
+    responses=problem_responses(401, 422, 503),
 )
 def list_jobs(
     request: Request,
     ctx: ContextDep,
+    tenant: TenantDep,
     status: Annotated[list[JobStatus] | None, Query(description="Only jobs in these states.")] = None,
     clip_id: Annotated[str | None, Query(max_length=64, description="Only jobs of this clip.")] = None,
     limit: Annotated[int, Query(ge=1, le=100, description="Page size.")] = 20,
@@ -86,13 +88,21 @@ def list_jobs(
 ) -> JobList:
     statuses = [s.value for s in status] if status else []
     return jobs.list_jobs(
-        ctx, statuses=statuses, clip_id=clip_id, limit=limit, cursor=cursor, root_path=_root(request)
+        ctx,
+        tenant=tenant,
+        statuses=statuses,
+        clip_id=clip_id,
+        limit=limit,
+        cursor=cursor,
+        root_path=_root(request),
     )
 
 
-@router.get("/{job_id}", name="get_job", summary="Poll a job", responses=problem_responses(404))
-def get_job(job_id: JobId, request: Request, response: Response, ctx: ContextDep) -> JobModel:
-    job = ctx.store.get_job(job_id)
+@router.get("/{job_id}", name="get_job", summary="Poll a job", responses=problem_responses(401, 404, 503))
+def get_job(
+    job_id: JobId, request: Request, response: Response, ctx: ContextDep, tenant: TenantDep
+) -> JobModel:
+    job = ctx.store.get_job(job_id, tenant)
     if job.status in ("queued", "running"):
         response.headers["Retry-After"] = str(ctx.settings.retry_after_s)
     return jobs.job_view(job, root_path=_root(request))
@@ -106,10 +116,10 @@ def get_job(job_id: JobId, request: Request, response: Response, ctx: ContextDep
         "Cancel a queued or running job (best effort: a running analysis stops at its next progress "
         "report). The record stays, with status `cancelled`. 409 if the job already succeeded or failed."
     ),
-    responses=problem_responses(404, 409),
+    responses=problem_responses(401, 404, 409, 503),
 )
-def cancel_job(job_id: JobId, request: Request, ctx: ContextDep) -> JobModel:
-    return jobs.job_view(ctx.store.cancel_job(job_id), root_path=_root(request))
+def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantDep) -> JobModel:
+    return jobs.job_view(ctx.store.cancel_job(job_id, tenant), root_path=_root(request))
 
 
 @router.get(
@@ -127,14 +137,15 @@ def cancel_job(job_id: JobId, request: Request, ctx: ContextDep) -> JobModel:
                 "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
             },
         },
-        **problem_responses(404),
+        **problem_responses(401, 404, 503),
     },
 )
 def get_job_artifact(
     job_id: JobId,
     name: Annotated[str, Path(min_length=1, max_length=128, description="Artifact file name.")],
     ctx: ContextDep,
+    tenant: TenantDep,
 ) -> FileResponse:
-    path = jobs.artifact_file(ctx, job_id, name)
+    path = jobs.artifact_file(ctx, job_id, name, tenant=tenant)
     media_type = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
     return FileResponse(path, media_type=media_type, filename=path.name, content_disposition_type="inline")
