@@ -18,7 +18,7 @@ from fastapi.routing import APIRoute
 from service.context import ServiceContext
 from service.openapi import install_openapi
 from service.problems import install_problem_handlers
-from service.routes import clips, health, jobs
+from service.routes import clips, health, jobs, page
 from service.settings import Settings
 
 #: Version of the HTTP API (the OpenAPI ``info.version``), independent of the package version.
@@ -76,6 +76,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(clips.router)
     app.include_router(jobs.router)
     app.include_router(health.router)
+    page.install_page(app)
     install_openapi(app, version=API_VERSION, description=DESCRIPTION)
 
     @app.middleware("http")
