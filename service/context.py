@@ -77,6 +77,9 @@ class ServiceContext:
         """
         try:
             self.storage.ensure()
+            if self.settings.embedded:  # the folders the embedded broker's producer and consumers share
+                for sub in ("queue", "processed", "control"):
+                    (self.settings.broker_dir / sub).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             log.error("storage %s cannot be prepared: %s", self.storage.root, exc)
         self.ensure_schema()

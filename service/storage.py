@@ -103,7 +103,13 @@ class Storage:
         probe.unlink()
 
     def free_bytes(self) -> int:
-        return shutil.disk_usage(self.root).free
+        """Free bytes on the storage's filesystem; :class:`StorageUnavailableError` if it is gone."""
+        try:
+            return shutil.disk_usage(self.root).free
+        except OSError as exc:
+            raise StorageUnavailableError(
+                f"the clip storage is unavailable ({exc.strerror or type(exc).__name__}); try again later"
+            ) from exc
 
     # Clips -----------------------------------------------------------------------------------
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -246,6 +247,114 @@ def start_split(tmp_path: Path, *, workers: int = 1, **settings: str) -> LiveSer
         service.stop()
         raise
     return service
+
+
+def start_api(service: LiveService, *, port: int, name: str = "api") -> Proc:
+    """A uvicorn process for ``service`` on ``port``; waits until ``/healthz`` answers (not ``/readyz``:
+    fault tests start the API with parts of it unreachable)."""
+    cmd = [sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--port", str(port)]
+    proc = Proc.start(name, cmd, env=service.env, log_dir=service.data_dir.parent)
+    service.procs.append(proc)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if not proc.alive():
+            raise RuntimeError(f"{name} exited with {proc.popen.returncode}:\n{proc.log()}")
+        try:
+            if service.client.get("/healthz", timeout=2).status_code == 200:
+                return proc
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.05)
+    raise RuntimeError(f"{name} not up after 60 s:\n{proc.log()}")
+
+
+def start_worker(service: LiveService, name: str) -> Proc:
+    """An ``eigenscope worker`` process (one pool process); waits until Celery says it is ready."""
+    cmd = [sys.executable, "-m", "eigenscope", "worker", "--hostname", f"{name}-{uuid.uuid4().hex[:6]}@%h"]
+    proc = Proc.start(name, cmd, env=service.env, log_dir=service.data_dir.parent)
+    service.procs.append(proc)
+    deadline = time.monotonic() + 60
+    while " ready." not in proc.log():
+        if not proc.alive() or time.monotonic() > deadline:
+            raise RuntimeError(f"worker {name} did not start:\n{proc.log()}")
+        time.sleep(0.1)
+    return proc
+
+
+class RedisServer:
+    """A private ``redis-server`` with AOF persistence (fsync on every write) on a free port.
+
+    The machine's shared Redis runs without persistence and must not be restarted; tests that kill Redis
+    start one of these instead. ``kill`` is a SIGKILL (no shutdown save); ``start`` reuses the port and
+    the data directory, so the server comes back with what its append-only file holds.
+    """
+
+    def __init__(self, workdir: Path) -> None:
+        binary = shutil.which("redis-server")
+        if binary is None:
+            unavailable("redis-server (the Redis server binary)", "not on PATH")
+        assert binary is not None
+        self.binary = binary
+        self.dir = workdir
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.port = free_port()
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"redis://127.0.0.1:{self.port}/0"
+
+    def start(self) -> None:
+        cmd = [
+            self.binary,
+            "--port",
+            str(self.port),
+            "--bind",
+            "127.0.0.1",
+            "--dir",
+            str(self.dir),
+            "--appendonly",
+            "yes",
+            "--appendfsync",
+            "always",
+            "--save",
+            "",
+            "--protected-mode",
+            "no",
+        ]
+        log = (self.dir / "redis.log").open("ab")
+        self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        log.close()
+        import redis
+
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            try:
+                client = redis.Redis.from_url(self.url, socket_connect_timeout=1)
+                client.ping()
+                client.close()
+                return
+            except Exception:
+                if self.proc.poll() is not None:
+                    break
+                time.sleep(0.05)
+        raise RuntimeError(f"redis-server on port {self.port} did not start")
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=10)
+        self.proc = None
+
+    def queued(self, queue: str = "eigenscope") -> int:
+        """Messages waiting in a Celery queue (not counting those delivered but not yet acknowledged)."""
+        import redis
+
+        client = redis.Redis.from_url(self.url, socket_connect_timeout=2)
+        try:
+            return int(client.llen(queue))
+        finally:
+            client.close()
 
 
 def wait_worker_ready(service: LiveService, timeout_s: float = 60.0) -> None:

@@ -125,3 +125,27 @@ def test_deleted_clip_fails_the_job(store: Store, settings: Settings, job_id: st
     error = store.get_job(job_id).error
     assert error is not None
     assert error["status"] == 410
+
+
+def test_kill_hook_is_inert_without_test_hooks(store: Store, settings: Settings, small_clip: Path) -> None:
+    """A clip named with the kill marker runs normally unless EIGENSCOPE_TEST_HOOKS is on."""
+    from workers.execution import KILL_WORKER_MARKER
+
+    storage = Storage(settings.data_path)
+    storage.ensure()
+    (storage.root / "clips" / "k1").mkdir(parents=True)
+    (storage.root / "clips" / "k1" / "clip.npz").write_bytes(small_clip.read_bytes())
+    store.add_clip(
+        clip_id="k1", filename=KILL_WORKER_MARKER + ".npz", path="clips/k1/clip.npz", info={}, size_bytes=1
+    )
+    job, _ = store.create_job(clip_id="k1", excitation=None, parameters={})
+
+    def runner(clip_path: Any, out_dir: Any, **_: Any) -> AnalysisResult:
+        (Path(out_dir) / "mask.png").write_bytes(b"\x89PNG12345")
+        return result()
+
+    assert Settings().test_hooks is False
+    assert execute_job(store, settings.data_path, job.id, runner=runner).status == "succeeded"
+    done = store.get_job(job.id)
+    assert done.status == "succeeded"
+    assert done.output_bytes == 9  # counted against the key's stored-bytes quota
