@@ -63,16 +63,16 @@ async def upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cli
     declared = int(declared_text) if declared_text and declared_text.isdigit() else None
     if used >= quota or (declared is not None and used + declared - _FORM_OVERHEAD > quota):
         raise storage_quota_error(used, declared or 0, quota, settings.quota_retry_after_s)
-    if declared is not None and declared > ctx.storage.free_bytes():
+    if declared is not None and declared > await run_in_threadpool(ctx.storage.free_bytes):
         raise InsufficientStorageError(
             f"the server has less free storage than the {declared} bytes of this upload; try again later"
         )
-    sink = ctx.storage.new_upload(settings.max_upload_bytes)
+    sink = await run_in_threadpool(ctx.storage.new_upload, settings.max_upload_bytes)
     clip_id = new_id()
     kept = False
     try:
         received = await receive_file(request, sink)
-        sink.close()
+        await run_in_threadpool(sink.close)  # fsync: not on the event loop
         info = await run_in_threadpool(
             probe_clip,
             sink.path,
@@ -80,6 +80,7 @@ async def upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cli
             memory_mb=settings.probe_memory_mb,
             max_frames=settings.max_frames,
             max_pixels=settings.max_pixels_per_frame,
+            nice=settings.background_niceness,
         )
         relative = await run_in_threadpool(ctx.storage.keep_clip, sink, clip_id, received.filename)
         kept = True

@@ -1,4 +1,8 @@
-"""``Annotated`` dependencies of the routes: the app's context and its parts."""
+"""``Annotated`` dependencies of the routes: the app's context and its parts.
+
+The context and tenant dependencies are ``async``: they only read memory, and a sync dependency would
+cost a thread-pool hop on every request.
+"""
 
 from __future__ import annotations
 
@@ -13,22 +17,26 @@ from service.storage import Storage
 from service.store import Store
 
 
-def get_context(request: Request) -> ServiceContext:
+async def get_context(request: Request) -> ServiceContext:
+    return _context(request)
+
+
+def _context(request: Request) -> ServiceContext:
     ctx = request.app.state.ctx
     assert isinstance(ctx, ServiceContext)
     return ctx
 
 
-def get_settings(request: Request) -> Settings:
-    return get_context(request).settings
+async def get_settings(request: Request) -> Settings:
+    return _context(request).settings
 
 
-def get_store(request: Request) -> Store:
-    return get_context(request).store
+async def get_store(request: Request) -> Store:
+    return _context(request).store
 
 
-def get_storage(request: Request) -> Storage:
-    return get_context(request).storage
+async def get_storage(request: Request) -> Storage:
+    return _context(request).storage
 
 
 #: Declares the bearer scheme in the OpenAPI document; the key ring does the checking (401 problem).
@@ -39,13 +47,13 @@ _bearer = HTTPBearer(
 )
 
 
-def get_tenant(
+async def get_tenant(
     request: Request,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)],
 ) -> str:
     """The tenant (API key) of the request; 401 problem when keys are configured and none valid is sent."""
     header = request.headers.get("authorization")
-    return get_context(request).keys.tenant(header)
+    return _context(request).keys.tenant(header)
 
 
 ContextDep = Annotated[ServiceContext, Depends(get_context)]

@@ -28,6 +28,7 @@ def probe_clip(
     memory_mb: int,
     max_frames: int | None = None,
     max_pixels: int | None = None,
+    nice: int = 10,
 ) -> dict[str, Any]:
     """Describe the clip at ``path`` (see :func:`workers.probe.probe`), or raise the matching API error.
 
@@ -48,6 +49,8 @@ def probe_clip(
         str(memory_mb),
         "--cpu-s",
         str(int(timeout_s) + 1),
+        "--nice",
+        str(nice),
     ]
     if max_frames is not None:
         cmd += ["--max-frames", str(max_frames)]

@@ -51,6 +51,13 @@ class Settings(BaseSettings):
 
     probe_timeout_s: float = Field(default=120, gt=0, description="Upload validation time limit.")
     probe_memory_mb: int = Field(default=4096, ge=256, description="Address-space cap of the probe.")
+    background_niceness: int = Field(
+        default=10,
+        ge=0,
+        le=19,
+        description="CPU niceness of upload validation and of workers, so that the API's requests stay "
+        "fast on a machine they share (0: same priority as the API).",
+    )
 
     retry_after_s: int = Field(default=1, ge=1, description="Suggested polling interval for clients.")
     log_level: str = Field(default="INFO")

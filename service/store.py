@@ -307,9 +307,16 @@ class Store:
         self.max_attempts = max_attempts
         self.engine = self._make_engine(self.url)
         self._sessions = sessionmaker(self.engine, expire_on_commit=False)
+        # SQLite: reads get deferred transactions of their own, so polls never queue for the write lock.
+        self._read_engine = self._make_engine(self.url, immediate=False) if self._sqlite else self.engine
+        self._read_sessions = sessionmaker(self._read_engine, expire_on_commit=False)
+
+    @property
+    def _sqlite(self) -> bool:
+        return self.url.startswith("sqlite")
 
     @staticmethod
-    def _make_engine(url: str) -> Engine:
+    def _make_engine(url: str, *, immediate: bool = True) -> Engine:
         if url.startswith("sqlite"):
             engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
 
@@ -325,8 +332,9 @@ class Store:
             @event.listens_for(engine, "begin")
             def _sqlite_begin(conn: Any) -> None:
                 # Take the write lock up front: a deferred transaction that later writes can fail at once
-                # with "database is locked" under WAL instead of waiting for the busy timeout.
-                conn.exec_driver_sql("BEGIN IMMEDIATE")
+                # with "database is locked" under WAL instead of waiting for the busy timeout. Read-only
+                # transactions (the read engine) stay deferred: WAL readers never block.
+                conn.exec_driver_sql("BEGIN IMMEDIATE" if immediate else "BEGIN")
 
             return engine
         connect_args = {"connect_timeout": 5} if url.startswith("postgresql") else {}
@@ -367,12 +375,17 @@ class Store:
 
     def dispose(self) -> None:
         self.engine.dispose()
+        self._read_engine.dispose()
 
     @contextmanager
-    def _tx(self) -> Iterator[Session]:
-        """A transaction; a database that cannot be reached becomes :class:`DatabaseUnavailableError`."""
+    def _tx(self, *, readonly: bool = False) -> Iterator[Session]:
+        """A transaction; a database that cannot be reached becomes :class:`DatabaseUnavailableError`.
+
+        ``readonly`` transactions must not write (on SQLite they do not hold the write lock).
+        """
+        sessions = self._read_sessions if readonly else self._sessions
         try:
-            with self._sessions() as session, session.begin():
+            with sessions() as session, session.begin():
                 yield session
         except (OperationalError, InterfaceError) as exc:
             raise DatabaseUnavailableError(
@@ -389,7 +402,7 @@ class Store:
 
     def usage(self, owner: str) -> Usage:
         """What ``owner`` holds: active jobs and stored bytes (clips plus job outputs)."""
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             return self._usage(s, owner)
 
     @staticmethod
@@ -442,7 +455,7 @@ class Store:
 
     def find_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord | None:
         """The clip, if it exists and belongs to ``owner`` (any owner when None)."""
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             row = s.get(ClipRow, clip_id)
             if row is None or (owner is not None and row.owner != owner):
                 return None
@@ -552,7 +565,7 @@ class Store:
     def job_by_idempotency_key(self, key: str, request_hash: str | None, owner: str = "") -> JobRecord | None:
         """The job ``owner`` created with ``key``; raises :class:`InvalidInputError` if it was for another
         request."""
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             row = s.scalars(select(JobRow).where(JobRow.idempotency_key == _scoped_key(owner, key))).first()
             if row is None:
                 return None
@@ -566,7 +579,7 @@ class Store:
 
     def find_job(self, job_id: str, owner: str | None = ANY_OWNER) -> JobRecord | None:
         """The job, if it exists and belongs to ``owner`` (any owner when None)."""
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             row = s.scalars(select(JobRow).where(JobRow.id == job_id)).first()
             if row is None or (owner is not None and row.owner != owner):
                 return None
@@ -597,7 +610,7 @@ class Store:
             query = query.where(JobRow.clip_id == clip_id)
         if cursor is not None:
             query = query.where(JobRow.seq < _decode_cursor(cursor))
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             rows = [JobRecord.of(r) for r in s.scalars(query).all()]
         if len(rows) > limit:
             return rows[:limit], _encode_cursor(rows[limit - 1].seq)
@@ -643,7 +656,7 @@ class Store:
             )
 
     def count_jobs_by_status(self) -> dict[str, int]:
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             rows = s.execute(select(JobRow.status, func.count()).group_by(JobRow.status)).all()
         return {str(status): int(n) for status, n in rows}
 
@@ -818,7 +831,7 @@ class Store:
             .where(JobRow.expires_at.is_not(None), JobRow.expires_at < now, JobRow.status.in_(TERMINAL))
             .limit(limit)
         )
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             return [JobRecord.of(r) for r in s.scalars(query).all()]
 
     def expired_clips(self, now: float, limit: int = 500) -> list[ClipRecord]:
@@ -829,7 +842,7 @@ class Store:
             .where(ClipRow.expires_at.is_not(None), ClipRow.expires_at < now, ClipRow.id.not_in(busy))
             .limit(limit)
         )
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             return [ClipRecord.of(r) for r in s.scalars(query).all()]
 
     def delete_finished_job(self, job_id: str) -> bool:
@@ -842,7 +855,7 @@ class Store:
         """Which of these clip and job ids have records."""
         clips: set[str] = set()
         jobs: set[str] = set()
-        with self._tx() as s:
+        with self._tx(readonly=True) as s:
             for start in range(0, len(clip_ids), 500):
                 chunk = list(clip_ids[start : start + 500])
                 clips |= set(s.scalars(select(ClipRow.id).where(ClipRow.id.in_(chunk))).all())

@@ -88,12 +88,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-pixels", type=int, default=None, help="largest frame, width x height")
     parser.add_argument("--memory-mb", type=int, default=None, help="address-space cap, MiB")
     parser.add_argument("--cpu-s", type=int, default=None, help="CPU time cap, seconds")
+    parser.add_argument("--nice", type=int, default=0, help="lower this process's CPU priority by this much")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     apply_limits(memory_mb=args.memory_mb, cpu_s=args.cpu_s)
+    if args.nice:
+        os.nice(args.nice)  # validation yields the CPU to the API's requests
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     try:

@@ -8,6 +8,7 @@ Run any number of these, on any machines that share ``EIGENSCOPE_DATA_DIR`` (cli
 from __future__ import annotations
 
 import argparse
+import os
 from typing import Any
 
 from eigenscope.cli import UsageError
@@ -55,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
     from workers.celery_app import create_celery
 
     settings = load_settings()
+    if settings.background_niceness:
+        os.nice(settings.background_niceness)  # an API on the same machine keeps answering promptly
     Storage(settings.data_path).ensure()
     store = Store(settings.effective_database_url)
     store.create_schema()

@@ -1,0 +1,66 @@
+"""A short, bounded form of ``bench/load.py``: 3 concurrent uploaders (each upload queues a job) and 50
+robots polling job status twice a second for 8 s, against ``eigenscope serve`` on loopback while its
+worker is busy. No request may fail, and status polls stay fast."""
+
+from __future__ import annotations
+
+import asyncio
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pytest
+import service_harness as h
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def load_bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("eigenscope_bench_load", ROOT / "bench" / "load.py")
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+KEY = "load-test-key-0123456789"
+
+
+def test_load_zero_errors_and_fast_status(tmp_path: Path, truth_clip: tuple[Path, Any]) -> None:
+    bench = load_bench()
+    service = h.start_embedded(tmp_path, api_keys=KEY, max_active_jobs_per_key="100000")
+    try:
+        report = asyncio.run(
+            bench.run_load(
+                service.base_url,
+                truth_clip[0],
+                duration_s=8.0,
+                uploaders=3,
+                pollers=50,
+                poll_interval_s=0.5,
+                api_key=KEY,
+            )
+        )
+        busy = service.client.get(
+            "/v1/jobs", params={"status": ["running", "queued"]}, headers={"Authorization": f"Bearer {KEY}"}
+        ).json()["items"]
+    finally:
+        service.stop()
+    print("\nLOAD " + report.text().replace("\n", "\nLOAD "))
+    summary = report.summary()
+    assert summary["errors"] == 0, summary["first_errors"]
+    assert summary["throttled"] == 0
+    status = summary["by_kind"]["status"]
+    assert status["requests"] >= 400, summary  # 50 robots polling every 0.5 s for 8 s: ~800
+    assert summary["by_kind"]["upload"]["requests"] >= 3
+    assert busy, "the worker should still have had jobs to do while the status was polled"
+    # The status query is a primary-key read that must not wait behind uploads or jobs. The bounds are
+    # generous: client, API, probes and worker share two cores here (with other work on a dev machine).
+    assert status["p50_ms"] < 250, summary
+    assert status["p99_ms"] < 2000, summary
