@@ -472,6 +472,7 @@
     const box = $("upload-progress");
     const bar = $("upload-bar");
     box.hidden = false;
+    box.classList.remove("done");
     if (fraction === null) bar.removeAttribute("value");
     else bar.value = Math.round(fraction * 100);
     $("upload-label").textContent = label;
@@ -518,6 +519,7 @@
       }
       const job = await api("v1/jobs", { method: "POST", body: { clip_id: clipId, ...check.body } });
       $("upload-label").textContent = `Job ${shortId(job.id)} queued for ${file.name}.`;
+      $("upload-progress").classList.add("done");
       announce(`Analysis queued as job ${shortId(job.id)}.`);
       upsertJob(job);
       selectJob(job.id, { focus: false });
@@ -532,6 +534,7 @@
         state.lastUpload = null; // the clip is gone; the next attempt uploads it again
       }
       const problem = problemNode($("form-problem"), err);
+      $("form-problem").scrollIntoView({ block: "nearest" });
       const first = err instanceof ApiError ? showApiFieldErrors(problem) : null;
       if (err instanceof ApiError && [413, 415, 422].includes(err.status) && !first && !state.lastUpload) {
         setFieldError("clip-file", problem.detail || problem.title);
@@ -822,6 +825,11 @@
   }
 
   function stat(label, value, unc, unit, quantity) {
+    if (value === "—") {
+      return el("div", { class: "stat", "data-quantity": quantity },
+        el("div", { class: "stat-label" }, label),
+        el("div", { class: "stat-value na" }, "not measured"));
+    }
     return el("div", { class: "stat", "data-quantity": quantity },
       el("div", { class: "stat-label" }, label),
       el("div", { class: "stat-value" },
@@ -860,7 +868,8 @@
       el("thead", {}, el("tr", {},
         el("th", { scope: "col" }, "Quantity"),
         el("th", { scope: "col" }, "Value"),
-        el("th", { scope: "col", class: "unc-head" }, "Uncertainty"),
+        el("th", { scope: "col", class: "unc-head" }, el("span", { "aria-hidden": "true" }, "± unc."),
+          el("span", { class: "visually-hidden" }, "Uncertainty")),
         el("th", { scope: "col" }, el("span", { class: "visually-hidden" }, "Unit")))),
       el("tbody", {}, body));
   }
@@ -1008,7 +1017,7 @@
           return el("section", { class: "object", "data-object-id": String(obj.id), "aria-label": `Object ${obj.id}` },
             el("h3", {}, el("span", {}, `Object ${obj.id}`),
               obj.amplitude_source ? el("span", { class: "unit" }, `amplitude from ${obj.amplitude_source}`) : null),
-            objectTable(obj),
+            el("div", { class: "table-wrap" }, objectTable(obj)),
             reasons.length ? el("ul", { class: "nulls", "aria-label": "Why some values are missing" },
               reasons.map((r) => el("li", {}, r))) : null);
         })));

@@ -99,7 +99,7 @@ def test_the_page_loads_nothing_from_another_origin() -> None:
         assert not re.match(r"^([a-z][a-z0-9+.-]*:|//)", value, re.IGNORECASE), (tag, attr, value)
 
     js = (STATIC_DIR / "app.js").read_text()
-    # No absolute or protocol-relative URL in any string literal, no dynamic imports or workers from elsewhere.
+    # No absolute or protocol-relative URL in a string literal; no dynamic imports or remote workers.
     assert not re.search(r"""["'`]\s*(https?:|wss?:)?//""", js), "app.js must use relative, same-origin URLs"
     assert not re.search(r"https?://", js)
     assert "import(" not in js
@@ -109,4 +109,3 @@ def test_the_page_loads_nothing_from_another_origin() -> None:
     assert "@import" not in css
     assert not re.search(r"url\(\s*['\"]?\s*(https?:)?//", css)
     assert not re.search(r"https?://", css)
-

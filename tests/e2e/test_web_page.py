@@ -1,0 +1,357 @@
+"""The web page at ``/`` driven by a real browser against a real ``eigenscope serve``.
+
+Screenshots land in ``test-artifacts/``. The README's copies in ``docs/images/`` are written when they are
+missing or when ``EIGENSCOPE_UPDATE_DOCS_IMAGES=1`` (so an ordinary run leaves the checkout clean).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import service_harness as h
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
+IMAGE_NAME = re.compile(r"\.(png|jpe?g|gif|webp|svg)$", re.IGNORECASE)
+DOCS_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
+API_KEY = "e2e-page-key-0123456789abcdef"
+
+
+class Watch:
+    """Console errors, page errors and every request a page makes."""
+
+    def __init__(self, page: Any, base_url: str) -> None:
+        self.base_url = base_url
+        self.errors: list[str] = []
+        self.requests: list[tuple[str, str]] = []
+        page.on("pageerror", lambda exc: self.errors.append(f"page error: {exc}"))
+        page.on("console", self._console)
+        page.on("request", lambda req: self.requests.append((req.method, req.url)))
+
+    def _console(self, message: Any) -> None:
+        # A refused request is logged by the browser as a console error; those are expected in some tests.
+        if message.type == "error" and "Failed to load resource" not in message.text:
+            self.errors.append(f"console: {message.text}")
+
+    def foreign(self) -> list[str]:
+        return [
+            url for _m, url in self.requests if not url.startswith((self.base_url + "/", "blob:", "data:"))
+        ]
+
+    def count(self, method: str, path: str) -> int:
+        return sum(1 for m, url in self.requests if m == method and url == self.base_url + path)
+
+
+@pytest.fixture
+def page(browser: Any) -> Iterator[Any]:
+    context = browser.new_context(viewport={"width": 1280, "height": 900}, device_scale_factor=1)
+    context.set_default_timeout(30_000)
+    page = context.new_page()
+    yield page
+    context.close()
+
+
+def number(text: str) -> float:
+    return float(text.strip().replace(",", ""))
+
+
+def save_screenshot(page: Any, artifacts_dir: Path, name: str, *, docs: bool = False, **options: Any) -> Path:
+    """Save a screenshot to ``test-artifacts/``; with ``docs``, also the README's copy (palette PNG)."""
+    path = artifacts_dir / name
+    page.screenshot(path=str(path), **options)
+    docs_copy = DOCS_IMAGES / name
+    if docs and (not docs_copy.exists() or os.environ.get("EIGENSCOPE_UPDATE_DOCS_IMAGES") == "1"):
+        from PIL import Image
+
+        DOCS_IMAGES.mkdir(parents=True, exist_ok=True)
+        with Image.open(path) as image:
+            image.convert("RGB").quantize(colors=256, dither=Image.Dither.NONE).save(docs_copy, optimize=True)
+    return path
+
+
+def watch_upload_progress(page: Any) -> None:
+    """Record every value the upload progress bar takes."""
+    page.evaluate(
+        """() => {
+            window.__uploadValues = [];
+            const bar = document.getElementById("upload-bar");
+            new MutationObserver(() => window.__uploadValues.push(bar.value))
+                .observe(bar, { attributes: true, attributeFilter: ["value"] });
+        }"""
+    )
+
+
+def wait_for_images(page: Any) -> list[dict[str, Any]]:
+    """Wait until every result image has loaded or failed; return what the browser sees of each."""
+    page.wait_for_function(
+        """() => [...document.querySelectorAll('#result img[data-artifact]')]
+                 .every(img => img.dataset.loaded === 'true' || img.dataset.loaded === 'error')"""
+    )
+    images: list[dict[str, Any]] = page.eval_on_selector_all(
+        "#result img[data-artifact]",
+        """imgs => imgs.map(img => ({
+            name: img.dataset.artifact, loaded: img.dataset.loaded, alt: img.alt,
+            width: img.naturalWidth, height: img.naturalHeight, complete: img.complete,
+            src: img.currentSrc,
+            shown: img.getBoundingClientRect().width,
+            room: img.closest("figure").getBoundingClientRect().width,
+        }))""",
+    )
+    return images
+
+
+def test_upload_through_the_page_shows_the_numbers_and_every_image(
+    page: Any, live: h.LiveService, page_clip: tuple[Path, dict[str, Any]], artifacts_dir: Path
+) -> None:
+    from playwright.sync_api import expect
+
+    clip, truth = page_clip
+    obj = truth["objects"][0]
+    assert obj["spec"]["excitation"] == "step_release"
+    watch = Watch(page, live.base_url)
+
+    page.goto(live.base_url + "/")
+    expect(page.get_by_role("heading", name="New analysis")).to_be_visible()
+    expect(page.get_by_role("link", name="API docs")).to_have_attribute("href", "docs")
+
+    page.locator("#clip-file").set_input_files(str(clip))
+    expect(page.locator("#file-chosen")).to_contain_text(clip.name)
+    page.get_by_label("Held, then released").check()
+    page.get_by_label("Holding force").fill(str(obj["spec"]["force_n"]))
+    page.get_by_label("True frame rate").fill(str(truth["fps"]))
+    save_screenshot(page, artifacts_dir, "page-upload.png", docs=True)
+
+    watch_upload_progress(page)
+    page.get_by_role("button", name="Upload and analyse").click()
+    expect(page.locator("#upload-label")).to_contain_text("queued", timeout=60_000)
+    values = page.evaluate("window.__uploadValues")
+    assert values, "the upload progress bar never moved"
+    assert max(values) == 100
+    assert watch.count("POST", "/v1/clips") == 1
+    assert watch.count("POST", "/v1/jobs") == 1
+
+    # The live job list follows the job to its end; the result view opens by itself.
+    job_item = page.locator("#jobs li").first
+    job_id = job_item.get_attribute("data-job-id")
+    assert job_id
+    expect(job_item.locator(".badge")).to_have_text("Succeeded", timeout=180_000)
+    expect(job_item.locator("progress")).to_have_attribute("value", "100")
+    expect(job_item).to_contain_text(clip.name)
+    result = page.locator("#result")
+    expect(result.locator(".badge-succeeded")).to_be_visible()
+
+    job = live.client.get(f"/v1/jobs/{job_id}").json()
+    assert job["status"] == "succeeded", job
+    assert job["parameters"]["fps"] == truth["fps"]
+
+    # The numbers, with their units and uncertainties.
+    table = result.locator(".object").first.locator("table")
+    f_row = table.locator('tr[data-quantity="eigenfrequency_hz"]')
+    f_shown = number(f_row.locator("td.value").inner_text())
+    assert f_shown == pytest.approx(obj["eigenfrequency_hz"], rel=0.02)
+    assert f_row.locator("td.unit-cell").inner_text() == "Hz"
+    assert f_row.locator("td.unc").inner_text().startswith("± ")
+    expected = {
+        "stiffness_n_per_m": ("N/m", obj["stiffness_n_per_m"]),
+        "mass_kg": ("kg", obj["mass_kg"]),
+        "amplitude_m": ("mm", obj["amplitude_m"] * 1000),
+    }
+    for quantity, (unit, value) in expected.items():
+        row = table.locator(f'tr[data-quantity="{quantity}"]')
+        assert number(row.locator("td.value").inner_text()) == pytest.approx(value, rel=0.1), quantity
+        assert row.locator("td.unc").inner_text().startswith("± "), quantity
+        assert row.locator("td.unit-cell").inner_text() == unit, quantity
+    for quantity in ("natural_frequency_hz", "damping_ratio", "pixel_count"):
+        assert number(table.locator(f'tr[data-quantity="{quantity}"] td.value').inner_text()) > 0, quantity
+    assert number(table.locator('tr[data-quantity="pixel_count"] td.value').inner_text()) == float(
+        job["result"]["objects"][0]["pixel_count"]
+    )
+    summary = result.locator('.stat[data-quantity="eigenfrequency_hz"] .num')
+    assert number(summary.inner_text()) == pytest.approx(obj["eigenfrequency_hz"], rel=0.02)
+    for flag in job["result"]["quality"]:
+        expect(result.locator(f'.flag[data-code="{flag["code"]}"]')).to_contain_text(flag["message"])
+    if not job["result"]["quality"]:
+        expect(result).to_contain_text("No quality warnings")
+
+    # Every image the API lists, loaded, with alt text and a link to the file.
+    artifacts: dict[str, str] = job["result"]["artifacts"]
+    wanted = {url.rsplit("/", 1)[-1]: url for url in artifacts.values() if IMAGE_NAME.search(url)}
+    assert "mask.png" in wanted
+    images = wait_for_images(page)
+    assert {i["name"] for i in images} == set(wanted)
+    for image in images:
+        assert image["loaded"] == "true", image
+        assert image["complete"], image
+        assert image["width"] > 0, image
+        assert image["height"] > 0, image
+        assert image["alt"], image
+        # Shown whole: scaled to its card, neither collapsed nor cropped by it.
+        assert 0.5 * image["room"] < image["shown"] <= image["room"], image
+        link = result.locator(f'figure[data-artifact="{image["name"]}"] figcaption a')
+        expect(link).to_have_attribute("href", wanted[image["name"]])
+    expect(result.get_by_role("link", name="API documentation (/docs)")).to_have_attribute("href", "docs")
+
+    result.scroll_into_view_if_needed()
+    save_screenshot(page, artifacts_dir, "page-result.png", docs=True, full_page=True)
+    assert watch.errors == []
+    assert watch.foreign() == [], "the page must only talk to its own origin"
+
+
+def test_the_page_checks_input_and_shows_the_apis_problems(
+    page: Any,
+    live: h.LiveService,
+    page_clip: tuple[Path, dict[str, Any]],
+    tmp_path: Path,
+    artifacts_dir: Path,
+) -> None:
+    from playwright.sync_api import expect
+
+    clip, _truth = page_clip
+    watch = Watch(page, live.base_url)
+    page.goto(live.base_url + "/")
+
+    # The drop zone is reached with Tab; Enter and Space open the file picker. (The picker itself is not
+    # opened here: under automation Chromium shows one file chooser per page load, so count the clicks.)
+    page.evaluate(
+        """() => {
+            window.__pickerOpened = 0;
+            const input = document.getElementById("clip-file");
+            input.click = () => { window.__pickerOpened += 1; };
+        }"""
+    )
+    for _ in range(12):
+        page.keyboard.press("Tab")
+        if page.evaluate("document.activeElement.id") == "dropzone":
+            break
+    expect(page.locator("#dropzone")).to_be_focused()
+    page.keyboard.press("Enter")
+    page.keyboard.press(" ")
+    assert page.evaluate("window.__pickerOpened") == 2
+    page.reload()
+
+    # Nothing chosen: the page says what is missing and sends nothing.
+    page.get_by_role("button", name="Upload and analyse").click()
+    expect(page.locator("#clip-file-error")).to_contain_text("Choose a clip file")
+    expect(page.locator("#force_n-error")).to_be_visible()
+    expect(page.get_by_label("Holding force")).to_have_attribute("aria-invalid", "true")
+    assert watch.count("POST", "/v1/clips") == 0
+
+    # A file chosen: its name is shown and its error goes away.
+    bad = tmp_path / "notes.npz"
+    bad.write_text("these are notes, not a clip\n")
+    page.locator("#clip-file").set_input_files(str(bad))
+    expect(page.locator("#file-chosen")).to_contain_text("notes.npz")
+    expect(page.locator("#clip-file-error")).to_be_hidden()
+
+    # Numbers must be positive.
+    page.get_by_label("Holding force").fill("-3")
+    page.get_by_label("True frame rate").fill("0")
+    page.get_by_role("button", name="Upload and analyse").click()
+    expect(page.locator("#force_n-error")).to_contain_text("greater than 0")
+    expect(page.locator("#fps-error")).to_contain_text("greater than 0")
+    expect(page.get_by_label("Holding force")).to_be_focused()
+    assert watch.count("POST", "/v1/clips") == 0
+
+    # A text file named .npz: the API refuses it and the page shows the API's own problem.
+    with bad.open("rb") as fh:
+        refused = live.client.post("/v1/clips", files={"file": (bad.name, fh, "application/octet-stream")})
+    assert refused.status_code in (415, 422)
+    problem = refused.json()
+    page.get_by_label("Holding force").fill("5")
+    page.get_by_label("True frame rate").fill("")
+    page.get_by_role("button", name="Upload and analyse").click()
+    box = page.locator("#form-problem")
+    expect(box).to_be_visible()
+    expect(box).to_contain_text(problem["title"])
+    expect(box).to_contain_text(f"HTTP {refused.status_code}")
+    expect(box).to_contain_text(problem["detail"].split(":", 1)[-1].strip())
+    expect(page.locator("#clip-file-error")).to_be_visible()
+    save_screenshot(page, artifacts_dir, "page-refused.png")
+
+    # A parameter the API refuses for this clip: its field error lands on the field.
+    page.locator("#clip-file").set_input_files(str(clip))
+    page.get_by_text("More options").click()
+    page.get_by_label("First frame").fill("100000")
+    page.get_by_role("button", name="Upload and analyse").click()
+    expect(page.locator("#start_frame-error")).to_contain_text("past the clip", timeout=60_000)
+    expect(page.get_by_label("First frame")).to_have_attribute("aria-invalid", "true")
+    expect(box).to_contain_text("parameters.start_frame")
+    assert watch.count("POST", "/v1/clips") == 2
+
+    # Fixed, the same clip is analysed without uploading it again.
+    page.get_by_label("First frame").fill("")
+    page.get_by_role("button", name="Upload and analyse").click()
+    expect(page.locator("#upload-label")).to_contain_text("queued", timeout=60_000)
+    expect(box).to_be_hidden()
+    assert watch.count("POST", "/v1/clips") == 2
+    expect(page.locator("#result .badge-succeeded")).to_be_visible(timeout=180_000)
+    assert watch.errors == []
+    assert watch.foreign() == []
+
+
+def test_the_page_works_with_api_keys(
+    browser: Any, tmp_path_factory: pytest.TempPathFactory, artifacts_dir: Path
+) -> None:
+    from playwright.sync_api import expect
+
+    tmp = tmp_path_factory.mktemp("keys")
+    clip = tmp / "small.npz"
+    h.synth_clip(clip, **h.SMALL_CLIP)
+    service = h.start_embedded(tmp, api_keys=API_KEY)
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    context.set_default_timeout(30_000)
+    try:
+        assert service.client.get("/v1/jobs").status_code == 401
+        page = context.new_page()
+        watch = Watch(page, service.base_url)
+        page.goto(service.base_url + "/")
+
+        # Without a key the page loads, says a key is needed and points at the field.
+        jobs_problem = page.locator("#jobs-problem")
+        expect(jobs_problem).to_contain_text("HTTP 401")
+        expect(jobs_problem).to_contain_text("needs an API key")
+        page.locator("#clip-file").set_input_files(str(clip))
+        page.get_by_label("Holding force").fill(str(h.SMALL_CLIP["force_n"]))
+        page.get_by_role("button", name="Upload and analyse").click()
+        expect(page.locator("#form-problem")).to_contain_text("HTTP 401")
+        expect(page.get_by_label("API key")).to_be_focused()
+
+        # A wrong key is refused too.
+        page.get_by_label("API key").fill("not-the-key-0123456789")
+        page.get_by_role("button", name="Use", exact=True).click()
+        page.get_by_role("button", name="Upload and analyse").click()
+        expect(page.locator("#form-problem")).to_contain_text("HTTP 401")
+
+        # With the key: upload, job, result and images (fetched with the key) all work.
+        page.get_by_label("API key").fill(API_KEY)
+        page.get_by_role("button", name="Use", exact=True).click()
+        expect(jobs_problem).to_be_hidden()
+        assert page.evaluate("sessionStorage.getItem('eigenscope.apiKey')") == API_KEY
+        page.get_by_role("button", name="Upload and analyse").click()
+        expect(page.locator("#result .badge-succeeded")).to_be_visible(timeout=180_000)
+        images = wait_for_images(page)
+        assert images
+        for image in images:
+            assert image["loaded"] == "true", image
+            assert image["width"] > 0, image
+            assert image["src"].startswith("blob:"), image
+        f_text = page.locator('#result tr[data-quantity="eigenfrequency_hz"] td.value').inner_text()
+        assert number(f_text) == pytest.approx(h.SMALL_CLIP["frequency_hz"], rel=0.02)
+
+        # The key lives in this tab's session: a reload keeps it, a new tab (context) does not.
+        page.reload()
+        expect(page.get_by_label("API key")).to_have_value(API_KEY)
+        expect(page.locator("#jobs li")).to_have_count(1)
+        other = browser.new_context().new_page()
+        other.goto(service.base_url + "/")
+        expect(other.get_by_label("API key")).to_have_value("")
+        other.context.close()
+        assert watch.foreign() == []
+    finally:
+        context.close()
+        service.stop()
