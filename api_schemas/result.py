@@ -66,7 +66,31 @@ class Artifacts(BaseModel):
 
     model_config = ConfigDict(title="Artifacts", extra="allow")
 
-    mask: str = "mask.png"
+    mask: str = Field(
+        default="mask.png",
+        description="Label image (PNG, 8- or 16-bit, frame size): 0 background, i = object i.",
+    )
+    overlay: str | None = Field(
+        default=None,
+        description="Representative frame with each object outlined in its colour and labelled with "
+        "id, f, k and m (PNG).",
+    )
+    frequency_map: str | None = Field(
+        default=None,
+        description="Per-pixel dominant frequency with a colour bar in Hz; pixels below the noise floor "
+        "muted (PNG).",
+    )
+    spectrum: str | None = Field(
+        default=None,
+        description="Summed motion spectrum, log scale, with eigenfrequencies, harmonics, noise floor and "
+        "rejected artefact peaks marked (PNG).",
+    )
+    displacement: str | None = Field(
+        default=None,
+        description="Each object's displacement against time with the fitted damped oscillation and the "
+        "release instant (PNG).",
+    )
+    ringdown: str | None = Field(default=None, description="Spectrogram of each object's ring-down (PNG).")
 
 
 class AnalysisResult(BaseModel):

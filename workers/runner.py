@@ -67,7 +67,7 @@ def run_analysis(
     from workers.pipeline.analysis import AnalysisConfig, Excitation, analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
     from workers.pipeline.flow import FlowConfig
-    from workers.pipeline.render import write_label_png
+    from workers.pipeline.render import render_all
 
     params = parameters or AnalysisParameters()
     overrides = ClipOverrides(
@@ -114,8 +114,11 @@ def run_analysis(
         analysis = analyze(reader, config=config, excitation=exc, progress=progress)
     if progress:
         progress("rendering", 0.97)
-    write_label_png(out / MASK_FILE, analysis.labels)
-    artifacts = Artifacts(mask=MASK_FILE)
+    from time import perf_counter
+
+    started = perf_counter()
+    artifacts = Artifacts(**render_all(analysis, out))  # mask.png (MASK_FILE) and every other image
+    analysis.timings_s["render"] = perf_counter() - started
 
     objects = [
         ObjectResult(

@@ -1,0 +1,242 @@
+"""Every image of an analysis: decodes, has its stated size, is not blank, and tells the truth.
+
+Sizes come from the public size functions (``display_size``, ``frequency_map_size``, ``PLOT_SIZE_PX``,
+``panel_figure_size``), whose values are also pinned here for a 640x480 frame.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import threading
+from dataclasses import replace
+from pathlib import Path
+
+import matplotlib.text
+import numpy as np
+import pytest
+
+from tests.unit.render.conftest import Analysed
+from tests.unit.render.helpers import assert_not_blank, colour_mask, decode, size_of
+from workers.pipeline.analysis import Analysis
+from workers.pipeline.render import (
+    ARTIFACT_FILES,
+    NO_OBJECT_NOTE,
+    PLOT_SIZE_PX,
+    display_size,
+    frequency_map_size,
+    object_color,
+    panel_figure_size,
+    render_all,
+    write_displacement_png,
+    write_frequency_map_png,
+    write_overlay_png,
+    write_ringdown_png,
+    write_spectrum_png,
+)
+
+
+def expected_sizes(analysis: Analysis) -> dict[str, tuple[int, int]]:
+    h, w = analysis.labels.shape
+    n = len(analysis.objects)
+    return {
+        "mask": (w, h),
+        "overlay": display_size(w, h),
+        "frequency_map": frequency_map_size(w, h),
+        "spectrum": PLOT_SIZE_PX,
+        "displacement": panel_figure_size(n),
+        "ringdown": panel_figure_size(n),
+    }
+
+
+def check_all(analysis: Analysis, out: Path) -> dict[str, np.ndarray]:
+    names = render_all(analysis, out)
+    assert names == ARTIFACT_FILES
+    images = {}
+    for key, name in names.items():
+        img = decode(out / name)
+        assert size_of(img) == expected_sizes(analysis)[key], key
+        if key != "mask":
+            assert_not_blank(img, name)
+        images[key] = img
+    mask = images["mask"]
+    assert mask.ndim == 2
+    np.testing.assert_array_equal(mask, analysis.labels)
+    return images
+
+
+@pytest.fixture
+def texts(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Every string matplotlib lays out while the test runs."""
+    seen: list[str] = []
+    original = matplotlib.text.Text.set_text
+
+    def spy(self: matplotlib.text.Text, s: object) -> None:
+        seen.append(str(s))
+        original(self, s)
+
+    monkeypatch.setattr(matplotlib.text.Text, "set_text", spy)
+    return seen
+
+
+def test_sizes_for_a_vga_frame_are_the_documented_ones():
+    assert display_size(640, 480) == (640, 480)
+    assert frequency_map_size(640, 480) == (790, 530)
+    assert PLOT_SIZE_PX == (1000, 600)
+    assert panel_figure_size(0) == panel_figure_size(1) == panel_figure_size(2) == (1000, 600)
+    assert panel_figure_size(3) == (1000, 850)
+    # Small frames are upscaled by an integer factor for legible labels; wide ones shrunk.
+    assert display_size(320, 240) == (640, 480)
+    assert display_size(160, 120) == (640, 480)
+    assert display_size(1920, 1080) == (1280, 720)
+
+
+def test_one_object_every_image(one_object: Analysed, tmp_path: Path, texts: list[str]):
+    a = one_object.analysis
+    assert len(a.objects) == 1
+    images = check_all(a, tmp_path)
+    obj = a.objects[0]
+    # The overlay labels the object with f, k and m, with units and uncertainties.
+    label = next(t for t in texts if t.startswith("#1  f = "))
+    assert "Hz" in label
+    assert "N/m" in label
+    assert "kg" in label
+    assert label.count("±") == 3, label
+    # Its outline is drawn in its colour around its mask.
+    x, y, w, h = obj.bbox_px
+    outline = colour_mask(images["overlay"], object_color(1))
+    assert outline[y - 4 : y + h + 4, x - 4 : x + w + 4].sum() > 2 * (w + h)
+    # The displacement is in millimetres (the amplitude in metres is known) with the fit and release.
+    assert "displacement (mm)" in texts
+    assert "damped-oscillation fit" in texts
+    assert any(t.startswith("release ") for t in texts)
+    # Axes are labelled with units.
+    for axis_label in ("frequency (Hz)", "time (s)", "dominant frequency (Hz)"):
+        assert axis_label in texts
+
+
+def test_files_are_written_atomically_and_readable(one_object: Analysed, tmp_path: Path):
+    out = tmp_path / "new" / "dir"
+    names = render_all(one_object.analysis, out)
+    assert sorted(p.name for p in out.iterdir()) == sorted(names.values())  # no temporary leftovers
+    for name in names.values():
+        mode = stat.S_IMODE(os.stat(out / name).st_mode)
+        assert mode & 0o444 == 0o444, f"{name} is not readable by all: {oct(mode)}"
+
+
+def test_each_image_has_its_own_writer(one_object: Analysed, tmp_path: Path):
+    a = one_object.analysis
+    sizes = expected_sizes(a)
+    for key, writer in {
+        "overlay": write_overlay_png,
+        "frequency_map": write_frequency_map_png,
+        "spectrum": write_spectrum_png,
+        "displacement": write_displacement_png,
+        "ringdown": write_ringdown_png,
+    }.items():
+        path = writer(tmp_path / f"{key}.png", a)
+        assert path == tmp_path / f"{key}.png"
+        assert size_of(decode(path)) == sizes[key]
+
+
+def test_two_objects_keep_their_own_colour_in_every_image(two_objects: Analysed, tmp_path: Path):
+    a = two_objects.analysis
+    assert [round(o.eigenfrequency_hz) for o in a.objects] == [4, 7]
+    c1, c2 = object_color(1), object_color(2)
+    assert max(abs(p - q) for p, q in zip(c1, c2, strict=True)) > 60, "colours must be distinct"
+    images = check_all(a, tmp_path)
+
+    # Overlay: each colour outlines its own object and not the other.
+    for oid, other in ((1, 2), (2, 1)):
+        ink = colour_mask(images["overlay"], object_color(oid))
+        x, y, w, h = a.objects[oid - 1].bbox_px
+        ox, oy, ow, oh = a.objects[other - 1].bbox_px
+        assert ink[y - 4 : y + h + 4, x - 4 : x + w + 4].sum() > 2 * (w + h), oid
+        assert ink[oy + 8 : oy + oh - 8, ox + 8 : ox + ow - 8].sum() == 0, oid
+
+    # Spectrum: the 4 Hz marker (colour 1) lies left of the 7 Hz one (colour 2).
+    s1 = colour_mask(images["spectrum"], c1)
+    s2 = colour_mask(images["spectrum"], c2)
+    assert s1.sum() > 200
+    assert s2.sum() > 200
+    assert np.median(np.nonzero(s1)[1]) + 100 < np.median(np.nonzero(s2)[1])
+
+    # Displacement and ring-down: object 1 is the top panel, object 2 the bottom one.
+    for key in ("displacement", "ringdown"):
+        img = images[key]
+        d1, d2 = colour_mask(img, c1), colour_mask(img, c2)
+        assert d1.sum() > 200, key
+        assert d2.sum() > 200, key
+        mid = img.shape[0] / 2
+        assert np.median(np.nonzero(d1)[0]) < mid < np.median(np.nonzero(d2)[0]), key
+
+    # Frequency map: both outlines and both colour-bar marks.
+    for colour in (c1, c2):
+        assert colour_mask(images["frequency_map"], colour).sum() > 200
+
+
+def test_no_object_still_renders_every_image(no_object: Analysed, tmp_path: Path, texts: list[str]):
+    a = no_object.analysis
+    assert a.objects == []
+    images = check_all(a, tmp_path)
+    notes = [t for t in texts if t.startswith(NO_OBJECT_NOTE)]
+    # overlay, frequency map, spectrum, displacement and ring-down each carry the note
+    assert len(notes) >= 5, notes
+    # The overlay's note is a light box in the middle of the frame.
+    h, w = images["overlay"].shape[:2]
+    centre = images["overlay"][h // 2 - 10 : h // 2 + 10, w // 4 : 3 * w // 4]
+    assert (centre.min(axis=2) > 200).mean() > 0.5
+
+
+def test_paper_method_renders_without_displacement_series(paper: Analysed, tmp_path: Path, texts: list[str]):
+    a = paper.analysis
+    assert a.method == "paper"
+    assert a.objects
+    assert all(o.displacement_px is None for o in a.objects)
+    check_all(a, tmp_path)
+    assert sum("no displacement series" in t for t in texts) >= 2  # displacement and ring-down
+
+
+def test_small_frames_are_upscaled_and_unknowns_say_so(small: Analysed, tmp_path: Path, texts: list[str]):
+    a = small.analysis
+    assert a.labels.shape == (240, 320)
+    images = check_all(a, tmp_path)
+    assert size_of(images["overlay"]) == (640, 480)
+    label = next(t for t in texts if t.startswith("#1  f = "))
+    assert "k = n/a" in label
+    assert "m = n/a" in label
+    # With depth the displacement is in millimetres; without metres, in pixels.
+    assert "displacement (mm)" in texts
+    texts.clear()
+    no_metres = replace(a, objects=[replace(o, amplitude_m=None, amplitude_sd_m=None) for o in a.objects])
+    write_displacement_png(tmp_path / "px.png", no_metres)
+    assert "displacement (px)" in texts
+
+
+def test_rendering_is_thread_safe_and_deterministic(two_objects: Analysed, tmp_path: Path):
+    a = two_objects.analysis
+    reference = {k: decode(tmp_path / "ref" / v) for k, v in render_all(a, tmp_path / "ref").items()}
+    errors: list[BaseException] = []
+
+    def work(i: int) -> None:
+        try:
+            render_all(a, tmp_path / f"t{i}")
+        except BaseException as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=120)
+    assert not errors, errors
+    for i in range(3):
+        for key, name in ARTIFACT_FILES.items():
+            np.testing.assert_array_equal(decode(tmp_path / f"t{i}" / name), reference[key], err_msg=key)
+
+
+def test_write_errors_surface(one_object: Analysed, tmp_path: Path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    with pytest.raises(FileExistsError):
+        render_all(one_object.analysis, blocker)

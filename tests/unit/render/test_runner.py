@@ -1,0 +1,29 @@
+"""The shared runner (CLI and service) writes every image and lists it in the result's artifacts."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from api_schemas import AnalysisParameters, StepReleaseExcitation
+from tests.unit.render.conftest import Analysed
+from tests.unit.render.helpers import decode
+from workers.pipeline.render import ARTIFACT_FILES
+from workers.runner import MASK_FILE, RESULT_FILE, run_analysis
+
+
+def test_run_analysis_lists_every_image(small: Analysed, tmp_path: Path):
+    result = run_analysis(
+        small.clip_path,
+        tmp_path,
+        excitation=StepReleaseExcitation(type="step_release", force_n=10.0),
+        parameters=AnalysisParameters(),
+    )
+    artifacts = result.artifacts.model_dump()
+    assert artifacts == ARTIFACT_FILES
+    assert artifacts["mask"] == MASK_FILE
+    for name in artifacts.values():
+        decode(tmp_path / name)
+    written = json.loads((tmp_path / RESULT_FILE).read_text())
+    assert written["artifacts"] == ARTIFACT_FILES
+    assert written["timings_s"]["render"] > 0
