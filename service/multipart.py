@@ -26,6 +26,7 @@ _DRAIN_BYTES = 64 * 1024 * 1024
 @dataclass
 class _PartState:
     headers: dict[str, str] = field(default_factory=dict)
+    raw_headers: dict[str, bytes] = field(default_factory=dict)
     header_field: bytearray = field(default_factory=bytearray)
     header_value: bytearray = field(default_factory=bytearray)
     is_target: bool = False
@@ -80,12 +81,14 @@ class _Receiver:
 
     def on_header_end(self) -> None:
         name = self.part.header_field.decode("latin-1").strip().lower()
+        self.part.raw_headers[name] = bytes(self.part.header_value).strip()
         self.part.headers[name] = self.part.header_value.decode("utf-8", errors="replace").strip()
         self.part.header_field.clear()
         self.part.header_value.clear()
 
     def on_headers_finished(self) -> None:
-        disposition, params = parse_options_header(self.part.headers.get("content-disposition", ""))
+        # Raw bytes: the parser would encode a str as latin-1, which fails on UTF-8 file names.
+        disposition, params = parse_options_header(self.part.raw_headers.get("content-disposition", b""))
         name = params.get(b"name", b"").decode("utf-8", errors="replace")
         if disposition == b"form-data" and name == self.field_name and not self.found:
             self.part.is_target = True
@@ -167,7 +170,7 @@ async def receive_file(request: Request, sink: UploadSink, *, field_name: str = 
     except (InvalidInputError, UnsupportedMediaError):
         raise
     except Exception as exc:
-        if type(exc).__module__.startswith("python_multipart"):
+        if type(exc).__module__.startswith("python_multipart") or isinstance(exc, UnicodeError):
             raise InvalidInputError(f"malformed multipart body: {exc}", code="invalid-form") from exc
         raise
     if not receiver.ended:

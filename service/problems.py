@@ -70,6 +70,18 @@ async def _validation_error(request: Request, exc: Exception) -> ProblemResponse
 async def _http_error(request: Request, exc: Exception) -> ProblemResponse:
     assert isinstance(exc, StarletteHTTPException)
     detail = exc.detail if isinstance(exc.detail, str) else None
+    if exc.status_code == 400 and detail == "There was an error parsing the body":
+        # FastAPI's answer to a body that is not UTF-8: the same 422 as any other malformed JSON body.
+        return problem_response(
+            {
+                "type": PROBLEM_BASE + "invalid-request",
+                "title": "Unprocessable content",
+                "status": 422,
+                "detail": "the request body cannot be parsed: send UTF-8 JSON",
+                "instance": request.url.path,
+                "errors": [{"loc": ["body"], "msg": "JSON decode error", "type": "json_invalid"}],
+            }
+        )
     if exc.status_code == 404 and detail == "Not Found":
         detail = f"no such resource: {request.method} {request.url.path}"
     if exc.status_code == 405:

@@ -269,3 +269,25 @@ def test_unwritable_storage_is_503(tmp_path: Path, small_clip: Path) -> None:
         assert response.status_code == 503
         assert response.json()["type"].endswith("storage-unavailable")
         assert list((ctx.storage.root / "clips").iterdir()) == []
+
+
+def test_odd_bodies_are_4xx_problems(keyed: TestClient, small_clip: Path) -> None:
+    """Found by schemathesis: a non-UTF-8 JSON body and a non-Latin-1 form field name were 400/500."""
+    bad = keyed.post("/v1/jobs", content=b"4\xff\xfe", headers={**A, "content-type": "application/json"})
+    assert bad.status_code == 422
+    assert bad.headers["content-type"] == "application/problem+json"
+    boundary = "b0undary"
+    body = (
+        (
+            f'--{boundary}\r\nContent-Disposition: form-data; name="\u00da\ue34d"\r\n\r\nx\r\n'
+            f"--{boundary}\r\nContent-Disposition: form-data; "
+            'name="file"; filename="\u6e2c\u8a66.npz"\r\n\r\n'
+        ).encode()
+        + small_clip.read_bytes()
+        + f"\r\n--{boundary}--\r\n".encode()
+    )
+    up = keyed.post(
+        "/v1/clips", content=body, headers={**A, "content-type": f"multipart/form-data; boundary={boundary}"}
+    )
+    assert up.status_code == 201, up.text
+    assert up.json()["filename"] == "\u6e2c\u8a66.npz"
