@@ -123,11 +123,17 @@
   // ---------------------------------------------------------------- HTTP
 
   class ApiError extends Error {
-    constructor(status, problem) {
+    constructor(status, problem, retryAfterS = null) {
       super((problem && (problem.detail || problem.title)) || `HTTP ${status}`);
       this.status = status;
       this.problem = problem || {};
+      this.retryAfterS = retryAfterS;
     }
+  }
+
+  function retryAfter(value) {
+    const seconds = Number(value);
+    return Number.isFinite(seconds) && seconds > 0 ? Math.min(seconds, 300) : null;
   }
 
   function apiKey() {
@@ -168,7 +174,8 @@
     }
     if (!response.ok) {
       const text = await response.text().catch(() => "");
-      throw new ApiError(response.status, problemFromText(response.status, response.statusText, text, response.headers.get("Content-Type")));
+      throw new ApiError(response.status, problemFromText(response.status, response.statusText, text, response.headers.get("Content-Type")),
+        retryAfter(response.headers.get("Retry-After")));
     }
     if (response.status === 204) return null;
     return response.json();
@@ -686,6 +693,8 @@
       if (state.jobs.some((j) => !TERMINAL.has(j.status))) delay = POLL_ACTIVE_MS;
     } catch (err) {
       problemNode($("jobs-problem"), err);
+      // Busy or over a quota: come back when the server says so.
+      if (err instanceof ApiError && err.retryAfterS) delay = Math.max(delay, err.retryAfterS * 1000);
     } finally {
       state.polling = false;
       schedulePoll(document.hidden ? POLL_IDLE_MS * 2 : delay);

@@ -47,7 +47,7 @@ def chromium_path() -> str | None:
 
 def _missing(what: str) -> None:
     if h.in_ci():
-        pytest.fail(f"CI requires {what} (`.ci/run` installs it; see scripts/test.sh)", pytrace=False)
+        pytest.fail(f"CI requires {what} (`.ci/run` installs it with apt)", pytrace=False)
     pytest.skip(f"{what} is missing")
 
 

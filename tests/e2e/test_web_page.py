@@ -234,6 +234,15 @@ def test_the_page_checks_input_and_shows_the_apis_problems(
     assert page.evaluate("window.__pickerOpened") == 2
     page.reload()
 
+    # Every control has an accessible name (the drop zone and the hidden file input included).
+    unnamed = page.evaluate(
+        """() => [...document.querySelectorAll("input, select, button, textarea, [role=button]")]
+              .filter(e => !(e.labels && e.labels.length) && !e.getAttribute("aria-label")
+                           && !e.getAttribute("aria-labelledby") && !e.textContent.trim())
+              .map(e => e.outerHTML.slice(0, 80))"""
+    )
+    assert unnamed == []
+
     # Nothing chosen: the page says what is missing and sends nothing.
     page.get_by_role("button", name="Upload and analyse").click()
     expect(page.locator("#clip-file-error")).to_contain_text("Choose a clip file")
