@@ -250,12 +250,24 @@ def test_the_page_checks_input_and_shows_the_apis_problems(
     expect(page.get_by_label("Holding force")).to_have_attribute("aria-invalid", "true")
     assert watch.count("POST", "/v1/clips") == 0
 
-    # A file chosen: its name is shown and its error goes away.
+    # A file dropped on the drop zone is chosen: its name is shown and its error goes away.
     bad = tmp_path / "notes.npz"
     bad.write_text("these are notes, not a clip\n")
-    page.locator("#clip-file").set_input_files(str(bad))
+    transfer = page.evaluate_handle(
+        """text => {
+            const transfer = new DataTransfer();
+            transfer.items.add(new File([text], "notes.npz", { type: "application/octet-stream" }));
+            return transfer;
+        }""",
+        bad.read_text(),
+    )
+    page.dispatch_event("#dropzone", "dragenter", {"dataTransfer": transfer})
+    expect(page.locator("#dropzone")).to_have_class(re.compile(r"\bdragover\b"))
+    page.dispatch_event("#dropzone", "drop", {"dataTransfer": transfer})
+    expect(page.locator("#dropzone")).not_to_have_class(re.compile(r"\bdragover\b"))
     expect(page.locator("#file-chosen")).to_contain_text("notes.npz")
     expect(page.locator("#clip-file-error")).to_be_hidden()
+    assert page.evaluate("document.getElementById('clip-file').files[0].name") == "notes.npz"
 
     # Numbers must be positive.
     page.get_by_label("Holding force").fill("-3")
