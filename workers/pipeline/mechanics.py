@@ -97,6 +97,7 @@ def silhouette(
     axis_px: tuple[float, float],
     shape: tuple[int, int],
     level: float = 0.5,
+    reach_px: float = 0.0,
 ) -> NDArray[np.bool_]:
     """The object's outline in one frame: pixels of ``region`` that move with it at that instant.
 
@@ -116,6 +117,8 @@ def silhouette(
         Input frame size; the silhouette is returned at this size.
     level : float
         Fraction of the region's typical speed along the axis a pixel must reach.
+    reach_px : float
+        How far (grid pixels) the object strays from ``region`` in any frame; the search grows by it.
 
     Returns
     -------
@@ -124,7 +127,8 @@ def silhouette(
     import cv2
 
     along = flow_at_ref[..., 0] * axis_px[0] + flow_at_ref[..., 1] * axis_px[1]
-    grown = cv2.dilate(region.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    grow = 2 + math.ceil(reach_px)
+    grown = cv2.dilate(region.astype(np.uint8), np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)).astype(bool)
     typical = float(np.median(along[region])) if region.any() else 0.0
     if typical < 0:
         along, typical = -along, -typical
@@ -142,6 +146,7 @@ def register_translation(
     ref_index: int,
     initial_px: NDArray[np.float64],
     max_iterations: int = 60,
+    affine: bool = True,
 ) -> tuple[NDArray[np.float64], float]:
     """Sub-pixel displacement of a rigid object in every frame, relative to a reference frame, by ECC
     registration of the object's texture.
@@ -162,11 +167,16 @@ def register_translation(
     initial_px : ndarray of float64, shape (T, 2)
         Starting displacement (dx, dy) per frame relative to the reference, from flow.
     max_iterations : int
+    affine : bool
+        Refine each translation with an affine fit and report the displacement of the outline's
+        centroid: an object moving along the line of sight also changes scale, and a translation-only
+        fit of an outline that is not centred on the object would mix scale into displacement.
 
     Returns
     -------
     displacement : ndarray of float64, shape (T, 2)
-        (dx, dy) of the object in frame k relative to the reference frame, input pixels.
+        (dx, dy) of the object (the outline's centroid) in frame k relative to the reference frame,
+        input pixels.
     failed_fraction : float
         Frames where registration did not converge (their flow estimate is kept).
     """
@@ -185,6 +195,7 @@ def register_translation(
     ref_mask_crop = core[y0:y1, x0:x1]
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iterations, 1e-5)
     hann = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
+    centroid = np.array([xs.mean() - x0, ys.mean() - y0], np.float64)
     out = initial_px.astype(np.float64).copy()
     failures = 0
 
@@ -198,6 +209,23 @@ def register_translation(
         except cv2.error:
             return None
         d = np.array([-warp[0, 2], -warp[1, 2]], np.float64)
+        if affine and np.all(np.isfinite(d)):
+            try:
+                cc2, full = cv2.findTransformECC(
+                    cur, ref, warp.copy(), cv2.MOTION_AFFINE, criteria, ref_mask_crop, 3
+                )
+            except cv2.error:
+                full = None
+            if full is not None and np.all(np.isfinite(full)):
+                a = full[:, :2].astype(np.float64)
+                t = full[:, 2].astype(np.float64)
+                # ref(A x + t) = cur(x): the reference's centroid p sits at A^-1 (p - t) in frame k.
+                try:
+                    moved = np.linalg.solve(a, centroid - t)
+                except np.linalg.LinAlgError:
+                    moved = None
+                if moved is not None and abs(np.linalg.det(a) - 1) < 0.3:
+                    cc, d = cc2, moved - centroid
         return (float(cc), d) if np.all(np.isfinite(d)) else None
 
     def track(order: range, previous: NDArray[np.float64]) -> None:

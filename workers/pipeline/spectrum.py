@@ -478,7 +478,11 @@ def fit_ringdown(
     amplitude = math.hypot(a_c, a_s)
     phase = math.atan2(-a_s, a_c)
     dof = max(n - 5, 1)
-    s2 = float(res @ res) / dof
+    # Residuals of real flow are not white: neighbouring samples share errors. Inflate the variance by
+    # the effective-sample-size factor (1 + ρ) / (1 - ρ) of the lag-1 autocorrelation ρ.
+    rho = float(res[1:] @ res[:-1]) / max(float(res @ res), 1e-30) if n > 2 else 0.0
+    rho = min(max(rho, 0.0), 0.9)
+    s2 = float(res @ res) / dof * (1 + rho) / (1 - rho)
     jac = best.jac
     try:
         cov = np.linalg.inv(jac.T @ jac) * s2

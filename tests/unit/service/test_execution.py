@@ -60,7 +60,7 @@ def test_success_publishes_outputs(store: Store, settings: Settings, job_id: str
     assert job.status == "succeeded"
     assert job.progress == 1.0
     assert job.result is not None
-    assert job.result["artifacts"] == {"mask": "mask.png"}
+    assert job.result["artifacts"]["mask"] == "mask.png"
     assert (settings.data_path / "jobs" / job_id / "mask.png").read_bytes() == b"\x89PNG"
     assert seen["excitation"].force_n == 2.0
     assert seen["parameters"].frames == 16
