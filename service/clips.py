@@ -72,16 +72,21 @@ async def upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cli
     kept = False
     try:
         received = await receive_file(request, sink)
-        await run_in_threadpool(sink.close)  # fsync: not on the event loop
-        info = await run_in_threadpool(
-            probe_clip,
-            sink.path,
-            timeout_s=settings.probe_timeout_s,
-            memory_mb=settings.probe_memory_mb,
-            max_frames=settings.max_frames,
-            max_pixels=settings.max_pixels_per_frame,
-            nice=settings.background_niceness,
-        )
+        await run_in_threadpool(sink.give_name, received.filename)  # fsync: not on the event loop
+        try:
+            info = await run_in_threadpool(
+                probe_clip,
+                sink.path,
+                timeout_s=settings.probe_timeout_s,
+                memory_mb=settings.probe_memory_mb,
+                max_frames=settings.max_frames,
+                max_pixels=settings.max_pixels_per_frame,
+                nice=settings.background_niceness,
+            )
+        except ServiceError as exc:
+            # The readers name the file they read (clip<ext>); the client knows it by its own name.
+            exc.detail = exc.detail.replace(sink.path.name, display_name(received.filename))
+            raise
         relative = await run_in_threadpool(ctx.storage.keep_clip, sink, clip_id, received.filename)
         kept = True
         record = await run_in_threadpool(

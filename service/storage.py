@@ -83,6 +83,18 @@ class UploadSink:
             self._fh.close()
             self._fh = None
         self.path.unlink(missing_ok=True)
+        if self.path.parent.name.startswith("upload-"):
+            shutil.rmtree(self.path.parent, ignore_errors=True)
+
+    def give_name(self, filename: str | None) -> None:
+        """Move the closed upload to ``tmp/upload-<random>/clip<ext>``: readers see the extension of the
+        client's file name (a format hint) and report ``clip<ext>``, never an internal or client path."""
+        self.close()
+        folder = self.path.with_name(self.path.name + ".d")
+        folder.mkdir()
+        target = folder / f"clip{safe_suffix(filename)}"
+        os.replace(self.path, target)
+        self.path = target
 
 
 class Storage:
@@ -133,6 +145,8 @@ class Storage:
             folder.mkdir(parents=True, exist_ok=False)
             target = folder / f"clip{safe_suffix(filename)}"
             os.replace(sink.path, target)
+            if sink.path.parent.name.startswith("upload-"):
+                shutil.rmtree(sink.path.parent, ignore_errors=True)
         except OSError as exc:
             shutil.rmtree(folder, ignore_errors=True)
             if exc.errno == 28:  # ENOSPC
