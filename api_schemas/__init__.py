@@ -8,6 +8,7 @@ from api_schemas.clip import CameraIntrinsicsModel, ClipInfoModel
 from api_schemas.job import (
     AnalysisParameters,
     Excitation,
+    ExcitationSpec,
     ImpulseExcitation,
     JobCreate,
     JobList,
@@ -21,6 +22,7 @@ from api_schemas.result import (
     Artifacts,
     ObjectResult,
     QualityFlag,
+    RingdownResult,
     Spectrum,
 )
 
@@ -31,6 +33,7 @@ __all__ = [
     "CameraIntrinsicsModel",
     "ClipInfoModel",
     "Excitation",
+    "ExcitationSpec",
     "ImpulseExcitation",
     "JobCreate",
     "JobList",
@@ -39,6 +42,7 @@ __all__ = [
     "ObjectResult",
     "Problem",
     "QualityFlag",
+    "RingdownResult",
     "Spectrum",
     "StepReleaseExcitation",
 ]

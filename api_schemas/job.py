@@ -21,6 +21,12 @@ class StepReleaseExcitation(BaseModel):
     force_n: float = Field(gt=0, description="Holding force, newtons.")
     force_uncertainty_n: float = Field(default=0.0, ge=0)
     object_id: int | None = Field(default=None, ge=1, description="Which object; default the main one.")
+    point_px: list[float] | None = Field(
+        default=None, min_length=2, max_length=2, description="... or a point [x, y] on the object, pixels."
+    )
+    box_px: list[float] | None = Field(
+        default=None, min_length=4, max_length=4, description="... or a box [x, y, w, h] around it, pixels."
+    )
 
 
 class ImpulseExcitation(BaseModel):
@@ -32,9 +38,18 @@ class ImpulseExcitation(BaseModel):
     impulse_ns: float = Field(gt=0, description="Impulse, newton-seconds.")
     impulse_uncertainty_ns: float = Field(default=0.0, ge=0)
     object_id: int | None = Field(default=None, ge=1, description="Which object; default the main one.")
+    point_px: list[float] | None = Field(
+        default=None, min_length=2, max_length=2, description="... or a point [x, y] on the object, pixels."
+    )
+    box_px: list[float] | None = Field(
+        default=None, min_length=4, max_length=4, description="... or a box [x, y, w, h] around it, pixels."
+    )
 
 
 Excitation = Annotated[StepReleaseExcitation | ImpulseExcitation, Field(discriminator="type")]
+
+#: One excitation (for the main object, or the one it names), or one per excited object.
+ExcitationSpec = Excitation | Annotated[list[Excitation], Field(min_length=1, max_length=16)]
 
 
 class AnalysisParameters(BaseModel):
@@ -77,7 +92,11 @@ class JobCreate(BaseModel):
     model_config = ConfigDict(title="JobCreate", extra="forbid")
 
     clip_id: str = Field(min_length=1, max_length=64)
-    excitation: Excitation | None = None
+    excitation: ExcitationSpec | None = Field(
+        default=None,
+        description="How the object was excited; a list gives one per object (each naming its object by "
+        "`object_id`, `point_px` or `box_px`). Without it, stiffness and mass are null.",
+    )
     parameters: AnalysisParameters = Field(default_factory=AnalysisParameters)
 
 
@@ -100,7 +119,7 @@ class JobModel(BaseModel):
     progress: float = Field(ge=0, le=1)
     stage: str | None = None
     attempts: int = 0
-    excitation: Excitation | None = None
+    excitation: ExcitationSpec | None = None
     parameters: AnalysisParameters
     created_at: datetime
     started_at: datetime | None = None

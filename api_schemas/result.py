@@ -15,6 +15,17 @@ class QualityFlag(BaseModel):
     severity: str = Field(default="warning", description="`info`, `warning` or `error`.")
 
 
+class RingdownResult(BaseModel):
+    """How an object's oscillation decays: amplitude and frequency over sliding windows."""
+
+    model_config = ConfigDict(title="Ringdown")
+
+    times_s: list[float] = Field(description="Window centres, seconds from the analysed window's start.")
+    amplitude_px: list[float] = Field(description="Displacement amplitude at the object's frequency, pixels.")
+    frequency_hz: list[float] = Field(description="Strongest frequency in each window.")
+    decay_per_s: float | None = Field(default=None, description="Fitted envelope decay rate σ = ζ ω_n, 1/s.")
+
+
 class ObjectResult(BaseModel):
     """One vibrating object found in the clip."""
 
@@ -50,6 +61,12 @@ class ObjectResult(BaseModel):
     null_reasons: list[str] = Field(
         default_factory=list, description="Why a quantity above is null (e.g. no excitation, no depth)."
     )
+    notes: list[str] = Field(
+        default_factory=list,
+        description="What else was seen: pixels excluded as shadow or background, "
+        "motion along the line of sight.",
+    )
+    ringdown: RingdownResult | None = None
 
 
 class Spectrum(BaseModel):
@@ -59,6 +76,9 @@ class Spectrum(BaseModel):
 
     frequencies_hz: list[float]
     power: list[float]
+    noise_power: list[float] | None = Field(
+        default=None, description="What static background would sum to at each frequency (the noise floor)."
+    )
 
 
 class Artifacts(BaseModel):

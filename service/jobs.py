@@ -17,6 +17,15 @@ from service.store import ClipRecord, JobRecord, dumps_canonical
 log = logging.getLogger(__name__)
 
 
+def excitation_json(spec: Any) -> Any:
+    """The request's excitation (one model, a list of them, or None) as stored JSON."""
+    if spec is None:
+        return None
+    if isinstance(spec, list):
+        return [item.model_dump(mode="json") for item in spec]
+    return spec.model_dump(mode="json")
+
+
 def artifact_url(job_id: str, name: str, *, root_path: str = "") -> str:
     return f"{root_path}/v1/jobs/{job_id}/artifacts/{name}"
 
@@ -122,7 +131,7 @@ def create_job(
     check_against_clip(body, clip)
     job, created = ctx.store.create_job(
         clip_id=body.clip_id,
-        excitation=body.excitation.model_dump(mode="json") if body.excitation is not None else None,
+        excitation=excitation_json(body.excitation),
         parameters=body.parameters.model_dump(mode="json", exclude_none=True),
         idempotency_key=idempotency_key,
         request_hash=digest,

@@ -21,7 +21,7 @@ import shutil
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -31,7 +31,7 @@ from pydantic import TypeAdapter, ValidationError
 from api_schemas import (
     AnalysisParameters,
     AnalysisResult,
-    Excitation,
+    ExcitationSpec,
     ImpulseExcitation,
     StepReleaseExcitation,
 )
@@ -42,7 +42,9 @@ log = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[str, float], None]
 
-_EXCITATION: TypeAdapter[StepReleaseExcitation | ImpulseExcitation] = TypeAdapter(Excitation)
+_EXCITATION: TypeAdapter[
+    StepReleaseExcitation | ImpulseExcitation | list[StepReleaseExcitation | ImpulseExcitation]
+] = TypeAdapter(ExcitationSpec)
 
 #: HTTP-ish status recorded in a failed job's problem, by domain error code.
 _ERROR_STATUS = {"unsupported-format": 415, "clip-too-large": 413}
@@ -67,7 +69,10 @@ class Runner(Protocol):
         clip_path: str | Path,
         out_dir: str | Path,
         *,
-        excitation: StepReleaseExcitation | ImpulseExcitation | None = ...,
+        excitation: StepReleaseExcitation
+        | ImpulseExcitation
+        | Sequence[StepReleaseExcitation | ImpulseExcitation]
+        | None = ...,
         parameters: AnalysisParameters | None = ...,
         progress: ProgressCallback | None = ...,
     ) -> AnalysisResult: ...

@@ -11,8 +11,9 @@ import json
 import math
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from api_schemas import (
     AnalysisParameters,
@@ -21,9 +22,14 @@ from api_schemas import (
     ImpulseExcitation,
     ObjectResult,
     QualityFlag,
+    RingdownResult,
     Spectrum,
     StepReleaseExcitation,
 )
+
+if TYPE_CHECKING:
+    from workers.pipeline.analysis import Excitation as PipelineExcitation
+    from workers.pipeline.analysis import ObjectMeasurement
 
 #: ``progress(stage, fraction)`` with fraction in [0, 1] over the whole analysis.
 ProgressCallback = Callable[[str, float], None]
@@ -38,6 +44,40 @@ def _version() -> str:
     return __version__
 
 
+def _pipeline_excitation(e: StepReleaseExcitation | ImpulseExcitation) -> PipelineExcitation:
+    from workers.pipeline.analysis import Excitation
+
+    point = (float(e.point_px[0]), float(e.point_px[1])) if e.point_px else None
+    box = tuple(float(v) for v in e.box_px) if e.box_px else None
+    if isinstance(e, StepReleaseExcitation):
+        kind, value, sd = "step_release", e.force_n, e.force_uncertainty_n
+    else:
+        kind, value, sd = "impulse", e.impulse_ns, e.impulse_uncertainty_ns
+    return Excitation(
+        kind=kind,  # type: ignore[arg-type]
+        value=value,
+        uncertainty=sd,
+        object_id=e.object_id,
+        point_px=point,
+        box_px=box,  # type: ignore[arg-type]
+    )
+
+
+def _ringdown(o: ObjectMeasurement) -> RingdownResult | None:
+    r = o.ringdown
+    if r is None:
+        return None
+    decay = None
+    if o.damping_ratio is not None:
+        decay = o.damping_ratio * o.angular_frequency_rad_s
+    return RingdownResult(
+        times_s=[round(float(t), 6) for t in r.times_s],
+        amplitude_px=[float(a) for a in r.amplitude],
+        frequency_hz=[float(f) for f in r.frequency_hz],
+        decay_per_s=decay,
+    )
+
+
 def _finite(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
@@ -46,7 +86,10 @@ def run_analysis(
     clip_path: str | Path,
     out_dir: str | Path,
     *,
-    excitation: StepReleaseExcitation | ImpulseExcitation | None = None,
+    excitation: StepReleaseExcitation
+    | ImpulseExcitation
+    | Sequence[StepReleaseExcitation | ImpulseExcitation]
+    | None = None,
     parameters: AnalysisParameters | None = None,
     progress: ProgressCallback | None = None,
     depth_path: str | Path | None = None,
@@ -64,7 +107,7 @@ def run_analysis(
         Subclasses for bad clips (``ClipError``), bad parameters (``ParameterError``) and clips that
         cannot be analysed (``AnalysisError``); their messages are meant for the user.
     """
-    from workers.pipeline.analysis import AnalysisConfig, Excitation, analyze
+    from workers.pipeline.analysis import AnalysisConfig, analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
     from workers.pipeline.flow import FlowConfig
     from workers.pipeline.render import render_all
@@ -92,21 +135,13 @@ def run_analysis(
         max_frequency_hz=params.max_frequency_hz,
         depth_m=params.depth_m,
     )
-    exc = None
-    if isinstance(excitation, StepReleaseExcitation):
-        exc = Excitation(
-            kind="step_release",
-            value=excitation.force_n,
-            uncertainty=excitation.force_uncertainty_n,
-            object_id=excitation.object_id,
-        )
-    elif isinstance(excitation, ImpulseExcitation):
-        exc = Excitation(
-            kind="impulse",
-            value=excitation.impulse_ns,
-            uncertainty=excitation.impulse_uncertainty_ns,
-            object_id=excitation.object_id,
-        )
+    if excitation is None:
+        requested: list[StepReleaseExcitation | ImpulseExcitation] = []
+    elif isinstance(excitation, StepReleaseExcitation | ImpulseExcitation):
+        requested = [excitation]
+    else:
+        requested = list(excitation)
+    exc = [_pipeline_excitation(e) for e in requested]
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -145,13 +180,15 @@ def run_analysis(
             release_time_s=_finite(o.release_time_s),
             snr_db=_finite(o.snr_db),
             null_reasons=o.null_reasons,
+            notes=o.notes,
+            ringdown=_ringdown(o),
         )
         for o in analysis.objects
     ]
     parameters_used = analysis.parameters | {
         "fps": analysis.fps,
         "fps_source": analysis.fps_source,
-        "excitation": excitation.model_dump() if excitation else None,
+        "excitation": [e.model_dump(mode="json") for e in requested] or None,
         "overrides": params.model_dump(exclude_none=True),
     }
     result = AnalysisResult(
@@ -160,6 +197,7 @@ def run_analysis(
         spectrum=Spectrum(
             frequencies_hz=[float(f) for f in analysis.frequencies_hz],
             power=[float(p) for p in analysis.power],
+            noise_power=None if analysis.noise_power is None else [float(p) for p in analysis.noise_power],
         ),
         artifacts=artifacts,
         quality=[QualityFlag(code=q.code, message=q.message, severity=q.severity) for q in analysis.quality],

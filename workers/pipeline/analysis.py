@@ -43,7 +43,15 @@ from workers.pipeline.segmentation import (
     segment,
     upsample_labels,
 )
-from workers.pipeline.spectrum import Peak, background_spectrum, find_peaks, fit_ringdown, pixel_spectra
+from workers.pipeline.spectrum import (
+    Peak,
+    Ringdown,
+    background_spectrum,
+    find_peaks,
+    fit_ringdown,
+    pixel_spectra,
+    sliding_ringdown,
+)
 
 Method = Literal["default", "paper"]
 #: progress(stage, fraction of the whole analysis in [0, 1])
@@ -202,6 +210,12 @@ class ObjectMeasurement:
     amplitude_source: str = "flow"
     #: What else was seen: excluded pixels, out-of-plane motion, ...
     notes: list[str] = field(default_factory=list)
+    #: Sliding-window ring-down of the motion after release (times relative to the window start).
+    ringdown: Ringdown | None = None
+    #: Fraction of the object's pixels at the sensor's limits (0 or 255) in the first frame.
+    saturated_fraction: float = 0.0
+    #: Seconds of motion after release that were fitted.
+    fitted_duration_s: float = 0.0
     #: Displacement of the object along its axis, input pixels, per frame of the window (for plots).
     displacement_px: NDArray[np.float64] | None = None
     #: Fitted model displacement at the same frames (NaN before release), input pixels.
@@ -540,15 +554,7 @@ def _analyze_default(
                 "the clip has no depth: amplitudes in metres, stiffness and mass need depth or depth_m",
             )
         )
-    for obj in objects:
-        if obj.eigenfrequency_hz > 0.45 * fps:
-            quality.append(
-                QualityNote(
-                    "possibly_aliased",
-                    f"object {obj.id} at {obj.eigenfrequency_hz:.3g} Hz is near the Nyquist rate "
-                    f"({fps / 2:g} Hz): the true frequency may be fps - f; record at a higher frame rate",
-                )
-            )
+    quality.extend(_quality_notes(objects, fps=fps, band=band, bin_hz=fps / n))
     watch.lap("mechanics")
     return Analysis(
         objects=objects,
@@ -569,6 +575,58 @@ def _analyze_default(
         peaks=seg.peaks,
         noise_power=noise,
     )
+
+
+def _quality_notes(
+    objects: list[ObjectMeasurement], *, fps: float, band: tuple[float, float], bin_hz: float
+) -> list[QualityNote]:
+    """Reasons why an object's figures may be unreliable."""
+    notes: list[QualityNote] = []
+    for obj in objects:
+        f = obj.eigenfrequency_hz
+        name = f"object {obj.id} ({f:.4g} Hz)"
+        if f >= 0.4 * fps:
+            notes.append(
+                QualityNote(
+                    "possibly_aliased",
+                    f"{name} is near the Nyquist rate ({fps / 2:g} Hz): the true frequency may be "
+                    f"{fps - f:.4g} Hz or higher; record at a higher frame rate or give the true fps",
+                )
+            )
+        if obj.snr_db is not None and obj.snr_db < 6:
+            notes.append(
+                QualityNote(
+                    "low_snr",
+                    f"{name}: the ring-down stands only {obj.snr_db:.1f} dB above the noise; "
+                    "push harder, light the object better or film closer",
+                )
+            )
+        periods = f * obj.fitted_duration_s
+        if periods < 3:
+            notes.append(
+                QualityNote(
+                    "few_periods",
+                    f"{name}: only {periods:.1f} periods of motion were analysed; record longer after the "
+                    "release for reliable frequency and damping",
+                )
+            )
+        if f - band[0] < 1.5 * bin_hz or band[1] - f < 1.5 * bin_hz:
+            notes.append(
+                QualityNote(
+                    "band_edge",
+                    f"{name} lies at the edge of the analysed band [{band[0]:.3g}, {band[1]:.3g}] Hz; "
+                    "widen the band or change the window length",
+                )
+            )
+        if obj.saturated_fraction > 0.05:
+            notes.append(
+                QualityNote(
+                    "saturation",
+                    f"{name}: {obj.saturated_fraction * 100:.0f} % of its pixels are clipped (black or "
+                    "white); reduce the exposure so its texture can be tracked",
+                )
+            )
+    return notes
 
 
 def _excitations_by_label(
@@ -754,6 +812,18 @@ def _measure_object(
         null_reasons.extend(mech.null_reasons)
 
     n = len(velocity)
+    ringdown = None
+    if n - onset >= 16:
+        ringdown = sliding_ringdown(velocity[onset:], fps=fps, frequency_hz=fit.frequency_hz)
+        ringdown = Ringdown(
+            times_s=ringdown.times_s + float(buffers.times_s[onset]),
+            amplitude=ringdown.amplitude,
+            frequency_hz=ringdown.frequency_hz,
+            spectrogram_hz=ringdown.spectrogram_hz,
+            spectrogram_power=ringdown.spectrogram_power,
+        )
+    pixels = buffers.first_rgb[full_mask]
+    saturated = float(np.mean(np.any((pixels >= 255) | (pixels <= 0), axis=1))) if pixels.size else 0.0
     disp = np.concatenate([[0.0], np.cumsum(velocity)])
     t = times_from_onset[: n + 1]
     model = np.full(n + 1, np.nan)
@@ -786,6 +856,9 @@ def _measure_object(
         null_reasons=null_reasons,
         amplitude_source=tracking,
         notes=notes,
+        ringdown=ringdown,
+        saturated_fraction=saturated,
+        fitted_duration_s=float(buffers.times_s[n] - buffers.times_s[onset]),
         displacement_px=disp,
         model_displacement_px=model,
     )

@@ -517,3 +517,85 @@ def fit_ringdown(
 
 
 ProgressFn = Callable[[float], None]
+
+
+@dataclass(frozen=True)
+class Ringdown:
+    """How an object's oscillation evolves over the clip, from sliding windows.
+
+    Attributes
+    ----------
+    times_s : ndarray of float64, shape (W,)
+        Window centres, seconds from the analysed window's first frame.
+    amplitude : ndarray of float64, shape (W,)
+        Displacement amplitude at the object's frequency in each window (signal units integrated).
+    frequency_hz : ndarray of float64, shape (W,)
+        Strongest frequency in each window (zero-padded, interpolated).
+    spectrogram_hz : ndarray of float64, shape (F,)
+    spectrogram_power : ndarray of float64, shape (W, F)
+        Power of the velocity in each window.
+    """
+
+    times_s: NDArray[np.float64]
+    amplitude: NDArray[np.float64]
+    frequency_hz: NDArray[np.float64]
+    spectrogram_hz: NDArray[np.float64]
+    spectrogram_power: NDArray[np.float64]
+
+
+def sliding_ringdown(
+    velocity: NDArray[np.floating[Any]],
+    *,
+    fps: float,
+    frequency_hz: float,
+    window: int | None = None,
+) -> Ringdown:
+    """Ring-down analysis over sliding windows (a short-time spectrum of the object's motion).
+
+    Parameters
+    ----------
+    velocity : ndarray, shape (N,)
+        Per-frame displacement of the object.
+    fps : float
+    frequency_hz : float
+        The object's frequency; each window's amplitude is measured there.
+    window : int, optional
+        Window length in samples; default: four periods, at least 8 and at most N / 2.
+
+    Returns
+    -------
+    Ringdown
+    """
+    v = np.asarray(velocity, np.float64)
+    n = len(v)
+    period = fps / max(frequency_hz, 1e-9)
+    length = window or round(4 * period)
+    length = int(min(max(length, 8), max(n // 2, 8), n))
+    hop = max(1, length // 4)
+    starts = np.arange(0, n - length + 1, hop)
+    taper = np.hanning(length + 2)[1:-1]
+    nfft = max(64, 1 << math.ceil(math.log2(4 * length)))
+    freqs = np.fft.rfftfreq(nfft, d=1.0 / fps)
+    omega = 2 * math.pi * frequency_hz / fps
+    k = np.arange(length)
+    probe = np.exp(-1j * omega * k) * taper
+    gain = 2 * math.sin(omega / 2)  # per-frame difference of a unit sine
+    norm = float(taper.sum()) / 2
+    power = np.empty((len(starts), len(freqs)))
+    amp = np.empty(len(starts))
+    freq = np.empty(len(starts))
+    for i, s in enumerate(starts):
+        seg = v[s : s + length] - v[s : s + length].mean()
+        spec = np.abs(np.fft.rfft(seg * taper, n=nfft)) ** 2
+        power[i] = spec
+        kk = int(np.argmax(spec[1:])) + 1
+        freq[i] = interpolate_peak(spec, kk) * fps / nfft
+        amp[i] = abs(complex(seg @ probe)) / norm / max(gain, 1e-9)
+    times = (starts + length / 2) / fps
+    return Ringdown(
+        times_s=times.astype(np.float64),
+        amplitude=amp,
+        frequency_hz=freq,
+        spectrogram_hz=freqs.astype(np.float64),
+        spectrogram_power=power,
+    )
