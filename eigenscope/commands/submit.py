@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import uuid
@@ -28,6 +29,11 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("clip", type=Path, help="clip file (.npz or any format the server reads)")
     parser.add_argument("--server", required=True, help="base URL, e.g. http://127.0.0.1:8000")
+    parser.add_argument(
+        "--api-key",
+        default=None,
+        help="API key of a server that requires one (default: the EIGENSCOPE_API_KEY environment variable)",
+    )
     exc = parser.add_mutually_exclusive_group()
     exc.add_argument("--force-n", type=float, default=None, help="holding force before release, N")
     exc.add_argument("--impulse-ns", type=float, default=None, help="impulse of the strike, N·s")
@@ -61,14 +67,15 @@ def build_job_request(args: argparse.Namespace, clip_id: str) -> dict[str, Any]:
 class ApiClient:
     """The few calls ``submit`` (and the demo) make, with problem+json errors turned into messages."""
 
-    def __init__(self, server: str, *, timeout_s: float = 600.0) -> None:
+    def __init__(self, server: str, *, timeout_s: float = 600.0, api_key: str | None = None) -> None:
         import httpx
 
         self.base = server.rstrip("/")
         if not self.base.startswith(("http://", "https://")):
             raise UsageError(f"--server {server!r} must be an http:// or https:// URL")
         timeout = httpx.Timeout(timeout_s, connect=10.0)
-        self.http = httpx.Client(base_url=self.base, timeout=timeout)
+        headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
+        self.http = httpx.Client(base_url=self.base, timeout=timeout, headers=headers)
 
     def close(self) -> None:
         self.http.close()
@@ -137,7 +144,10 @@ def _problem_message(response: Any) -> str:
     detail = doc.get("detail") if isinstance(doc, dict) else None
     title = doc.get("title") if isinstance(doc, dict) else None
     title = title or response.reason_phrase
-    return f"server answered {response.status_code} {title}: {detail or response.text[:200]}"
+    message = f"server answered {response.status_code} {title}: {detail or response.text[:200]}"
+    if response.status_code == 401:
+        message += " (pass --api-key KEY or set EIGENSCOPE_API_KEY)"
+    return message
 
 
 def _draw_progress(job: dict[str, Any], last_line: str) -> str:
@@ -193,7 +203,7 @@ def summarize(job: dict[str, Any], base: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    client = ApiClient(args.server)
+    client = ApiClient(args.server, api_key=args.api_key or os.environ.get("EIGENSCOPE_API_KEY") or None)
     try:
         clip = client.upload(args.clip)
         print(

@@ -6,7 +6,11 @@ from __future__ import annotations
 
 import asyncio
 import importlib.util
+import json
+import os
+import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -32,26 +36,52 @@ def load_bench() -> ModuleType:
 KEY = "load-test-key-0123456789"
 
 
-def test_load_zero_errors_and_fast_status(tmp_path: Path, truth_clip: tuple[Path, Any]) -> None:
+@pytest.fixture(scope="module")
+def keyed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[h.LiveService]:
+    """``eigenscope serve`` that requires an API key."""
+    service = h.start_embedded(
+        tmp_path_factory.mktemp("keyed"), api_keys=KEY, max_active_jobs_per_key="100000"
+    )
+    yield service
+    service.stop()
+
+
+def test_submit_with_and_without_a_key(keyed: h.LiveService, truth_clip: tuple[Path, Any]) -> None:
+    cmd = [sys.executable, "-m", "eigenscope", "submit", str(truth_clip[0]), "--server", keyed.base_url]
+    refused = subprocess.run(cmd, capture_output=True, text=True, timeout=60, check=False)
+    assert refused.returncode != 0
+    assert "401" in refused.stderr
+    assert "--api-key" in refused.stderr
+    assert "Traceback" not in refused.stderr
+    done = subprocess.run(
+        [*cmd, "--wait", "--json", "--force-n", "5"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        env={**os.environ, "EIGENSCOPE_API_KEY": KEY},
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["status"] == "succeeded"
+
+
+def test_load_zero_errors_and_fast_status(keyed: h.LiveService, truth_clip: tuple[Path, Any]) -> None:
     bench = load_bench()
-    service = h.start_embedded(tmp_path, api_keys=KEY, max_active_jobs_per_key="100000")
-    try:
-        report = asyncio.run(
-            bench.run_load(
-                service.base_url,
-                truth_clip[0],
-                duration_s=8.0,
-                uploaders=3,
-                pollers=50,
-                poll_interval_s=0.5,
-                api_key=KEY,
-            )
+    service = keyed
+    report = asyncio.run(
+        bench.run_load(
+            service.base_url,
+            truth_clip[0],
+            duration_s=8.0,
+            uploaders=3,
+            pollers=50,
+            poll_interval_s=0.5,
+            api_key=KEY,
         )
-        busy = service.client.get(
-            "/v1/jobs", params={"status": ["running", "queued"]}, headers={"Authorization": f"Bearer {KEY}"}
-        ).json()["items"]
-    finally:
-        service.stop()
+    )
+    busy = service.client.get(
+        "/v1/jobs", params={"status": ["running", "queued"]}, headers={"Authorization": f"Bearer {KEY}"}
+    ).json()["items"]
     print("\nLOAD " + report.text().replace("\n", "\nLOAD "))
     summary = report.summary()
     assert summary["errors"] == 0, summary["first_errors"]
