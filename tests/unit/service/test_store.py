@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import time
+from pathlib import Path
 
 import pytest
 
@@ -161,3 +162,37 @@ def test_delete_clip_refused_while_a_job_is_active(store: Store) -> None:
     store.delete_clip("c1")
     with pytest.raises(NotFoundError):
         store.get_clip("c1")
+
+
+def test_tables_of_an_older_release_get_the_new_columns(tmp_path: Path) -> None:
+    """A job store made before keys and retention existed is brought up to date, its rows kept."""
+    import sqlite3
+
+    db = tmp_path / "old.db"
+    con = sqlite3.connect(db)
+    con.executescript(
+        """
+        CREATE TABLE eigenscope_clips (id VARCHAR(64) PRIMARY KEY, filename VARCHAR(255), path VARCHAR(512),
+            info JSON, size_bytes INTEGER, created_at DATETIME);
+        CREATE TABLE eigenscope_jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id VARCHAR(64) UNIQUE,
+            clip_id VARCHAR(64), status VARCHAR(16), progress FLOAT, stage VARCHAR(64), attempts INTEGER,
+            excitation JSON, parameters JSON, created_at DATETIME, started_at DATETIME, finished_at DATETIME,
+            error JSON, result JSON, idempotency_key VARCHAR(255) UNIQUE, request_hash VARCHAR(64),
+            lease_owner VARCHAR(255), lease_until FLOAT, enqueued_at FLOAT, version INTEGER);
+        INSERT INTO eigenscope_clips
+            VALUES ('c0', 'a.npz', 'clips/c0/clip.npz', '{}', 10, '2026-01-01 00:00:00');
+        """
+    )
+    con.commit()
+    con.close()
+    store = Store(f"sqlite:///{db}")
+    try:
+        store.create_schema()
+        store.create_schema()  # idempotent
+        clip = store.get_clip("c0", "")
+        assert (clip.owner, clip.expires_at, clip.size_bytes) == ("", None, 10)
+        job, _ = store.create_job(clip_id="c0", excitation=None, parameters={}, owner="")
+        assert store.get_job(job.id, "").output_bytes == 0
+        assert store.usage("").stored_bytes == 10
+    finally:
+        store.dispose()
