@@ -39,11 +39,15 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         return
     tr = terminalreporter
     tr.section("ground-truth accuracy (relative errors; default vs the paper's recipe)")
-    cols = list(ACCURACY_ROWS[0].keys())
-    tr.write_line(" | ".join(f"{c:>14}" for c in cols))
+    groups: dict[tuple[str, ...], list[dict[str, object]]] = {}
     for row in ACCURACY_ROWS:
-        cells = []
-        for c in cols:
-            v = row.get(c)
-            cells.append(f"{v:>14.4g}" if isinstance(v, float) else f"{v!s:>14}")
-        tr.write_line(" | ".join(cells))
+        groups.setdefault(tuple(row), []).append(row)
+    for cols, rows in groups.items():
+        tr.write_line(" | ".join(f"{c:>14}" for c in cols))
+        for row in rows:
+            cells = []
+            for c in cols:
+                v = row.get(c)
+                cells.append(f"{v:>14.4g}" if isinstance(v, float) else f"{v!s:>14}")
+            tr.write_line(" | ".join(cells))
+        tr.write_line("")

@@ -46,6 +46,7 @@ from workers.pipeline.segmentation import (
 from workers.pipeline.spectrum import (
     Peak,
     Ringdown,
+    RingdownFit,
     background_spectrum,
     find_peaks,
     fit_ringdown,
@@ -64,6 +65,8 @@ FLOW_AMPLITUDE_REL_SD = 0.03
 REGISTRATION_REL_SD = 0.004
 #: Relative systematic uncertainty of a depth sensor's distance (calibration, plane fit).
 DEPTH_REL_SD = 0.004
+#: Relative uncertainty per unit of line-of-sight motion (|z| / amplitude), measured on ground truth.
+OUT_OF_PLANE_REL_SD = 0.015
 #: Relative uncertainty assumed for a user-given constant distance (depth_m).
 DEPTH_OVERRIDE_REL_SD = 0.02
 #: Systematic floors on the ring-down fit's statistical uncertainties (model mismatch: projection
@@ -696,10 +699,21 @@ def _measure_object(
     excitation: Excitation | None,
     excluded: list[str],
 ) -> ObjectMeasurement:
+    def fitted(signal: NDArray[np.float64]) -> tuple[int, RingdownFit]:
+        start = detect_release(signal)
+        return start, fit_ringdown(
+            signal,
+            fps=fps,
+            frequency_guess_hz=peak.frequency_hz,
+            start_index=start,
+            frame_times_s=buffers.times_s,
+        )
+
     motion = object_motion(buffers.flow, mask, pixel_scale=pixel_scale)
     velocity = motion.velocity_px
     axis = motion.axis_px
     tracking = "flow"
+    onset, fit = fitted(velocity)  # replaced by the registration's when that tracked the object
     shifts: NDArray[np.float64] | None = None  # image displacement per frame vs the reference, input px
     region = mask  # object pixels in the reference frame, grid
     if buffers.gray is not None and motion.coherence >= RIGID_COHERENCE:
@@ -713,21 +727,20 @@ def _measure_object(
             centred = disp2d - disp2d.mean(axis=0)
             _, vecs = np.linalg.eigh(centred.T @ centred)
             new_axis = vecs[:, -1] if float(vecs[:, -1] @ np.asarray(axis)) >= 0 else -vecs[:, -1]
-            axis = (float(new_axis[0]), float(new_axis[1]))
-            velocity = np.diff(disp2d @ new_axis)
-            tracking = "registration"
-            shifts = disp2d
-            grid_outline = _outline_grid(outline, mask.shape)
-            if grid_outline.sum() >= 16:
-                region = grid_outline
-    onset = detect_release(velocity)
-    fit = fit_ringdown(
-        velocity,
-        fps=fps,
-        frequency_guess_hz=peak.frequency_hz,
-        start_index=onset,
-        frame_times_s=buffers.times_s,
-    )
+            registered = np.diff(disp2d @ new_axis)
+            reg_onset, reg_fit = fitted(registered)
+            # Registration is the sharper measurement (flow is biased low by smoothing) when it tracked
+            # the object; when it locked onto the wrong texture (very fast or blurred motion) its
+            # motion no longer follows the flow's.
+            agreement = float(np.corrcoef(registered, velocity)[0, 1]) if np.std(registered) > 0 else 0.0
+            if agreement >= 0.9:
+                axis = (float(new_axis[0]), float(new_axis[1]))
+                velocity, onset, fit = registered, reg_onset, reg_fit
+                tracking = "registration"
+                shifts = disp2d
+                grid_outline = _outline_grid(outline, mask.shape)
+                if grid_outline.sum() >= 16:
+                    region = grid_outline
     f_sd = math.hypot(fit.frequency_sd_hz, FREQUENCY_REL_FLOOR * fit.frequency_hz)
     zeta_sd = math.sqrt(
         fit.damping_sd**2 + (DAMPING_REL_FLOOR * fit.damping_ratio) ** 2 + DAMPING_ABS_FLOOR**2
@@ -785,6 +798,9 @@ def _measure_object(
             a_xy = math.hypot(dx, dy)
             rel_xy = math.sqrt((amp_sd_px / max(amp_px, 1e-12)) ** 2 + sys_rel**2 + depth_rel_sd**2)
             var = (a_xy / a3) ** 2 * (a_xy * rel_xy) ** 2 + (abs(z_amp) / a3) ** 2 * z_sd**2
+            # Motion along the line of sight also scales the image; the residual coupling of scale
+            # into the registered displacement is not modelled, so it is carried as uncertainty.
+            var += (OUT_OF_PLANE_REL_SD * abs(z_amp)) ** 2
             amp_sd_m = amp_m * math.sqrt(var) / a3
             if abs(direction[2]) >= 0.05:
                 notes.append(

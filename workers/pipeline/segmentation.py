@@ -24,7 +24,7 @@ class SegmentationConfig:
     noise_factor : float
         A pixel's band power must exceed this multiple of the background's (the median pixel's).
     relative_level : float
-        ... and this fraction of the object's typical (90th percentile) band power.
+        ... and this fraction of the object's typical (median) band power.
     purity : float
         ... and this fraction of the pixel's power in the whole analysis band.
     band_bins : float
@@ -34,7 +34,7 @@ class SegmentationConfig:
     """
 
     noise_factor: float = 8.0
-    relative_level: float = 0.12
+    relative_level: float = 0.2
     purity: float = 0.25
     band_bins: float = 1.5
     min_area_fraction: float = 0.0015
@@ -123,7 +123,9 @@ def segment(
         )
     band_power = np.empty((len(peaks), h * w), np.float32)
     for i, peak in enumerate(peaks):
-        sel = band_mask(freqs, peak, bin_hz=spectra.bin_hz, band_bins=cfg.band_bins)
+        # A heavily damped peak is wider than a few bins: take its measured half-power width.
+        width = max(cfg.band_bins, peak.width_bins)
+        sel = band_mask(freqs, peak, bin_hz=spectra.bin_hz, band_bins=width)
         band_power[i] = spectra.power[sel].sum(axis=0)
     noise = np.median(band_power, axis=1).astype(np.float64) + 1e-20
     owner = np.argmax(band_power, axis=0)
@@ -136,7 +138,9 @@ def segment(
         candidate = (bp > cfg.noise_factor * noise[i]) & (owner == i) & (bp > cfg.purity * total)
         if not candidate.any():
             continue
-        level = float(np.percentile(bp[candidate], 90))
+        # The object's typical level: occlusion edges carry erratic, strong flow, so a high percentile
+        # would be set by them rather than by the object's interior.
+        level = float(np.median(bp[candidate]))
         candidate &= bp >= cfg.relative_level * level
         region = _clean(candidate.reshape(h, w), min_area).ravel() & (labels == 0)
         if not region.any():

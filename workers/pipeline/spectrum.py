@@ -176,6 +176,8 @@ class Peak:
     prominence_db: float
     snr_db: float = float("inf")
     harmonics_hz: list[float] = field(default_factory=list)
+    width_bins: float = 1.0
+    """Half of the peak's full width at half power, in bins."""
 
 
 def interpolate_peak(power: NDArray[np.floating[Any]], k: int) -> float:
@@ -248,6 +250,22 @@ def topographic_prominence(power: NDArray[np.float64], k: int) -> float:
     return float(height / saddle)
 
 
+def _half_width(power: NDArray[np.float64], k: int) -> float:
+    """Half of the full width at half maximum of the peak at ``k``, in bins (linear interpolation)."""
+    half = power[k] / 2
+    left = k
+    while left > 0 and power[left - 1] > half:
+        left -= 1
+    right = k
+    while right < len(power) - 1 and power[right + 1] > half:
+        right += 1
+    lo = left - ((power[left] - half) / max(power[left] - power[left - 1], 1e-30) if left > 0 else 0.0)
+    hi = right + (
+        (power[right] - half) / max(power[right] - power[right + 1], 1e-30) if right < len(power) - 1 else 0.0
+    )
+    return float(max(hi - lo, 1.0) / 2)
+
+
 def find_peaks(
     frequencies_hz: NDArray[np.float64],
     power: NDArray[np.floating[Any]],
@@ -282,7 +300,8 @@ def find_peaks(
     -------
     list of Peak
     """
-    power = np.asarray(power, np.float64)
+    values: NDArray[np.float64] = np.asarray(power, np.float64)
+    power = values
     bin_hz = float(frequencies_hz[1] - frequencies_hz[0]) if len(frequencies_hz) > 1 else 1.0
     lo, hi = band_hz
     band = np.flatnonzero((frequencies_hz >= lo) & (frequencies_hz <= hi))
@@ -303,7 +322,16 @@ def find_peaks(
             if snr < min_snr_db:
                 continue
         fk = interpolate_peak(power, k) * bin_hz
-        candidates.append(Peak(frequency_hz=fk, bin=k, power=float(power[k]), prominence_db=prom, snr_db=snr))
+        candidates.append(
+            Peak(
+                frequency_hz=fk,
+                bin=k,
+                power=float(power[k]),
+                prominence_db=prom,
+                snr_db=snr,
+                width_bins=_half_width(values, k),
+            )
+        )
     candidates.sort(key=lambda p: -p.power)
     kept: list[Peak] = []
     for peak in candidates:

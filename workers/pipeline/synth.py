@@ -187,6 +187,8 @@ class SyntheticClip:
     intrinsics: tuple[float, float, float, float]
     mask: NDArray[np.uint8]
     truth: dict[str, Any]
+    #: Pixels of the objects' shadows at rest that no object covers.
+    shadow_mask: NDArray[np.bool_] | None = None
 
 
 def _texture(
@@ -255,6 +257,7 @@ def render(scene: Scene) -> SyntheticClip:
 
     layers = []
     true_mask = np.zeros((H, W), np.uint8)
+    shadow_mask = np.zeros((H, W), bool)
     for label, obj in enumerate(scene.objects, start=1):
         w, h = max(4, round(obj.size_px[0])), max(4, round(obj.size_px[1]))
         pad = 2
@@ -285,6 +288,11 @@ def render(scene: Scene) -> SyntheticClip:
             flags=cv2.INTER_LINEAR,
         )
         true_mask[m >= 0.5] = label
+        if obj.shadow_offset_px is not None:
+            shifted = np.roll(
+                m >= 0.5, (round(obj.shadow_offset_px[1]), round(obj.shadow_offset_px[0])), (0, 1)
+            )
+            shadow_mask |= shifted
 
     # Draw far objects first.
     layers.sort(key=lambda item: -item[1].depth_m)
@@ -320,5 +328,11 @@ def render(scene: Scene) -> SyntheticClip:
         dn = rng.standard_normal((H, W), dtype=np.float32) * np.float32(scene.depth_noise_m) * dmap**2
         depth[k] = np.clip(np.rint((dmap + dn) * 1000.0), 0, 65535).astype(np.uint16)
     return SyntheticClip(
-        rgb=rgb, depth=depth, fps=scene.fps, intrinsics=scene.intrinsics, mask=true_mask, truth=scene.truth()
+        rgb=rgb,
+        depth=depth,
+        fps=scene.fps,
+        intrinsics=scene.intrinsics,
+        mask=true_mask,
+        truth=scene.truth(),
+        shadow_mask=shadow_mask & (true_mask == 0),
     )
