@@ -50,8 +50,11 @@ from workers.pipeline.spectrum import (
     background_spectrum,
     find_peaks,
     fit_ringdown,
+    fold_harmonics,
+    noise_floor,
     pixel_spectra,
     sliding_ringdown,
+    whitened_spectrum,
 )
 
 Method = Literal["default", "paper"]
@@ -502,8 +505,24 @@ def _analyze_default(
     del uniform_flow
     summed = spectra.power.sum(axis=1, dtype=np.float64)
     noise = background_spectrum(spectra)
-    peaks = find_peaks(
+    # Two detectors: the summed spectrum against static background finds strong motion, however
+    # damped; the whitened spectrum finds weak, sub-pixel vibration spread over many pixels.
+    strong = find_peaks(
         spectra.frequencies_hz, summed, band_hz=band, noise=noise, max_peaks=config.max_objects
+    )
+    whitened, _ = whitened_spectrum(spectra, band_hz=band)
+    weak = find_peaks(
+        spectra.frequencies_hz,
+        whitened,
+        band_hz=band,
+        noise=noise_floor(whitened, width=max(15, len(whitened) // 6)),
+        min_snr_db=3.0,
+        max_peaks=config.max_objects,
+    )
+    peaks = fold_harmonics(
+        [*strong, *(Peak(**{**vars(p), "harmonics_hz": []}) for p in weak)],
+        bin_hz=spectra.bin_hz,
+        max_peaks=config.max_objects,
     )
     watch.lap("spectrum")
 
@@ -667,6 +686,8 @@ def _excitations_by_label(
         else:
             label = 1
             where = "the main object"
+        if count == 0:
+            continue  # nothing moved: the quality notes say so; the excitation applies to nothing
         if not 1 <= label <= count:
             raise ParameterError(
                 f"excitation for {where} matches no object: {count} object(s) were found; "

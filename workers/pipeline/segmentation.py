@@ -31,6 +31,10 @@ class SegmentationConfig:
         Half-width, in bins, of the band around each peak and harmonic.
     min_area_fraction : float
         Regions smaller than this fraction of the frame are dropped.
+    pool_px : int
+        Neighbourhood (grid pixels) over which per-pixel signal-to-noise is pooled for weak motion.
+    pooled_snr : float
+        Pooled band power over the pixels' own noise in that band that marks weak motion.
     """
 
     noise_factor: float = 8.0
@@ -38,6 +42,8 @@ class SegmentationConfig:
     purity: float = 0.25
     band_bins: float = 1.5
     min_area_fraction: float = 0.0015
+    pool_px: int = 5
+    pooled_snr: float = 4.0
 
 
 @dataclass(frozen=True)
@@ -122,11 +128,15 @@ def segment(
             noise_power=np.zeros(0),
         )
     band_power = np.empty((len(peaks), h * w), np.float32)
+    band_bins = np.empty(len(peaks))
     for i, peak in enumerate(peaks):
         # A heavily damped peak is wider than a few bins: take its measured half-power width.
         width = max(cfg.band_bins, peak.width_bins)
         sel = band_mask(freqs, peak, bin_hz=spectra.bin_hz, band_bins=width)
         band_power[i] = spectra.power[sel].sum(axis=0)
+        band_bins[i] = max(int(sel.sum()), 1)
+    # Each pixel's own noise level (median power per bin in the band), for weak, sub-pixel motion.
+    pixel_noise = np.median(spectra.power[in_band], axis=0) + np.float32(1e-20)
     noise = np.median(band_power, axis=1).astype(np.float64) + 1e-20
     owner = np.argmax(band_power, axis=0)
     min_area = max(4, int(cfg.min_area_fraction * h * w))
@@ -136,13 +146,23 @@ def segment(
     for i, peak in enumerate(peaks):
         bp = band_power[i]
         candidate = (bp > cfg.noise_factor * noise[i]) & (owner == i) & (bp > cfg.purity * total)
-        if not candidate.any():
-            continue
-        # The object's typical level: occlusion edges carry erratic, strong flow, so a high percentile
-        # would be set by them rather than by the object's interior.
-        level = float(np.median(bp[candidate]))
-        candidate &= bp >= cfg.relative_level * level
-        region = _clean(candidate.reshape(h, w), min_area).ravel() & (labels == 0)
+        region = np.zeros(h * w, bool)
+        if candidate.any():
+            # The object's typical level: occlusion edges carry erratic, strong flow, so a high
+            # percentile would be set by them rather than by the object's interior.
+            level = float(np.median(bp[candidate]))
+            candidate &= bp >= cfg.relative_level * level
+            region = _clean(candidate.reshape(h, w), min_area).ravel() & (labels == 0)
+        if not region.any():
+            # Weak (sub-pixel) motion: each pixel is only a few dB above its own noise. Pool the
+            # per-pixel signal-to-noise ratio over small neighbourhoods, which move together (parts
+            # in anti-phase are pooled as power, so they do not cancel), and keep what stands out.
+            snr = (bp / (pixel_noise * band_bins[i])).reshape(h, w).astype(np.float32)
+            pooled = cv2.blur(snr, (cfg.pool_px, cfg.pool_px))
+            mine = (owner == i).reshape(h, w)
+            mostly_mine = cv2.blur(mine.astype(np.float32), (cfg.pool_px, cfg.pool_px)) > 0.5
+            weak = (pooled > cfg.pooled_snr) & mostly_mine
+            region = _clean(weak, min_area).ravel() & (labels == 0)
         if not region.any():
             continue
         kept.append(peak)

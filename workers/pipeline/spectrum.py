@@ -89,6 +89,33 @@ def background_spectrum(spectra: PixelSpectra, *, percentile: float = 20.0) -> N
     return level * float(n_pix)
 
 
+def whitened_spectrum(
+    spectra: PixelSpectra, *, band_hz: tuple[float, float]
+) -> tuple[NDArray[np.float64], float]:
+    """Sum over pixels of each pixel's spectrum divided by its own median power in the band.
+
+    A summed spectrum is dominated by whichever pixels move most (occlusion edges, compression noise);
+    a weak vibration spread over many pixels, each a few dB above its own noise, is lost in it. After
+    whitening every pixel votes with its own signal-to-noise ratio, so such a tone rises clearly above
+    a flat floor (about 1.44 per pixel: the mean over the median of exponential noise power).
+
+    Returns
+    -------
+    whitened : ndarray of float64, shape (F,)
+    floor : float
+        The value static noise would give at every frequency.
+    """
+    freqs = spectra.frequencies_hz
+    band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
+    if band.sum() < 3:
+        band = freqs > 0
+    median = np.median(spectra.power[band], axis=0)
+    scale = np.where(median > 0, 1.0 / np.maximum(median, 1e-30), 0.0).astype(np.float32)
+    whitened = (spectra.power @ scale).astype(np.float64)
+    active = int(np.count_nonzero(scale))
+    return whitened, float(active / math.log(2))
+
+
 def fast_length(n: int) -> int:
     """Smallest length >= n whose FFT is fast (a product of 2, 3, 5): a prime n is many times slower."""
     from scipy.fft import next_fast_len
@@ -333,8 +360,34 @@ def find_peaks(
             )
         )
     candidates.sort(key=lambda p: -p.power)
+    return fold_harmonics(
+        candidates, bin_hz=bin_hz, max_peaks=max_peaks, harmonic_tolerance=harmonic_tolerance
+    )
+
+
+def fold_harmonics(
+    candidates: list[Peak], *, bin_hz: float, max_peaks: int = 8, harmonic_tolerance: float = 0.04
+) -> list[Peak]:
+    """Keep peaks in the given order (strongest first), folding integer multiples of a kept peak into
+    its ``harmonics_hz`` and dropping repeats of a kept peak (within its width or a bin and a half).
+
+    Parameters
+    ----------
+    candidates : list of Peak
+    bin_hz : float
+    max_peaks : int
+    harmonic_tolerance : float
+
+    Returns
+    -------
+    list of Peak
+    """
     kept: list[Peak] = []
     for peak in candidates:
+        if any(
+            abs(peak.frequency_hz - base.frequency_hz) <= max(1.5, base.width_bins) * bin_hz for base in kept
+        ):
+            continue
         parent = None
         for base in kept:
             ratio = peak.frequency_hz / base.frequency_hz
@@ -345,7 +398,8 @@ def find_peaks(
                 parent = base
                 break
         if parent is not None:
-            parent.harmonics_hz.append(peak.frequency_hz)
+            if all(abs(h - peak.frequency_hz) > bin_hz for h in parent.harmonics_hz):
+                parent.harmonics_hz.append(peak.frequency_hz)
         elif len(kept) < max_peaks:
             kept.append(peak)
     for peak in kept:
