@@ -110,7 +110,9 @@ def run_analysis(
     from workers.pipeline.analysis import AnalysisConfig, analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
     from workers.pipeline.flow import FlowConfig
-    from workers.pipeline.render import render_all
+    from workers.pipeline.render import render_all, warm_up
+
+    warm_up()
 
     params = parameters or AnalysisParameters()
     overrides = ClipOverrides(
@@ -125,7 +127,7 @@ def run_analysis(
     )
     flow = None
     if params.flow is not None:
-        flow = FlowConfig(method=params.flow, scale=1.0 if params.method == "paper" else 0.5)
+        flow = FlowConfig(method=params.flow, scale=1.0 if params.method == "paper" else None)
     config = AnalysisConfig(
         method=params.method,
         flow=flow,

@@ -160,7 +160,7 @@ class AnalysisConfig:
         return {
             "method": self.method,
             "flow": fl.method,
-            "flow_scale": fl.scale,
+            "flow_scale": fl.scale if fl.scale is not None else "auto",
             "dis_preset": fl.dis_preset if fl.method == "dis" else None,
             "frames": self.frames,
             "start_frame": self.start_frame or 0,
@@ -592,7 +592,8 @@ def _analyze_default(
         band_hz=band,
         quality=quality,
         timings_s=watch.times,
-        parameters=config.describe() | {"frames": stop - start, "band_hz": list(band)},
+        parameters=config.describe()
+        | {"frames": stop - start, "band_hz": list(band), "flow_scale": flow_cfg.effective_scale(info.width)},
         method="default",
         peaks=seg.peaks,
         noise_power=noise,

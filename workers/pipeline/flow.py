@@ -37,8 +37,9 @@ class FlowConfig:
     Attributes
     ----------
     method : ``"farneback"`` or ``"dis"``
-    scale : float
-        Downscale factor in (0, 1] applied before flow (0.5 = half width and height).
+    scale : float or None
+        Downscale factor in (0, 1] applied before flow (0.5 = half width and height); None picks one
+        from the frame width (see :meth:`effective_scale`).
     dis_preset : ``"ultrafast"``, ``"fast"`` or ``"medium"``
         DIS quality preset.
     threads : int
@@ -48,7 +49,7 @@ class FlowConfig:
     """
 
     method: FlowMethod = "dis"
-    scale: float = 0.5
+    scale: float | None = None
     dis_preset: DisPreset = "medium"
     threads: int = 2
     farneback: tuple[float, int, int, int, int, float] = (0.5, 3, 15, 3, 5, 1.2)
@@ -56,18 +57,26 @@ class FlowConfig:
     def __post_init__(self) -> None:
         if self.method not in ("farneback", "dis"):
             raise ParameterError(f"flow method {self.method!r} is unknown; use 'farneback' or 'dis'")
-        if not 0 < self.scale <= 1:
+        if self.scale is not None and not 0 < self.scale <= 1:
             raise ParameterError(f"flow scale {self.scale} must be in (0, 1]")
         if self.dis_preset not in _DIS_PRESETS:
             raise ParameterError(f"DIS preset {self.dis_preset!r} is unknown; use ultrafast, fast or medium")
         if self.threads < 1:
             raise ParameterError("flow threads must be at least 1")
 
+    def effective_scale(self, width: int) -> float:
+        """The scale used for frames ``width`` pixels wide: the given one, or about 320 px of flow grid
+        (half resolution at 640, full resolution at 320 and below, a quarter at 1280 and above)."""
+        if self.scale is not None:
+            return self.scale
+        return float(min(1.0, max(0.25, 320.0 / max(width, 1))))
+
     def grid_shape(self, height: int, width: int) -> tuple[int, int]:
         """(h, w) of the flow grid for input frames of ``height`` x ``width``."""
-        if self.scale == 1:
+        scale = self.effective_scale(width)
+        if scale == 1:
             return height, width
-        return max(8, round(height * self.scale)), max(8, round(width * self.scale))
+        return max(8, round(height * scale)), max(8, round(width * scale))
 
 
 def prepare_gray(rgb: NDArray[np.uint8], shape: tuple[int, int]) -> NDArray[np.uint8]:

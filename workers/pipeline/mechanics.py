@@ -194,10 +194,11 @@ def register_translation(
     ref = grays[ref_index, y0:y1, x0:x1].astype(np.float32)
     ref_mask_crop = core[y0:y1, x0:x1]
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iterations, 1e-5)
+    # The affine refinement starts from the converged translation: a few iterations suffice.
+    affine_criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 25, 1e-4)
     hann = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
     centroid = np.array([xs.mean() - x0, ys.mean() - y0], np.float64)
     out = initial_px.astype(np.float64).copy()
-    failures = 0
 
     def ecc(cur: NDArray[np.float32], start: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]] | None:
         warp = np.eye(2, 3, dtype=np.float32)
@@ -212,7 +213,7 @@ def register_translation(
         if affine and np.all(np.isfinite(d)):
             try:
                 cc2, full = cv2.findTransformECC(
-                    cur, ref, warp.copy(), cv2.MOTION_AFFINE, criteria, ref_mask_crop, 3
+                    cur, ref, warp.copy(), cv2.MOTION_AFFINE, affine_criteria, ref_mask_crop, 3
                 )
             except cv2.error:
                 full = None
@@ -228,8 +229,8 @@ def register_translation(
                     cc, d = cc2, moved - centroid
         return (float(cc), d) if np.all(np.isfinite(d)) else None
 
-    def track(order: range, previous: NDArray[np.float64]) -> None:
-        nonlocal failures
+    def track(order: range, previous: NDArray[np.float64]) -> int:
+        failures = 0
         last = ref_index
         for k in order:
             cur = grays[k, y0:y1, x0:x1].astype(np.float32)
@@ -253,10 +254,18 @@ def register_translation(
                 continue
             out[k] = best[1]
             previous = best[1]
+        return failures
 
     out[ref_index] = 0.0
-    track(range(ref_index + 1, t_count), np.zeros(2))
-    track(range(ref_index - 1, -1, -1), np.zeros(2))
+    # Forward and backward from the reference are independent: one thread each (OpenCV drops the GIL).
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="ecc") as pool:
+        jobs = [
+            pool.submit(track, range(ref_index + 1, t_count), np.zeros(2)),
+            pool.submit(track, range(ref_index - 1, -1, -1), np.zeros(2)),
+        ]
+        failures = sum(job.result() for job in jobs)
     return out, failures / max(t_count - 1, 1)
 
 

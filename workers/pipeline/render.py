@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import os
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -1438,3 +1439,31 @@ __all__ = [
     "write_ringdown_png",
     "write_spectrum_png",
 ]
+
+
+def warm_up() -> threading.Thread:
+    """Import matplotlib and load its fonts in a background thread.
+
+    Importing matplotlib and its font cache costs about half a second; started when an analysis starts,
+    it runs while the main thread waits on OpenCV and FFTW (which release the GIL), so the images that
+    follow the analysis do not pay for it.
+
+    Returns
+    -------
+    threading.Thread
+        Already started (daemon); joining it is optional.
+    """
+
+    def load() -> None:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(1, 1), dpi=50)
+        ax = fig.add_subplot()
+        ax.plot([0, 1], [0, 1])
+        ax.set_title("warm-up")
+        FigureCanvasAgg(fig).draw()
+
+    thread = threading.Thread(target=load, name="render-warm-up", daemon=True)
+    thread.start()
+    return thread

@@ -136,7 +136,7 @@ def segment(
         band_power[i] = spectra.power[sel].sum(axis=0)
         band_bins[i] = max(int(sel.sum()), 1)
     # Each pixel's own noise level (median power per bin in the band), for weak, sub-pixel motion.
-    pixel_noise = np.median(spectra.power[in_band], axis=0) + np.float32(1e-20)
+    pixel_noise = spectra.band_median(band_hz) + np.float32(1e-20)
     noise = np.median(band_power, axis=1).astype(np.float64) + 1e-20
     owner = np.argmax(band_power, axis=0)
     min_area = max(4, int(cfg.min_area_fraction * h * w))
@@ -200,7 +200,7 @@ def frequency_map(
     sub = spectra.power[idx]
     k = np.argmax(sub, axis=0)
     peak_power = np.take_along_axis(sub, k[None, :], axis=0)[0]
-    background = np.median(sub, axis=1)
+    background = np.median(sub[:, :: max(1, sub.shape[1] // 20_000)], axis=1)
     valid = peak_power > noise_factor * background[k]
     freq = freqs[idx][k].astype(np.float32)
     return freq.reshape(grid_shape), valid.reshape(grid_shape)
