@@ -37,9 +37,11 @@ from workers.pipeline.mechanics import (
 )
 from workers.pipeline.segmentation import (
     Exclusion,
+    RejectedPeak,
     SegmentationConfig,
     exclude_background_surfaces,
     frequency_map,
+    reject_artefacts,
     segment,
     upsample_labels,
 )
@@ -77,6 +79,10 @@ DEPTH_OVERRIDE_REL_SD = 0.02
 FREQUENCY_REL_FLOOR = 3e-4
 DAMPING_REL_FLOOR = 0.015
 DAMPING_ABS_FLOOR = 3e-4
+#: A region whose motion fits a damped oscillation this poorly (dB) is not an object.
+MIN_RINGDOWN_SNR_DB = 3.0
+#: RMS per-frame motion of the picture's border (flow-grid pixels) above which it is removed as camera motion.
+CAMERA_MOTION_MIN_PX = 0.05
 #: Objects whose pixels move this coherently are registered as rigid bodies for their amplitude.
 RIGID_COHERENCE = 0.7
 
@@ -277,6 +283,8 @@ class Analysis:
     peaks: list[Peak] = field(default_factory=list)
     #: What the summed spectrum would be over static background (same frequencies), for the noise floor.
     noise_power: NDArray[np.float64] | None = None
+    #: Peaks that were not objects (flicker, keyframes, camera motion), with the reason.
+    rejected_peaks: list[RejectedPeak] = field(default_factory=list)
 
     @property
     def eigenfrequency_hz(self) -> float | None:
@@ -291,6 +299,7 @@ class _Buffers:
     first_rgb: NDArray[np.uint8]
     count: int
     times_s: NDArray[np.float64]  # (N + 1,) capture times, seconds from the window's first frame
+    camera_px: NDArray[np.float32]  # (N, 2) per-frame camera motion removed from the flow, grid px
     start_s: float  # capture time of the window's first frame, seconds from the clip's first frame
 
 
@@ -376,17 +385,33 @@ def _stream(
                 yield prepare_gray(frame.rgb, grid)
 
     count = 0
+    # The camera's own motion (shake, drift) moves the whole frame; estimate it each frame from a ring
+    # along the border, where objects rarely are, and remove it so it is neither an object nor mixed
+    # into one.
+    ring = np.ones(grid, bool)
+    mh, mw = max(1, round(0.12 * h)), max(1, round(0.12 * w))
+    ring[mh:-mh, mw:-mw] = False
+    ring_idx = np.flatnonzero(ring.ravel())[::3]
+    camera = np.zeros((n, 2), np.float32)
     for i, flow in enumerate(flow_stream(grays(), config=flow_cfg)):
         if magnitude:
             flow_buf[i, ..., 0] = flow_magnitude(flow)
         else:
+            camera[i] = np.median(flow.reshape(-1, 2)[ring_idx], axis=0)
             flow_buf[i] = flow
         count = i + 1
         if progress is not None and (i % 8 == 0 or i == n - 1):
             progress("flow", 0.05 + 0.75 * count / n)
     if count < n or first_rgb is None:
         raise AnalysisError(f"the clip ended after {count + 1} of the {n + 1} frames it announced")
+    # Compensate only real camera motion: subtracting the jitter of a still camera (codec noise) from
+    # every pixel would bury a sub-pixel vibration.
+    if not magnitude and float(np.sqrt(np.mean(camera.astype(np.float64) ** 2))) > CAMERA_MOTION_MIN_PX:
+        flow_buf -= camera[:, None, None, :]
+    else:
+        camera[:] = 0.0
     return _Buffers(
+        camera_px=camera,
         flow=flow_buf,
         depth=depth_buf,
         gray=gray_buf,
@@ -529,6 +554,9 @@ def _analyze_default(
     if progress:
         progress("segmentation", 0.88)
     seg = segment(spectra, peaks, grid_shape=grid, band_hz=band, config=config.segmentation)
+    seg, rejected = reject_artefacts(seg, spectra, band_hz=band)
+    for item in rejected:
+        quality.append(QualityNote("artefact_peak", item.reason, "info"))
     labels_grid = seg.labels
     exclusions: list[Exclusion] = []
     if buffers.depth is not None and seg.peaks:
@@ -560,6 +588,7 @@ def _analyze_default(
                 excluded=[e.reason for e in exclusions if e.label == label],
             )
         )
+    objects, labels_full = _drop_incoherent(objects, labels_full, quality, by_label)
     if not objects:
         quality.append(
             QualityNote(
@@ -597,7 +626,36 @@ def _analyze_default(
         method="default",
         peaks=seg.peaks,
         noise_power=noise,
+        rejected_peaks=rejected,
     )
+
+
+def _drop_incoherent(
+    objects: list[ObjectMeasurement],
+    labels: NDArray[np.uint16],
+    quality: list[QualityNote],
+    excited: dict[int, Excitation],
+) -> tuple[list[ObjectMeasurement], NDArray[np.uint16]]:
+    """Remove regions whose motion does not ring down coherently (fit SNR below ``MIN_RINGDOWN_SNR_DB``)
+    unless the user named them in an excitation; renumber the rest 1, 2, ... in objects and labels."""
+    kept = [o for o in objects if (o.snr_db or 0.0) >= MIN_RINGDOWN_SNR_DB or o.id in excited]
+    for o in objects:
+        if o not in kept:
+            quality.append(
+                QualityNote(
+                    "artefact_peak",
+                    f"{o.eigenfrequency_hz:.4g} Hz: the region's motion does not ring down coherently "
+                    f"({(o.snr_db or 0.0):.1f} dB); not reported as an object",
+                    "info",
+                )
+            )
+    if len(kept) == len(objects):
+        return objects, labels
+    relabelled = np.zeros_like(labels)
+    for new_id, o in enumerate(kept, start=1):
+        relabelled[labels == o.id] = new_id
+        o.id = new_id
+    return kept, relabelled
 
 
 def _quality_notes(
@@ -744,7 +802,12 @@ def _measure_object(
         initial = (position - position[ref])[:, None] * np.asarray(axis)[None, :]
         reach = float(np.abs(position - position[ref]).max()) / pixel_scale
         outline = silhouette(buffers.flow[ref], mask, axis_px=axis, shape=full_mask.shape, reach_px=reach)
-        disp2d, failed = register_translation(buffers.gray, outline, ref_index=ref, initial_px=initial)
+        camera = np.concatenate([[[0.0, 0.0]], np.cumsum(buffers.camera_px, axis=0)]) * pixel_scale
+        camera -= camera[ref]
+        disp2d, failed = register_translation(
+            buffers.gray, outline, ref_index=ref, initial_px=initial + camera
+        )
+        disp2d = disp2d - camera  # the object's motion relative to the camera
         if failed <= 0.1:
             centred = disp2d - disp2d.mean(axis=0)
             _, vecs = np.linalg.eigh(centred.T @ centred)
@@ -759,7 +822,7 @@ def _measure_object(
                 axis = (float(new_axis[0]), float(new_axis[1]))
                 velocity, onset, fit = registered, reg_onset, reg_fit
                 tracking = "registration"
-                shifts = disp2d
+                shifts = disp2d + camera  # where the object is in the image (depth maps)
                 grid_outline = _outline_grid(outline, mask.shape)
                 if grid_outline.sum() >= 16:
                     region = grid_outline

@@ -307,3 +307,88 @@ def exclude_background_surfaces(
             )
         )
     return out, exclusions
+
+
+@dataclass(frozen=True)
+class RejectedPeak:
+    """A spectral peak that is not an object."""
+
+    frequency_hz: float
+    reason: str
+
+
+def reject_artefacts(
+    seg: Segmentation,
+    spectra: PixelSpectra,
+    *,
+    band_hz: tuple[float, float],
+    background_snr: float = 2.5,
+    relative_snr: float = 0.05,
+    max_area_fraction: float = 0.5,
+) -> tuple[Segmentation, list[RejectedPeak]]:
+    """Drop peaks that are a property of the whole picture rather than of an object.
+
+    Lighting flicker, codec keyframes and residual camera shake move (or seem to move) the static
+    background too: a peak whose band stands ``background_snr`` above the pixels' own noise over the
+    median background pixel, and there at least ``relative_snr`` of its strength over its own region
+    (an object's motion leaks faintly into the background through flow smoothing; an artefact is as
+    strong there as anywhere), or whose region covers more than ``max_area_fraction`` of the frame, is
+    reported and removed; the remaining objects are relabelled 1, 2, ...
+
+    Returns
+    -------
+    Segmentation
+    list of RejectedPeak
+    """
+    if not seg.peaks:
+        return seg, []
+    freqs = spectra.frequencies_hz
+    pixel_noise = spectra.band_median(band_hz) + np.float32(1e-20)
+    background = (seg.labels == 0).ravel()
+    h, w = seg.labels.shape
+    keep: list[int] = []
+    rejected: list[RejectedPeak] = []
+    for i, peak in enumerate(seg.peaks):
+        sel = band_mask(freqs, peak, bin_hz=spectra.bin_hz, band_bins=max(1.5, peak.width_bins))
+        bins = max(int(sel.sum()), 1)
+        area = float((seg.labels == i + 1).sum()) / (h * w)
+        snr_bg = snr_obj = float("nan")
+        region = (seg.labels == i + 1).ravel()
+        if background.sum() >= 16 and region.any():
+            bp = seg.band_power[i].ravel()
+            snr = bp / (pixel_noise * bins)
+            snr_bg = float(np.median(snr[background]))
+            snr_obj = float(np.median(snr[region]))
+        if area > max_area_fraction:
+            rejected.append(
+                RejectedPeak(
+                    peak.frequency_hz,
+                    f"{peak.frequency_hz:.4g} Hz moves {area * 100:.0f} % of the picture: camera motion or "
+                    "a global effect, not an object",
+                )
+            )
+        elif snr_bg > background_snr and snr_bg > relative_snr * snr_obj:
+            rejected.append(
+                RejectedPeak(
+                    peak.frequency_hz,
+                    f"{peak.frequency_hz:.4g} Hz is present over the static background as well "
+                    f"({10 * np.log10(snr_bg):.1f} dB above its noise): lighting flicker, codec keyframes "
+                    "or camera shake, not an object",
+                )
+            )
+        else:
+            keep.append(i)
+    if len(keep) == len(seg.peaks):
+        return seg, rejected
+    labels = np.zeros_like(seg.labels)
+    for new, old in enumerate(keep, start=1):
+        labels[seg.labels == old + 1] = new
+    return (
+        Segmentation(
+            labels=labels,
+            peaks=[seg.peaks[i] for i in keep],
+            band_power=seg.band_power[keep],
+            noise_power=seg.noise_power[keep],
+        ),
+        rejected,
+    )

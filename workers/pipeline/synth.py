@@ -115,6 +115,14 @@ class Scene:
     objects : tuple of SceneObject
     rgb_noise : float
         Standard deviation of additive colour noise, 8-bit levels.
+    shake_px, shake_hz : float
+        Camera shake: the whole image moves diagonally by ``shake_px`` at ``shake_hz``.
+    drift_px_per_s : (dx, dy)
+        Slow camera drift of the whole image.
+    flicker, flicker_hz : float
+        Lighting flicker: brightness scaled by 1 + flicker sin(2π flicker_hz t).
+    keyframe_every, keyframe_pulse : int, float
+        Codec keyframes: every ``keyframe_every`` frames the image jumps by ``keyframe_pulse`` levels.
     depth_noise_m : float
         Standard deviation of depth noise at 1 m (grows with the square of depth).
     seed : int
@@ -130,6 +138,13 @@ class Scene:
     rgb_noise: float = 2.0
     depth_noise_m: float = 0.002
     seed: int = 0
+    shake_px: float = 0.0
+    shake_hz: float = 0.0
+    drift_px_per_s: tuple[float, float] = (0.0, 0.0)
+    flicker: float = 0.0
+    flicker_hz: float = 0.0
+    keyframe_every: int = 0
+    keyframe_pulse: float = 6.0
 
     @property
     def intrinsics(self) -> tuple[float, float, float, float]:
@@ -323,6 +338,17 @@ def render(scene: Scene) -> SyntheticClip:
             col = cv2.warpAffine(tex, M, (W, H), flags=cv2.INTER_LINEAR)
             frame = frame * (1 - a[..., None]) + col * a[..., None]
             dmap = np.where(a >= 0.5, np.float32(Z), dmap)
+        tk = k / scene.fps
+        gx = scene.shake_px * math.sin(2 * math.pi * scene.shake_hz * tk) + scene.drift_px_per_s[0] * tk
+        gy = scene.shake_px * math.sin(2 * math.pi * scene.shake_hz * tk) + scene.drift_px_per_s[1] * tk
+        if gx or gy:
+            g = np.array([[1, 0, gx], [0, 1, gy]], np.float32)
+            frame = cv2.warpAffine(frame, g, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            dmap = cv2.warpAffine(dmap, g, (W, H), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        if scene.flicker:
+            frame *= np.float32(1 + scene.flicker * math.sin(2 * math.pi * scene.flicker_hz * tk))
+        if scene.keyframe_every and k % scene.keyframe_every == 0:
+            frame += np.float32(scene.keyframe_pulse)
         frame += rng.standard_normal(frame.shape, dtype=np.float32) * np.float32(scene.rgb_noise)
         rgb[k] = np.clip(frame, 0, 255).astype(np.uint8)
         dn = rng.standard_normal((H, W), dtype=np.float32) * np.float32(scene.depth_noise_m) * dmap**2

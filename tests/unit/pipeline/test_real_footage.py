@@ -1,0 +1,72 @@
+"""Real high-speed footage of struck tuning forks (../shared/data/real/tuning-forks, see its README):
+the container says 50 fps, the true rate is in the file name; the tines move in anti-phase; the 500 fps
+clips drift; 128 Hz at 250 fps is above the Nyquist rate."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from tests.unit.pipeline.conftest import ACCURACY_ROWS
+from workers.pipeline.analysis import analyze
+from workers.pipeline.clipio import ClipOverrides, open_clip
+
+CLIPS = [(f, fps) for f in (32, 64, 128) for fps in (250, 500, 1000) if not (f == 128 and fps == 250)]
+
+
+def _clip(shared_dir, f, fps):
+    path = shared_dir / "data/real/tuning-forks" / f"tuning_hz{f}_fps{fps}_50-1_640x420.mp4"
+    if not path.is_file():
+        pytest.fail(f"missing real clip {path}")
+    return path
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+@pytest.mark.parametrize(("frequency", "fps"), CLIPS, ids=[f"{f}Hz-{r}fps" for f, r in CLIPS])
+def test_tuning_fork_frequency_within_half_a_percent(frequency, fps, shared_dir):
+    start = time.perf_counter()
+    with open_clip(_clip(shared_dir, frequency, fps), overrides=ClipOverrides(fps=fps)) as reader:
+        assert reader.info.fps_source == "user"
+        result = analyze(reader)
+    elapsed = time.perf_counter() - start
+    assert result.objects, [q.message for q in result.quality]
+    measured = result.objects[0].eigenfrequency_hz
+    ACCURACY_ROWS.append(
+        {
+            "clip": f"{frequency}Hz@{fps}fps",
+            "true_hz": float(frequency),
+            "measured_hz": measured,
+            "seconds": elapsed,
+        }
+    )
+    assert measured == pytest.approx(frequency, rel=0.005)
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_128hz_at_250fps_is_not_reported_as_a_confident_122hz(shared_dir):
+    with open_clip(_clip(shared_dir, 128, 250), overrides=ClipOverrides(fps=250)) as reader:
+        result = analyze(reader)
+    near_alias = [o for o in result.objects if abs(o.eigenfrequency_hz - 122.0) < 3.0]
+    flagged = {q.code for q in result.quality}
+    assert not near_alias or "possibly_aliased" in flagged
+    ACCURACY_ROWS.append(
+        {
+            "clip": "128Hz@250fps",
+            "true_hz": 128.0,
+            "measured_hz": result.objects[0].eigenfrequency_hz if result.objects else float("nan"),
+            "seconds": float("nan"),
+        }
+    )
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_the_container_rate_would_be_wrong(shared_dir):
+    """Without the true rate the 50 fps the file claims turns 32 Hz at 1000 fps into 1.6 Hz: the clip
+    reports where its rate came from so the user can tell."""
+    with open_clip(_clip(shared_dir, 32, 1000)) as reader:
+        assert reader.info.fps_source == "container"
+        assert reader.info.fps == pytest.approx(50, rel=0.05)
