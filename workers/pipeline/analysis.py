@@ -14,7 +14,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.clipio.types import ClipReader, Frame, Intrinsics
+from workers.pipeline.clipio.types import ClipInfo, ClipReader, Frame, Intrinsics
 from workers.pipeline.errors import AnalysisError, ParameterError
 from workers.pipeline.flow import (
     FlowConfig,
@@ -314,6 +314,20 @@ class _Stopwatch:
         self._t = now
 
 
+def _plan(
+    info: ClipInfo, config: AnalysisConfig
+) -> tuple[float, int, int, FlowConfig, tuple[int, int], float]:
+    """Frame rate, window [start, stop), flow settings, flow grid and input pixels per grid pixel."""
+    if info.fps is None:
+        raise ParameterError(
+            "the clip carries no frame rate; give the true recording rate with --fps (API: fps)"
+        )
+    start, stop = _window(info.frames, config)
+    flow_cfg = config.resolved_flow()
+    grid = flow_cfg.grid_shape(info.height, info.width)
+    return float(info.fps), start, stop, flow_cfg, grid, info.width / grid[1]
+
+
 def _window(total: int, config: AnalysisConfig) -> tuple[int, int]:
     start = config.start_frame or 0
     if start >= total - 2:
@@ -494,15 +508,7 @@ def _analyze_default(
 ) -> Analysis:
     watch = _Stopwatch()
     info = reader.info
-    if info.fps is None:
-        raise ParameterError(
-            "the clip carries no frame rate; give the true recording rate with --fps (API: fps)"
-        )
-    fps = float(info.fps)
-    start, stop = _window(info.frames, config)
-    flow_cfg = config.resolved_flow()
-    grid = flow_cfg.grid_shape(info.height, info.width)
-    pixel_scale = info.width / grid[1]
+    fps, start, stop, flow_cfg, grid, pixel_scale = _plan(info, config)
     if progress:
         progress("flow", 0.05)
     watch.lap("setup")

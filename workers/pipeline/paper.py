@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from workers.pipeline.errors import ParameterError
 from workers.pipeline.segmentation import upsample_labels
 
 if TYPE_CHECKING:
@@ -43,22 +42,14 @@ def analyze_paper(
         _band,
         _bbox,
         _object_depth,
+        _plan,
         _Stopwatch,
         _stream,
-        _window,
     )
 
     watch = _Stopwatch()
     info = reader.info
-    if info.fps is None:
-        raise ParameterError(
-            "the clip carries no frame rate; give the true recording rate with --fps (API: fps)"
-        )
-    fps = float(info.fps)
-    start, stop = _window(info.frames, config)
-    flow_cfg = config.resolved_flow()
-    grid = flow_cfg.grid_shape(info.height, info.width)
-    pixel_scale = info.width / grid[1]
+    fps, start, stop, flow_cfg, grid, pixel_scale = _plan(info, config)
     buffers = _stream(reader, start, stop, grid, flow_cfg, progress, magnitude=True)
     watch.lap("flow")
     n = buffers.count

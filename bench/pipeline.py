@@ -1,0 +1,121 @@
+"""Benchmark: the seed recipe (``--method paper``) against the default method, end to end.
+
+Renders ground-truth clips of several sizes, writes them as uncompressed npz bundles, then runs
+``eigenscope analyze`` on each in a fresh process (start-up, decoding and images included), once per
+method, and prints one table measured in this run: wall time, real-time factor (clip duration / wall time),
+the seed recipe's time over the default's, per-stage times, peak memory and the accuracy of both.
+
+    python bench/pipeline.py                       # 320x240x64, 640x480x256, 1280x720x128
+    python bench/pipeline.py --sizes 640x480x256   # the issue's target only
+    python bench/pipeline.py --sizes 640x480x1024  # memory must not grow with clip length
+
+Timing never fails anything: this prints figures, it does not assert them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+CHILD = """
+import resource, sys
+from eigenscope.cli import main
+code = main(sys.argv[1:])
+print("MAXRSS_KB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)
+raise SystemExit(code)
+"""
+
+
+def run_analyze(clip: Path, out: Path, method: str, force: float) -> dict[str, object]:
+    cmd = [sys.executable, "-c", CHILD, "analyze", str(clip), "--force-n", str(force), "--out", str(out)]
+    cmd += ["--method", method, "--json"]
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False)
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        raise SystemExit(f"bench: analyze failed ({method}): {proc.stderr.strip().splitlines()[-1:]}")
+    rss_kb = next(int(line.split()[1]) for line in proc.stderr.splitlines() if line.startswith("MAXRSS_KB"))
+    result = json.loads(proc.stdout)
+    return {"wall_s": wall, "peak_mb": rss_kb / 1024, "result": result}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--sizes", default="320x240x64,640x480x256,1280x720x128", help="WxHxFRAMES,...")
+    parser.add_argument("--no-paper", action="store_true", help="skip the seed recipe")
+    args = parser.parse_args()
+
+    from workers.pipeline.clipio import write_npz
+    from workers.pipeline.synth import Scene, SceneObject, render
+
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="eigenscope-bench-") as tmp:
+        for spec in args.sizes.split(","):
+            w, h, frames = (int(v) for v in spec.lower().split("x"))
+            scale = w / 640
+            obj = SceneObject(
+                center_px=(w / 2, h / 2),
+                size_px=(140 * scale, 110 * scale),
+                frequency_hz=5.0,
+                mass_kg=0.5,
+                force_n=10.0,
+                release_frame=10,
+            )
+            scene = Scene(width=w, height=h, frames=frames, objects=(obj,), seed=1)
+            clip = render(scene)
+            path = Path(tmp) / f"clip-{spec}.npz"
+            write_npz(path, clip.rgb, fps=clip.fps, depth=clip.depth, intrinsics=clip.intrinsics)
+            del clip
+            truth = scene.truth()["objects"][0]
+            duration = frames / scene.fps
+            measured = {}
+            for method in ("default",) if args.no_paper else ("default", "paper"):
+                measured[method] = run_analyze(path, Path(tmp) / f"out-{spec}-{method}", method, 10.0)
+            for method, m in measured.items():
+                result = m["result"]
+                assert isinstance(result, dict)
+                objects = result["objects"]
+                obj0 = objects[0] if objects else {}
+                f = obj0.get("eigenfrequency_hz")
+                k = obj0.get("stiffness_n_per_m")
+                row = {
+                    "clip": spec,
+                    "method": "seed recipe" if method == "paper" else "default",
+                    "wall_s": m["wall_s"],
+                    "x_realtime": duration / float(m["wall_s"]),  # type: ignore[arg-type]
+                    "peak_mb": m["peak_mb"],
+                    "f_err_%": abs(f / truth["eigenfrequency_hz"] - 1) * 100 if f else float("nan"),
+                    "k_err_%": abs(k / truth["stiffness_n_per_m"] - 1) * 100 if k else float("nan"),
+                    **{f"{stage}_s": t for stage, t in result["timings_s"].items()},
+                }
+                rows.append(row)
+            if "paper" in measured:
+                ratio = float(measured["paper"]["wall_s"]) / float(measured["default"]["wall_s"])  # type: ignore[arg-type]
+                rows.append({"clip": spec, "method": f"seed/default = {ratio:.1f}x"})
+
+    columns: list[str] = []
+    for row in rows:
+        for key in row:
+            if key not in columns:
+                columns.append(key)
+    print("| " + " | ".join(columns) + " |")
+    print("|" + "---|" * len(columns))
+    for row in rows:
+        cells = []
+        for c in columns:
+            v = row.get(c, "")
+            cells.append(f"{v:.3g}" if isinstance(v, float) else str(v))
+        print("| " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
