@@ -19,6 +19,7 @@ from service.context import ServiceContext
 from service.openapi import install_openapi
 from service.problems import install_problem_handlers
 from service.routes import clips, health, jobs, page
+from service.routes.docs import install_docs
 from service.settings import Settings
 
 #: Version of the HTTP API (the OpenAPI ``info.version``), independent of the package version.
@@ -70,6 +71,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=API_VERSION,
         lifespan=lifespan,
         generate_unique_id_function=_operation_id,
+        docs_url=None,
+        redoc_url=None,
     )
     app.state.ctx = ctx
     install_problem_handlers(app)
@@ -77,6 +80,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(jobs.router)
     app.include_router(health.router)
     page.install_page(app)
+    install_docs(app)
     install_openapi(app, version=API_VERSION, description=DESCRIPTION)
 
     @app.middleware("http")

@@ -109,3 +109,20 @@ def test_the_page_loads_nothing_from_another_origin() -> None:
     assert "@import" not in css
     assert not re.search(r"url\(\s*['\"]?\s*(https?:)?//", css)
     assert not re.search(r"https?://", css)
+
+
+def test_docs_are_served_without_a_cdn(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.settings import Settings
+
+    app = create_app(Settings(data_dir=tmp_path))
+    with TestClient(app) as client:
+        html = client.get("/docs")
+        assert html.status_code == 200
+        assert "cdn" not in html.text.lower()
+        assert "/docs-assets/swagger-ui-bundle.js" in html.text
+        js = client.get("/docs-assets/swagger-ui-bundle.js")
+        assert js.status_code == 200
+        assert len(js.content) > 100_000
