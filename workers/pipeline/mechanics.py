@@ -139,6 +139,10 @@ def silhouette(
     return np.asarray(up.astype(bool))
 
 
+#: Outline size (input pixels) from which the affine refinement is used.
+AFFINE_MIN_PIXELS = 1500
+
+
 def register_translation(
     grays: NDArray[np.uint8],
     ref_mask: NDArray[np.bool_],
@@ -198,6 +202,8 @@ def register_translation(
     affine_criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 25, 1e-4)
     hann = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
     centroid = np.array([xs.mean() - x0, ys.mean() - y0], np.float64)
+    # Six affine parameters need many textured pixels; on a small outline they only add noise.
+    use_affine = affine and len(xs) >= AFFINE_MIN_PIXELS
     out = initial_px.astype(np.float64).copy()
 
     def ecc(cur: NDArray[np.float32], start: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]] | None:
@@ -210,7 +216,7 @@ def register_translation(
         except cv2.error:
             return None
         d = np.array([-warp[0, 2], -warp[1, 2]], np.float64)
-        if affine and np.all(np.isfinite(d)):
+        if use_affine and np.all(np.isfinite(d)):
             try:
                 cc2, full = cv2.findTransformECC(
                     cur, ref, warp.copy(), cv2.MOTION_AFFINE, affine_criteria, ref_mask_crop, 3
