@@ -22,8 +22,6 @@ import json
 import math
 from collections.abc import Iterator
 from pathlib import Path
-from types import TracebackType
-from typing import Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,6 +41,7 @@ from workers.pipeline.clipio._common import (
 from workers.pipeline.clipio.types import (
     ClipInfo,
     ClipOverrides,
+    ClosingReader,
     Frame,
     Intrinsics,
     ReadLimits,
@@ -134,7 +133,7 @@ def _parse_tum_list(archive: Archive, name: str, root: str) -> tuple[NDArray[np.
     return np.asarray(stamps, dtype=np.float64), files
 
 
-class FramesClip:
+class FramesClip(ClosingReader):
     """Reader of the frame-folder (``zip-frames``) and TUM (``tum``) layouts; see the module docstring."""
 
     def __init__(
@@ -317,17 +316,6 @@ class FramesClip:
 
     def close(self) -> None:
         self._archive.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _size_of(path: Path) -> int:

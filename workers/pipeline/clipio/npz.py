@@ -19,8 +19,7 @@ import math
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
-from types import TracebackType
-from typing import IO, Any, Self
+from typing import IO, Any
 
 import numpy as np
 from numpy.lib import format as npy_format
@@ -30,6 +29,7 @@ from workers.pipeline.clipio._common import check_frames, check_size, resolve_ti
 from workers.pipeline.clipio.types import (
     ClipInfo,
     ClipOverrides,
+    ClosingReader,
     Frame,
     Intrinsics,
     ReadLimits,
@@ -118,7 +118,7 @@ def _scalar(member: _Member, what: str) -> float:
     return float(arr.reshape(()))
 
 
-class NpzClip:
+class NpzClip(ClosingReader):
     """Reader of the native ``.npz`` bundle. See the module docstring for the layout."""
 
     def __init__(
@@ -260,17 +260,6 @@ class NpzClip:
 
     def close(self) -> None:
         self._zip.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 class NpzDepth:

@@ -34,8 +34,7 @@ import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,6 +55,7 @@ from workers.pipeline.clipio._common import (
 from workers.pipeline.clipio.types import (
     ClipInfo,
     ClipOverrides,
+    ClosingReader,
     Frame,
     Intrinsics,
     ReadLimits,
@@ -230,7 +230,7 @@ def _common_prefix_len(a: str, b: str) -> int:
     return n
 
 
-class BagClip:
+class BagClip(ClosingReader):
     """Reader of ROS 1 (``ros1-bag``) and ROS 2 (``ros2-bag``) bags; see the module docstring."""
 
     def __init__(
@@ -653,17 +653,6 @@ class BagClip:
 
     def close(self) -> None:
         self._src.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _rows(msg: Any, what: str, bytes_per_pixel: int) -> NDArray[np.uint8]:

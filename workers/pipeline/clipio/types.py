@@ -244,6 +244,24 @@ class ClipReader(Protocol):
     ) -> None: ...
 
 
+class ClosingReader:
+    """Context-manager plumbing shared by the readers: ``with reader:`` closes it."""
+
+    def close(self) -> None:  # pragma: no cover - every reader overrides it
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
 def depth_to_metres(raw: NDArray[np.generic], depth_scale: float) -> NDArray[np.float32]:
     """Convert a stored depth map to metres.
 

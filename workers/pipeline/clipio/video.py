@@ -22,8 +22,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from types import TracebackType
-from typing import IO, Any, Self
+from typing import IO, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,7 +38,14 @@ from workers.pipeline.clipio._common import (
 )
 from workers.pipeline.clipio.frames import camera_depth_scale, camera_intrinsics, read_camera_json
 from workers.pipeline.clipio.npz import NpzDepth
-from workers.pipeline.clipio.types import ClipInfo, ClipOverrides, Frame, ReadLimits, depth_to_metres
+from workers.pipeline.clipio.types import (
+    ClipInfo,
+    ClipOverrides,
+    ClosingReader,
+    Frame,
+    ReadLimits,
+    depth_to_metres,
+)
 from workers.pipeline.errors import ClipError
 
 VIDEO_EXTS = (".mp4", ".m4v", ".avi", ".mkv", ".mov", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts")
@@ -141,7 +147,7 @@ def _open_depth_companion(
         raise
 
 
-class VideoClip:
+class VideoClip(ClosingReader):
     """Reader of video files (optionally with companion depth); see the module docstring."""
 
     def __init__(
@@ -346,17 +352,6 @@ class VideoClip:
             self._depth = None
         if self._archive is not None:
             self._archive.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _msg(exc: BaseException) -> str:
