@@ -20,6 +20,12 @@ def register(sub: Any) -> None:
     exc.add_argument("--impulse-ns", type=float, help="impulse that struck the object, newton-seconds")
     p.add_argument("--force-uncertainty", type=float, default=0.0, help="standard uncertainty of F or J")
     p.add_argument("--object-id", type=int, help="object the excitation applies to (default: the main one)")
+    p.add_argument(
+        "--point", type=float, nargs=2, metavar=("X", "Y"), help="... or a point on that object, pixels"
+    )
+    p.add_argument(
+        "--box", type=float, nargs=4, metavar=("X", "Y", "W", "H"), help="... or a box around it, pixels"
+    )
     p.add_argument("--fps", type=float, help="true recording frame rate (wins over the file's)")
     for name in ("fx", "fy", "cx", "cy"):
         p.add_argument(f"--{name}", type=float, help=f"camera intrinsic {name}, pixels")
@@ -73,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
                 force_n=args.force_n,
                 force_uncertainty_n=args.force_uncertainty,
                 object_id=args.object_id,
+                point_px=args.point,
+                box_px=args.box,
             )
         elif args.impulse_ns is not None:
             excitation = ImpulseExcitation(
@@ -80,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
                 impulse_ns=args.impulse_ns,
                 impulse_uncertainty_ns=args.force_uncertainty,
                 object_id=args.object_id,
+                point_px=args.point,
+                box_px=args.box,
             )
     except ValidationError as exc:
         err = exc.errors()[0]

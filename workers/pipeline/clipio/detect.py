@@ -33,7 +33,11 @@ _IMAGE_EXTS = (".png", ".jpg", ".jpeg")
 
 def _zip_layout(names: list[str]) -> str | None:
     names = visible(names)
-    if any(n.removesuffix(".npy") == "rgb" for n in names):
+    # An archive of top-level .npy arrays is an npz bundle even without 'rgb': its reader then names the
+    # missing key and how to save it.
+    if any(n.removesuffix(".npy") == "rgb" for n in names) or (
+        names and all(n.endswith(".npy") and "/" not in n for n in names)
+    ):
         return "npz"
     root = common_root(names)
     rel = [n[len(root) :] for n in names if n.startswith(root)]

@@ -1,0 +1,80 @@
+"""``eigenscope analyze`` from the outside: a real process, one-line errors, exit codes, result files."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from workers.pipeline.clipio import write_npz
+
+
+def eigenscope(*args, cwd=None):
+    return subprocess.run(
+        [sys.executable, "-m", "eigenscope", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        check=False,
+    )
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "clip.npz"
+    done = eigenscope("synth", "--out", out, "--frames", 64, "--width", 320, "--height", 240, "--seed", 3)
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+def test_analyze_writes_result_and_mask_and_prints_a_summary(clip, tmp_path):
+    done = eigenscope("analyze", clip, "--force-n", 10, "--out", tmp_path / "out")
+    assert done.returncode == 0, done.stderr
+    assert "object 1: f = " in done.stdout
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    truth = json.loads(clip.with_name("clip.truth.json").read_text())["objects"][0]
+    assert result["eigenfrequency_hz"] == pytest.approx(truth["eigenfrequency_hz"], rel=0.01)
+    assert result["objects"][0]["mass_kg"] == pytest.approx(truth["mass_kg"], rel=0.1)
+    assert (tmp_path / "out" / result["artifacts"]["mask"]).is_file()
+    assert result["parameters"]["excitation"][0]["force_n"] == 10
+
+
+def test_point_excitation_names_the_object(clip, tmp_path):
+    done = eigenscope(
+        "analyze", clip, "--force-n", 10, "--point", 160, 120, "--out", tmp_path / "o", "--json"
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["objects"][0]["stiffness_n_per_m"] is not None
+
+
+@pytest.mark.parametrize(
+    ("make", "args", "expected"),
+    [
+        ("missing", [], "No such file"),
+        ("text", [], "not a"),
+        ("few-frames", [], "frames"),
+        ("no-rgb", [], "missing key 'rgb'"),
+        ("ok", ["--fps", "-3"], "--fps"),
+        ("ok", ["--force-n", "10", "--point", "1", "1"], "matches no object"),
+        ("ok", ["--frames", "4"], "frames"),
+    ],
+)
+def test_bad_input_gets_one_line_and_exit_2(make, args, expected, clip, tmp_path):
+    path = tmp_path / "bad.npz"
+    if make == "text":
+        path.write_text("not a clip\n")
+    elif make == "few-frames":
+        write_npz(path, np.zeros((3, 32, 32, 3), np.uint8), fps=30)
+    elif make == "no-rgb":
+        np.savez(path, colour=np.zeros((10, 32, 32, 3), np.uint8), fps=30.0)
+    elif make == "ok":
+        path = clip
+    done = eigenscope("analyze", path, *args, "--out", tmp_path / "out")
+    assert done.returncode == 2, (done.stdout, done.stderr)
+    assert "Traceback" not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert expected.lower() in lines[0].lower()
