@@ -51,6 +51,7 @@
     objectUrls: [],
     pollTimer: null,
     polling: false,
+    pollAgain: false,
     statuses: new Map(), // job id -> last status seen (for announcements)
     clipNames: new Map(), // clip id -> file name (null when unknown)
     lastUpload: null, // { file, clipId } so a re-run with other options does not upload again
@@ -677,8 +678,14 @@
 
   async function refreshJobs() {
     window.clearTimeout(state.pollTimer);
-    if (state.polling) return;
+    if (state.polling) {
+      // A poll is in flight (perhaps with a key that was just replaced): poll again as soon as it ends.
+      state.pollAgain = true;
+      return;
+    }
     state.polling = true;
+    state.pollAgain = false;
+    const keyAtStart = apiKey();
     let delay = POLL_IDLE_MS;
     try {
       const page = await api("v1/jobs?limit=30");
@@ -692,12 +699,17 @@
       if (state.selectedId) await renderSelected();
       if (state.jobs.some((j) => !TERMINAL.has(j.status))) delay = POLL_ACTIVE_MS;
     } catch (err) {
-      problemNode($("jobs-problem"), err);
-      // Busy or over a quota: come back when the server says so.
-      if (err instanceof ApiError && err.retryAfterS) delay = Math.max(delay, err.retryAfterS * 1000);
+      if (apiKey() !== keyAtStart) {
+        state.pollAgain = true; // refused with the previous key: not news any more
+      } else {
+        problemNode($("jobs-problem"), err);
+        // Busy or over a quota: come back when the server says so.
+        if (err instanceof ApiError && err.retryAfterS) delay = Math.max(delay, err.retryAfterS * 1000);
+      }
     } finally {
       state.polling = false;
-      schedulePoll(document.hidden ? POLL_IDLE_MS * 2 : delay);
+      if (state.pollAgain) delay = 0;
+      schedulePoll(document.hidden && !state.pollAgain ? POLL_IDLE_MS * 2 : delay);
     }
   }
 
