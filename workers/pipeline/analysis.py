@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -978,5 +978,4 @@ __all__ = [
     "ObjectMeasurement",
     "QualityNote",
     "analyze",
-    "replace",
 ]

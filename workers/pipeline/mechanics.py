@@ -14,7 +14,6 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.clipio.types import Intrinsics
 from workers.pipeline.spectrum import RingdownFit
 
 
@@ -353,34 +352,6 @@ class Mechanics:
     mass_kg: float | None = None
     mass_sd: float | None = None
     null_reasons: list[str] = field(default_factory=list)
-
-
-def metric_amplitude(
-    amplitude_px: float,
-    axis_px: tuple[float, float],
-    *,
-    depth_m: float,
-    intrinsics: Intrinsics,
-) -> float:
-    """Convert an image-plane amplitude to metres at the object's depth.
-
-    Parameters
-    ----------
-    amplitude_px : float
-        Amplitude along ``axis_px``, input pixels.
-    axis_px : (ux, uy)
-        Unit motion axis in the image.
-    depth_m : float
-    intrinsics : Intrinsics
-
-    Returns
-    -------
-    float
-        Amplitude, metres.
-    """
-    dx = amplitude_px * axis_px[0] * depth_m / intrinsics.fx
-    dy = amplitude_px * axis_px[1] * depth_m / intrinsics.fy
-    return math.hypot(dx, dy)
 
 
 def stiffness_and_mass(

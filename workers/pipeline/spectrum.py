@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -644,9 +643,6 @@ def fit_ringdown(
         residual_rms=math.sqrt(s2),
         snr_db=snr_db,
     )
-
-
-ProgressFn = Callable[[float], None]
 
 
 @dataclass(frozen=True)
