@@ -128,6 +128,12 @@ class AnalysisResult(BaseModel):
     fps: float
     fps_source: str
     frames_used: list[int] = Field(description="[first, last) frame indices of the analysed window.")
+    frame_step: int = Field(
+        default=1,
+        ge=1,
+        description="Every frame_step-th frame of frames_used was analysed: spectra, displacement and "
+        "ring-down are sampled at fps / frame_step (a long clip of slow motion).",
+    )
     frame_size_px: list[int] = Field(description="[width, height] of the input frames.")
     timings_s: dict[str, float] = Field(default_factory=dict)
     version: str

@@ -180,14 +180,14 @@ async def run_load(
     return report
 
 
-def _free_port() -> int:
+def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
 
 
-def _start_server(workdir: Path, workers: int) -> tuple[subprocess.Popen[bytes], str]:
-    port = _free_port()
+def start_server(workdir: Path, workers: int) -> tuple[subprocess.Popen[bytes], str]:
+    port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("EIGENSCOPE_")}
     env.update(EIGENSCOPE_DATA_DIR=str(workdir / "data"), EIGENSCOPE_MAX_ACTIVE_JOBS_PER_KEY="100000")
     log = (workdir / "serve.log").open("ab")
@@ -235,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         proc = None
         base = args.server
         if base is None:
-            proc, base = _start_server(workdir, args.workers)
+            proc, base = start_server(workdir, args.workers)
         try:
             report = asyncio.run(
                 run_load(

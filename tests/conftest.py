@@ -6,6 +6,10 @@ import os
 import random
 from pathlib import Path
 
+# isort: off
+import eigenscope  # noqa: F401 - before numpy, as in every entry point: one BLAS thread (see its __init__)
+
+# isort: on
 import numpy as np
 import pytest
 

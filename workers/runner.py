@@ -208,6 +208,7 @@ def run_analysis(
         fps=analysis.fps,
         fps_source=analysis.fps_source,
         frames_used=list(analysis.frames_used),
+        frame_step=analysis.frame_step,
         frame_size_px=[int(analysis.labels.shape[1]), int(analysis.labels.shape[0])],
         timings_s={k: round(v, 4) for k, v in analysis.timings_s.items()},
         version=_version(),

@@ -103,7 +103,10 @@ def run(args: argparse.Namespace) -> int:
         json.dump(result.model_dump(mode="json"), sys.stdout, indent=2)
         print()
         return 0
-    print(f"clip: {args.clip}  ({result.fps:g} fps from {result.fps_source}, frames {result.frames_used})")
+    frames = f"frames {result.frames_used}" + (
+        f", one in {result.frame_step}" if result.frame_step > 1 else ""
+    )
+    print(f"clip: {args.clip}  ({result.fps:g} fps from {result.fps_source}, {frames})")
     if not result.objects:
         print("no vibrating object found")
     for o in result.objects:

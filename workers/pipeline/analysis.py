@@ -5,7 +5,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -14,7 +16,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.clipio.types import ClipInfo, ClipReader, Frame, Intrinsics
+from workers.pipeline.clipio.types import ClipInfo, ClipReader, ClosingReader, Frame, Intrinsics
 from workers.pipeline.errors import AnalysisError, ParameterError
 from workers.pipeline.flow import (
     FlowConfig,
@@ -58,12 +60,16 @@ from workers.pipeline.spectrum import (
     sliding_ringdown,
     whitened_spectrum,
 )
+from workers.pipeline.spectrum import warm_up as spectrum_warm_up
+from workers.pipeline.survey import Survey, WindowPlan, plan_window, survey_motion
 
 Method = Literal["default", "paper"]
 #: progress(stage, fraction of the whole analysis in [0, 1])
 Progress = Callable[[str, float], None]
 
 DEFAULT_MAX_FRAMES = 256
+#: Memory budget of an automatically chosen window's buffers (flow maps, grey frames, depth, spectra).
+DEFAULT_WINDOW_MIB = 384.0
 #: Relative standard uncertainty of flow-measured amplitudes (dense flow is biased low near edges).
 FLOW_AMPLITUDE_REL_SD = 0.03
 #: ... of registration-measured amplitudes (texture interpolation, residual non-rigidity).
@@ -132,15 +138,23 @@ class AnalysisConfig:
     flow : FlowConfig or None
         None picks the method's default (DIS at half resolution; Farnebäck at full resolution for paper).
     frames : int or None
-        Analysis window length in frames (N + 1 frames give N flow maps); default min(clip, 256).
+        Analysis window length in frames (N + 1 frames give N flow maps). Default: min(clip, 256), or for
+        a longer clip the window a survey of the whole clip chooses (see ``auto_window``).
     start_frame : int or None
-        First frame of the window; default 0.
+        First frame of the window; default 0 (or the survey's choice).
     min_frequency_hz, max_frequency_hz : float or None
         Band searched; default two cycles per window up to 0.98 x Nyquist.
     depth_m : float or None
         Object distance for clips without depth.
     segmentation : SegmentationConfig
     max_objects : int
+    auto_window : bool
+        When neither ``frames`` nor ``start_frame`` is given and the clip is longer than 256 frames, survey
+        the whole clip first (:mod:`workers.pipeline.survey`) and analyse the window where the strongest
+        ring-down is, long enough for about ten periods of its lowest frequency, every k-th frame when
+        the motion is far slower than the frame rate. False: the first 256 frames.
+    max_window_mib : float
+        Memory budget (MiB) of an automatically chosen window's buffers; bounds its length.
     """
 
     method: Method = "default"
@@ -152,6 +166,12 @@ class AnalysisConfig:
     depth_m: float | None = None
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     max_objects: int = 8
+    auto_window: bool = True
+    max_window_mib: float = DEFAULT_WINDOW_MIB
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_window_mib) and self.max_window_mib > 0):
+            raise ParameterError(f"max_window_mib={self.max_window_mib} must be a positive number of MiB")
 
     def resolved_flow(self) -> FlowConfig:
         if self.flow is not None:
@@ -181,6 +201,8 @@ class AnalysisConfig:
                 "min_area_fraction": self.segmentation.min_area_fraction,
             },
             "max_objects": self.max_objects,
+            "auto_window": self.auto_window,
+            "max_window_mib": self.max_window_mib,
         }
 
 
@@ -255,9 +277,16 @@ class Analysis:
     frame_rgb : ndarray of uint8, shape (H, W, 3)
         A representative frame (the first of the window).
     fps : float
+        The clip's frame rate.
     fps_source : str
     frames_used : (first, last)
         Frame index range [first, last) analysed.
+    frame_step : int
+        Every ``frame_step``-th frame of that range was analysed (flow maps and spectra are sampled at
+        ``sample_rate_hz = fps / frame_step``).
+    window_survey : Survey or None
+        The survey of the whole clip that chose the window (None when the window was given or the clip
+        is short).
     band_hz : (low, high)
     quality : list of QualityNote
     timings_s : dict
@@ -285,10 +314,17 @@ class Analysis:
     noise_power: NDArray[np.float64] | None = None
     #: Peaks that were not objects (flicker, keyframes, camera motion), with the reason.
     rejected_peaks: list[RejectedPeak] = field(default_factory=list)
+    frame_step: int = 1
+    window_survey: Survey | None = None
 
     @property
     def eigenfrequency_hz(self) -> float | None:
         return self.objects[0].eigenfrequency_hz if self.objects else None
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Rate of the analysed samples (flow maps, spectra, displacement), Hz."""
+        return self.fps / self.frame_step
 
 
 @dataclass
@@ -314,21 +350,128 @@ class _Stopwatch:
         self._t = now
 
 
+@dataclass(frozen=True)
+class _Plan:
+    """What :func:`_plan` decided: frame rates, window, flow settings and the survey behind them."""
+
+    fps: float  # rate of the analysed samples: the clip's rate / step
+    clip_fps: float
+    start: int  # clip frames [start, stop), every step-th
+    stop: int
+    step: int
+    flow: FlowConfig
+    grid: tuple[int, int]
+    pixel_scale: float  # input pixels per grid pixel
+    survey: Survey | None = None
+    window: WindowPlan | None = None
+
+    def source(self, reader: ClipReader) -> tuple[ClipReader, int, int]:
+        """The reader and frame range to stream: every ``step``-th frame of the window."""
+        if self.step == 1:
+            return reader, self.start, self.stop
+        strided = _Strided(reader, start=self.start, stop=self.stop, step=self.step)
+        return strided, 0, strided.info.frames
+
+
+class _Strided(ClosingReader):
+    """Every ``step``-th frame of ``[start, stop)`` of a clip, as a clip of its own (frame rate / step)."""
+
+    def __init__(self, reader: ClipReader, *, start: int, stop: int, step: int) -> None:
+        self._reader, self._start, self._step = reader, start, step
+        info = reader.info
+        count = (stop - start - 1) // step + 1
+        self._stop = start + (count - 1) * step + 1
+        stamps = info.timestamps_s
+        self._info = dataclasses.replace(
+            info,
+            frames=count,
+            fps=None if info.fps is None else info.fps / step,
+            timestamps_s=None if stamps is None else stamps[start : self._stop : step],
+        )
+
+    @property
+    def info(self) -> ClipInfo:
+        return self._info
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        stop = self._info.frames if stop is None else min(stop, self._info.frames)
+        first = self._start + start * self._step
+        last = self._start + (stop - 1) * self._step + 1
+        for i, frame in enumerate(self._reader.frames(first, last)):
+            if i % self._step == 0:
+                yield dataclasses.replace(frame, index=start + i // self._step)
+
+    def close(self) -> None:
+        """The wrapped reader is its owner's to close."""
+
+
 def _plan(
-    info: ClipInfo, config: AnalysisConfig
-) -> tuple[float, int, int, FlowConfig, tuple[int, int], float]:
-    """Frame rate, window [start, stop), flow settings, flow grid and input pixels per grid pixel."""
+    info: ClipInfo,
+    config: AnalysisConfig,
+    *,
+    reader: ClipReader | None = None,
+    progress: Progress | None = None,
+    survey: Survey | None = None,
+) -> _Plan:
+    """Frame rate, window [start, stop) and step, flow settings, flow grid and input pixels per grid pixel.
+
+    With a ``reader``, a clip longer than the default window whose window the user did not fix is
+    surveyed first (unless a ``survey`` of it is given) and the window chosen from what moves where
+    (see :mod:`workers.pipeline.survey`).
+    """
     if info.fps is None:
         raise ParameterError(
             "the clip carries no frame rate; give the true recording rate with --fps (API: fps)"
         )
-    start, stop = _window(info.frames, config)
+    fps = float(info.fps)
     flow_cfg = config.resolved_flow()
     grid = flow_cfg.grid_shape(info.height, info.width)
-    return float(info.fps), start, stop, flow_cfg, grid, info.width / grid[1]
+    pixel_scale = info.width / grid[1]
+    surveyed = (
+        reader is not None
+        and config.auto_window
+        and config.frames is None
+        and config.start_frame is None
+        and info.frames > DEFAULT_MAX_FRAMES
+    )
+    if not surveyed:
+        start, stop = _window(info.frames, config)
+        return _Plan(fps, fps, start, stop, 1, flow_cfg, grid, pixel_scale)
+    assert reader is not None
+    if survey is None:
+        survey = survey_motion(_survey_grays(reader, progress), fps=fps, total_frames=info.frames)
+    # Bytes per flow map: flow (2 x float32), its share of the spectra and depth on the grid, and the
+    # grey frame at input resolution kept for registration.
+    per_sample = grid[0] * grid[1] * (8 + 4 + (4 if info.has_depth else 0)) + info.height * info.width
+    budget = int(config.max_window_mib * 2**20 / per_sample)
+    window = plan_window(
+        survey,
+        total_frames=info.frames,
+        default_frames=DEFAULT_MAX_FRAMES,
+        max_samples=max(budget, DEFAULT_MAX_FRAMES),
+        grid_scale=1.0 / pixel_scale,
+    )
+    start, stop, step = window.start_frame, window.stop_frame, window.frame_step
+    return _Plan(fps / step, fps, start, stop, step, flow_cfg, grid, pixel_scale, survey, window)
+
+
+def _survey_grays(reader: ClipReader, progress: Progress | None) -> Iterator[NDArray[np.uint8]]:
+    """Every frame of the clip in grey at input resolution (the reader's fast path when it has one)."""
+    import cv2
+
+    total = max(reader.info.frames, 1)
+    fast = getattr(reader, "gray_frames", None)
+    frames: Iterator[NDArray[np.uint8]] = (
+        fast() if callable(fast) else (cv2.cvtColor(f.rgb, cv2.COLOR_RGB2GRAY) for f in reader.frames())
+    )
+    for i, gray in enumerate(frames):
+        if progress is not None and i % 64 == 0:
+            progress("survey", 0.05 * i / total)
+        yield gray
 
 
 def _window(total: int, config: AnalysisConfig) -> tuple[int, int]:
+    """The window the user gave (or the first ``DEFAULT_MAX_FRAMES`` frames)."""
     start = config.start_frame or 0
     if start >= total - 2:
         raise ParameterError(f"start_frame={start} leaves fewer than 3 of the clip's {total} frames")
@@ -339,6 +482,25 @@ def _window(total: int, config: AnalysisConfig) -> tuple[int, int]:
     if stop - start < 8:
         raise ParameterError(f"only {stop - start} frames from start_frame={start}; need at least 8")
     return start, stop
+
+
+def _survey_notes(plan: _Plan, objects: list[ObjectMeasurement]) -> list[QualityNote]:
+    """What the survey of the whole clip says about the window and the frequencies found in it."""
+    survey, window = plan.survey, plan.window
+    if survey is None or window is None:
+        return []
+    notes = [QualityNote("window", window.reason, "info")]
+    if objects and survey.peaks and not survey.explains(objects[0].eigenfrequency_hz):
+        seen = ", ".join(f"{p.frequency_hz:.4g}" for p in survey.peaks[:3])
+        notes.append(
+            QualityNote(
+                "survey_disagrees",
+                f"the main object's {objects[0].eigenfrequency_hz:.4g} Hz in frames {plan.start}-{plan.stop} "
+                f"is not among the peaks of the whole clip's averaged (Welch) spectrum ({seen} Hz): the "
+                "window may miss the main motion or alias it; check start_frame and frames",
+            )
+        )
+    return notes
 
 
 def _band(config: AnalysisConfig, fps: float, n: int) -> tuple[float, float]:
@@ -366,6 +528,8 @@ def _stream(
 ) -> _Buffers:
     import cv2
 
+    # The FFT library's import (a third of a second) overlaps decoding and flow instead of following them.
+    threading.Thread(target=spectrum_warm_up, name="spectrum-warm-up", daemon=True).start()
     n = stop - start - 1
     h, w = grid
     channels = 1 if magnitude else 2
@@ -394,7 +558,7 @@ def _stream(
             if gray_buf is not None:
                 full = prepare_gray(frame.rgb, (info.height, info.width))
                 gray_buf[i] = full
-                yield full if full.shape == grid else prepare_gray(frame.rgb, grid)
+                yield full if full.shape == grid else cv2.resize(full, (w, h), interpolation=cv2.INTER_AREA)
             else:
                 yield prepare_gray(frame.rgb, grid)
 
@@ -406,18 +570,20 @@ def _stream(
     mh, mw = max(1, round(0.12 * h)), max(1, round(0.12 * w))
     ring[mh:-mh, mw:-mw] = False
     ring_idx = np.flatnonzero(ring.ravel())[::3]
-    camera = np.zeros((n, 2), np.float32)
     for i, flow in enumerate(flow_stream(grays(), config=flow_cfg)):
         if magnitude:
             flow_buf[i, ..., 0] = flow_magnitude(flow)
         else:
-            camera[i] = np.median(flow.reshape(-1, 2)[ring_idx], axis=0)
             flow_buf[i] = flow
         count = i + 1
         if progress is not None and (i % 8 == 0 or i == n - 1):
             progress("flow", 0.05 + 0.75 * count / n)
     if count < n or first_rgb is None:
         raise AnalysisError(f"the clip ended after {count + 1} of the {n + 1} frames it announced")
+    camera = np.zeros((n, 2), np.float32)
+    if not magnitude:
+        ring_flow = np.ascontiguousarray(flow_buf.reshape(n, -1, 2)[:, ring_idx].transpose(0, 2, 1))
+        camera[:] = np.median(ring_flow, axis=2)
     # Compensate only real camera motion: subtracting the jitter of a still camera (codec noise) from
     # every pixel would bury a sub-pixel vibration.
     if not magnitude and float(np.sqrt(np.mean(camera.astype(np.float64) ** 2))) > CAMERA_MOTION_MIN_PX:
@@ -496,7 +662,44 @@ def analyze(
 
         main = next((e for e in excitations if e.object_id in (None, 1)), None)
         return analyze_paper(reader, config=config, excitation=main, progress=progress)
-    return _analyze_default(reader, config=config, excitations=excitations, progress=progress)
+    result = _analyze_default(reader, config=config, excitations=excitations, progress=progress)
+    if config.flow is None and _needs_careful_flow(result):
+        # The fast default flow ("fine": no variational refinement) is five times cheaper than DIS
+        # "medium" and as accurate on clear motion; weak, sub-pixel motion is measured again on medium.
+        careful = dataclasses.replace(config, flow=FlowConfig(dis_preset="medium"))
+        first = result.timings_s
+        result = _analyze_default(
+            reader,
+            config=careful,
+            excitations=excitations,
+            progress=progress,
+            survey=result.window_survey,
+        )
+        result.timings_s = {"fast_flow_pass": sum(first.values()), **result.timings_s}
+        result.quality.append(
+            QualityNote(
+                "careful_flow",
+                "the fast optical flow found only weak motion, so the clip was analysed again with the "
+                "careful flow (DIS medium)",
+                "info",
+            )
+        )
+    return result
+
+
+#: Objects whose ring-down stands less than this above the noise are measured again on careful flow.
+CAREFUL_FLOW_SNR_DB = 10.0
+
+
+def _needs_careful_flow(result: Analysis) -> bool:
+    """Whether the fast flow may have missed or blurred something: no object, a weak one, or a peak
+    that was rejected (a weak vibration on noisy flow can look like an artefact, and an artefact such
+    as flicker is characterised better on the careful flow)."""
+    if not result.objects or result.rejected_peaks:
+        return True
+    if any(q.code == "artefact_peak" for q in result.quality):
+        return True
+    return any(o.snr_db is None or o.snr_db < CAREFUL_FLOW_SNR_DB for o in result.objects)
 
 
 def _analyze_default(
@@ -505,14 +708,25 @@ def _analyze_default(
     config: AnalysisConfig,
     excitations: list[Excitation],
     progress: Progress | None,
+    survey: Survey | None = None,
 ) -> Analysis:
+    """``survey``: a survey of this clip already made (a second pass reuses the first's)."""
     watch = _Stopwatch()
     info = reader.info
-    fps, start, stop, flow_cfg, grid, pixel_scale = _plan(info, config)
+    plan = _plan(info, config, reader=reader, progress=progress, survey=survey)
+    fps, start, stop, flow_cfg, grid, pixel_scale = (
+        plan.fps,
+        plan.start,
+        plan.stop,
+        plan.flow,
+        plan.grid,
+        plan.pixel_scale,
+    )
     if progress:
         progress("flow", 0.05)
-    watch.lap("setup")
-    buffers = _stream(reader, start, stop, grid, flow_cfg, progress, keep_gray=True)
+    watch.lap("survey" if plan.survey is not None else "setup")
+    source, first, last = plan.source(reader)
+    buffers = _stream(source, first, last, grid, flow_cfg, progress, keep_gray=True)
     watch.lap("flow")
     n = buffers.count
     band = _band(config, fps, n)
@@ -612,6 +826,7 @@ def _analyze_default(
             )
         )
     quality.extend(_quality_notes(objects, fps=fps, band=band, bin_hz=fps / n))
+    quality.extend(_survey_notes(plan, objects))
     watch.lap("mechanics")
     return Analysis(
         objects=objects,
@@ -621,18 +836,26 @@ def _analyze_default(
         frequency_map_hz=fmap,
         frequency_map_valid=fvalid,
         frame_rgb=buffers.first_rgb,
-        fps=fps,
+        fps=plan.clip_fps,
         fps_source=info.fps_source or "unknown",
         frames_used=(start, stop),
         band_hz=band,
         quality=quality,
         timings_s=watch.times,
         parameters=config.describe()
-        | {"frames": stop - start, "band_hz": list(band), "flow_scale": flow_cfg.effective_scale(info.width)},
+        | {
+            "frames": stop - start,
+            "start_frame": start,
+            "frame_step": plan.step,
+            "band_hz": list(band),
+            "flow_scale": flow_cfg.effective_scale(info.width),
+        },
         method="default",
         peaks=seg.peaks,
         noise_power=noise,
         rejected_peaks=rejected,
+        frame_step=plan.step,
+        window_survey=plan.survey,
     )
 
 

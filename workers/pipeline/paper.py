@@ -49,7 +49,15 @@ def analyze_paper(
 
     watch = _Stopwatch()
     info = reader.info
-    fps, start, stop, flow_cfg, grid, pixel_scale = _plan(info, config)
+    plan = _plan(info, config)  # the paper's recipe: the given (or first) window, every frame
+    fps, start, stop, flow_cfg, grid, pixel_scale = (
+        plan.fps,
+        plan.start,
+        plan.stop,
+        plan.flow,
+        plan.grid,
+        plan.pixel_scale,
+    )
     buffers = _stream(reader, start, stop, grid, flow_cfg, progress, magnitude=True)
     watch.lap("flow")
     n = buffers.count

@@ -4,15 +4,21 @@ noise floor, grouped into cleaned connected regions and labelled one object per 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
-from workers.pipeline.spectrum import Peak, PixelSpectra
+from workers.pipeline.spectrum import (
+    Peak,
+    PixelSpectra,
+    interpolate_peak,
+    noise_floor,
+    topographic_prominence,
+)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -35,6 +41,29 @@ class SegmentationConfig:
         Neighbourhood (grid pixels) over which per-pixel signal-to-noise is pooled for weak motion.
     pooled_snr : float
         Pooled band power over the pixels' own noise in that band that marks weak motion.
+    pooled_grow : float
+        Weak regions grow into connected neighbours whose pooled ratio exceeds this fraction of
+        ``pooled_snr`` (hysteresis).
+    weak_snr : float
+        A region whose median pixel stands less than this far above its own noise (band power over the
+        pixel's median power, per bin) may be weak motion: the purity test keeps only its strongest
+        pixels, so the pooled ratio adds the pixels moving as strongly (``relative_level`` of the
+        region's median band power) that it missed.
+    edge_level : float or None
+        A pixel of a strongly moving region is kept only where its band power is at least this fraction
+        of the strongest within ``edge_radius_px``: dense flow spreads motion a patch beyond the object,
+        and a smoothed edge has half the amplitude (a quarter of the power) where the object ends. This
+        keeps a thin object (a string, a wire) from growing a fringe wider than itself. None: off.
+    edge_radius_px : int
+        Radius (grid pixels) of that neighbourhood: about the flow's smoothing scale.
+    local_snr : float or None
+        Weak motion confined to part of the picture (a small object moving a twentieth of a pixel) is
+        diluted in any whole-picture spectrum. :func:`local_peaks` scans the per-pixel signal-to-noise
+        ratio pooled over square neighbourhoods of ``local_scales_px``; a frequency at which some
+        neighbourhood stands this many times above its usual maximum (over frequency) becomes an object
+        candidate of its own. None: off.
+    local_scales_px : tuple of int
+        Side lengths (grid pixels) of the pooled neighbourhoods.
     """
 
     noise_factor: float = 8.0
@@ -44,6 +73,12 @@ class SegmentationConfig:
     min_area_fraction: float = 0.0015
     pool_px: int = 5
     pooled_snr: float = 4.0
+    edge_level: float | None = 0.25
+    edge_radius_px: int = 8
+    local_snr: float | None = 3.0
+    pooled_grow: float = 0.5
+    weak_snr: float = 30.0
+    local_scales_px: tuple[int, ...] = (7, 15, 31)
 
 
 @dataclass(frozen=True)
@@ -78,16 +113,48 @@ def band_mask(
     return sel
 
 
+def _fill_holes(mask: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """Set the background pixels that no 4-connected path joins to the image border (as
+    ``scipy.ndimage.binary_fill_holes``, without importing scipy.ndimage)."""
+    h, w = mask.shape
+    outside = np.zeros((h + 2, w + 2), np.uint8)
+    outside[1:-1, 1:-1] = mask > 0
+    cv2.floodFill(outside, np.zeros((h + 4, w + 4), np.uint8), (0, 0), 2, flags=4)
+    return np.asarray(outside[1:-1, 1:-1] != 2, np.uint8)
+
+
 def _clean(mask: NDArray[np.bool_], min_area: int) -> NDArray[np.bool_]:
     m = mask.astype(np.uint8)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
     m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, kernel)
     m = cv2.morphologyEx(m, cv2.MORPH_OPEN, kernel)
-    filled = ndimage.binary_fill_holes(m.astype(bool))
-    count, comp, stats, _ = cv2.connectedComponentsWithStats(filled.astype(np.uint8), connectivity=8)
+    filled = _fill_holes(m)
+    count, comp, stats, _ = cv2.connectedComponentsWithStats(filled, connectivity=8)
     keep = np.zeros(count, bool)
     keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_area
     return np.asarray(keep[comp])
+
+
+def _within_edge(
+    band_power: NDArray[np.float32], candidate: NDArray[np.bool_], cfg: SegmentationConfig
+) -> NDArray[np.bool_]:
+    """Pixels whose band power reaches ``cfg.edge_level`` of the strongest candidate within
+    ``cfg.edge_radius_px`` (see :class:`SegmentationConfig`).
+
+    Parameters
+    ----------
+    band_power : ndarray of float32, shape (h, w)
+    candidate : ndarray of bool, shape (h, w)
+
+    Returns
+    -------
+    ndarray of bool, shape (h, w)
+    """
+    assert cfg.edge_level is not None
+    r = max(1, cfg.edge_radius_px)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    local_max = cv2.dilate(np.where(candidate, band_power, 0).astype(np.float32), kernel)
+    return np.asarray(band_power >= np.float32(cfg.edge_level) * local_max)
 
 
 def segment(
@@ -99,6 +166,12 @@ def segment(
     config: SegmentationConfig | None = None,
 ) -> Segmentation:
     """Label the pixels of each peak's object.
+
+    A peak at an overtone of a stronger peak folded back below the Nyquist rate (a string's 3rd
+    harmonic at 600 fps) is counted as that peak's harmonic (see :func:`fold_aliased_harmonics`). After
+    the given peaks are labelled, the rest of the picture is scanned for weak motion that only a
+    region shows (:func:`local_peaks`, unless ``config.local_snr`` is None); the peaks it finds are
+    labelled after the given ones (and appear in the result's ``peaks`` when they give a region).
 
     Parameters
     ----------
@@ -116,6 +189,199 @@ def segment(
     Segmentation
     """
     cfg = config or SegmentationConfig()
+    peaks = fold_aliased_harmonics(peaks, fps=spectra.fps, bin_hz=spectra.bin_hz)
+    seg = _label(spectra, peaks, grid_shape=grid_shape, band_hz=band_hz, cfg=cfg)
+    if cfg.local_snr is None:
+        return seg
+    extra = local_peaks(
+        spectra,
+        grid_shape=grid_shape,
+        band_hz=band_hz,
+        exclude=seg.labels > 0,
+        known=peaks,
+        min_ratio=cfg.local_snr,
+        scales_px=cfg.local_scales_px,
+    )
+    if not extra:
+        return seg
+    return _label(spectra, [*peaks, *extra], grid_shape=grid_shape, band_hz=band_hz, cfg=cfg)
+
+
+def local_peaks(
+    spectra: PixelSpectra,
+    *,
+    grid_shape: tuple[int, int],
+    band_hz: tuple[float, float],
+    exclude: NDArray[np.bool_] | None = None,
+    known: list[Peak] | None = None,
+    min_ratio: float = 3.0,
+    scales_px: tuple[int, ...] = (7, 15, 31),
+    max_peaks: int = 3,
+    harmonic_tolerance: float = 0.04,
+) -> list[Peak]:
+    """Frequencies at which some region of the picture moves, too weakly for any whole-picture spectrum.
+
+    Each pixel's power is divided by its own noise (its median power in the band), so every pixel
+    votes with its signal-to-noise ratio, and these ratios are averaged over square neighbourhoods of
+    each size in ``scales_px``. Averaging power, not signed flow, keeps parts moving in anti-phase from
+    cancelling; averaging over a neighbourhood rather than the whole picture keeps the static background
+    from diluting a small object's motion. At each frequency the best neighbourhood's value is compared
+    with its running median over frequency (what the best neighbourhood reaches by chance); a peak
+    ``min_ratio`` times above it, with 6 dB of topographic prominence, is reported.
+
+    Parameters
+    ----------
+    spectra : PixelSpectra
+        Per-pixel power, shape (F, h * w).
+    grid_shape : (h, w)
+    band_hz : (low, high)
+    exclude : ndarray of bool, shape (h, w), optional
+        Pixels already explained (labelled objects); they do not vote.
+    known : list of Peak, optional
+        Peaks already found: their frequencies, harmonics and integer multiples (also when folded back
+        below the Nyquist rate) are not reported again.
+    min_ratio : float
+        Height over the chance level.
+    scales_px : tuple of int
+        Neighbourhood sides, grid pixels (clipped to half the grid's smaller side).
+    max_peaks : int
+    harmonic_tolerance : float
+        Relative tolerance of a multiple of a known peak.
+
+    Returns
+    -------
+    list of Peak
+        Strongest first; ``power`` and ``snr_db`` are the height over the chance level (ratio and dB).
+
+    Raises
+    ------
+    ValueError
+        When ``grid_shape`` does not match the spectra's pixel count.
+    """
+    h, w = grid_shape
+    if spectra.power.shape[1] != h * w:
+        raise ValueError(
+            f"local_peaks: grid {h}x{w} has {h * w} pixels but the spectra hold {spectra.power.shape[1]}"
+        )
+    freqs = spectra.frequencies_hz
+    idx = np.flatnonzero((freqs >= band_hz[0]) & (freqs <= band_hz[1]))
+    if len(idx) < 8:
+        return []
+    limit = max(3, min(h, w) // 2)
+    scales = sorted({min(s, limit) | 1 for s in scales_px if s >= 1})
+    noise = spectra.band_median(band_hz) + np.float32(1e-20)
+    weight = (1.0 / noise).astype(np.float32)
+    if exclude is not None:
+        weight[exclude.ravel()] = 0.0
+    best = np.zeros((len(scales), len(idx)))
+    for j, k in enumerate(idx):
+        snr = (spectra.power[k] * weight).reshape(h, w)
+        for i, side in enumerate(scales):
+            best[i, j] = float(cv2.blur(snr, (side, side)).max())
+    width = max(15, len(idx) // 6)
+    ratios = np.stack([row / np.maximum(noise_floor(row, width=width), 1e-30) for row in best])
+    ratio = ratios.max(axis=0)
+    bin_hz = spectra.bin_hz
+    known = known or []
+    padded = np.concatenate(([-np.inf], ratio, [-np.inf]))
+    local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
+    found: list[Peak] = []
+    for j in sorted(local.tolist(), key=lambda j: -ratio[j]):
+        if ratio[j] < min_ratio or len(found) >= max_peaks:
+            break
+        prominence = topographic_prominence(ratio, j)
+        if 10 * np.log10(prominence) < 6.0:
+            continue
+        peak_bin = int(idx[j])
+        f = (int(idx[0]) + interpolate_peak(ratio, j)) * bin_hz
+        if _explained(f, [*known, *found], bin_hz=bin_hz, tolerance=harmonic_tolerance, fps=spectra.fps):
+            continue
+        found.append(
+            Peak(
+                frequency_hz=f,
+                bin=peak_bin,
+                power=float(ratio[j]),
+                prominence_db=float(10 * np.log10(prominence)),
+                snr_db=float(10 * np.log10(ratio[j])),
+            )
+        )
+    return found
+
+
+def fold_aliased_harmonics(
+    peaks: list[Peak], *, fps: float, bin_hz: float, tolerance: float = 0.01, max_order: int = 5
+) -> list[Peak]:
+    """Fold peaks that are overtones of a stronger peak seen through aliasing into that peak.
+
+    An overtone n f above the Nyquist rate shows at |n f - m fps|, which is no integer multiple of f, so
+    a harmonic test on the spectrum alone keeps it as a peak of its own. Each peak (strongest first) that
+    lies within ``tolerance`` (relative, or one bin) of such a folded overtone of an earlier peak is
+    appended to that peak's ``harmonics_hz`` instead.
+
+    Parameters
+    ----------
+    peaks : list of Peak
+        Strongest first.
+    fps : float
+        Sampling rate of the spectra, Hz.
+    bin_hz : float
+    tolerance : float
+    max_order : int
+        Highest overtone considered.
+
+    Returns
+    -------
+    list of Peak
+        The peaks kept, in order (copies where harmonics were added).
+    """
+    kept: list[Peak] = []
+    for peak in peaks:
+        f = peak.frequency_hz
+        parent = None
+        for i, base in enumerate(kept):
+            for order in range(2, max_order + 1):
+                multiple = order * base.frequency_hz
+                folded = abs(multiple - fps * round(multiple / fps))
+                if folded != multiple and abs(f - folded) <= max(tolerance * f, 1.01 * bin_hz):
+                    parent = i
+                    break
+            if parent is not None:
+                break
+        if parent is None:
+            kept.append(peak)
+        else:
+            base = kept[parent]
+            kept[parent] = dataclasses.replace(base, harmonics_hz=sorted([*base.harmonics_hz, f]))
+    return kept
+
+
+def _explained(
+    frequency_hz: float, peaks: list[Peak], *, bin_hz: float, tolerance: float, fps: float
+) -> bool:
+    """Whether a frequency is one of ``peaks``, one of their harmonics, or an integer multiple of one,
+    possibly folded back below the Nyquist rate (an overtone above fps / 2 shows at |n f - m fps|)."""
+    for peak in peaks:
+        for f in (peak.frequency_hz, *peak.harmonics_hz):
+            if abs(frequency_hz - f) <= max(1.5, peak.width_bins) * bin_hz:
+                return True
+        slack = max(tolerance * frequency_hz, 1.01 * bin_hz)
+        for order in range(2, 33):
+            multiple = order * peak.frequency_hz
+            folded = abs(multiple - fps * round(multiple / fps))
+            if abs(frequency_hz - folded) <= slack:
+                return True
+    return False
+
+
+def _label(
+    spectra: PixelSpectra,
+    peaks: list[Peak],
+    *,
+    grid_shape: tuple[int, int],
+    band_hz: tuple[float, float],
+    cfg: SegmentationConfig,
+) -> Segmentation:
+    """Label the pixels of each of ``peaks`` (see :func:`segment`)."""
     h, w = grid_shape
     freqs = spectra.frequencies_hz
     in_band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
@@ -145,6 +411,7 @@ def segment(
     kept_rows: list[int] = []
     for i, peak in enumerate(peaks):
         bp = band_power[i]
+        snr = bp / (pixel_noise * band_bins[i])
         candidate = (bp > cfg.noise_factor * noise[i]) & (owner == i) & (bp > cfg.purity * total)
         region = np.zeros(h * w, bool)
         if candidate.any():
@@ -152,17 +419,30 @@ def segment(
             # percentile would be set by them rather than by the object's interior.
             level = float(np.median(bp[candidate]))
             candidate &= bp >= cfg.relative_level * level
+            if cfg.edge_level is not None:
+                candidate &= _within_edge(bp.reshape(h, w), candidate.reshape(h, w), cfg).ravel()
             region = _clean(candidate.reshape(h, w), min_area).ravel() & (labels == 0)
-        if not region.any():
-            # Weak (sub-pixel) motion: each pixel is only a few dB above its own noise. Pool the
-            # per-pixel signal-to-noise ratio over small neighbourhoods, which move together (parts
-            # in anti-phase are pooled as power, so they do not cancel), and keep what stands out.
-            snr = (bp / (pixel_noise * band_bins[i])).reshape(h, w).astype(np.float32)
-            pooled = cv2.blur(snr, (cfg.pool_px, cfg.pool_px))
+        if not region.any() or float(np.median(snr[region])) < cfg.weak_snr:
+            # Weak (sub-pixel) motion: each pixel is only a few dB above its own noise, too little for
+            # the purity test. Pool the per-pixel signal-to-noise ratio over small neighbourhoods,
+            # which move together (parts in anti-phase are pooled as power, so they do not cancel),
+            # keep what stands out and grow it into neighbours that stand out less (hysteresis).
+            pooled = cv2.blur(snr.reshape(h, w).astype(np.float32), (cfg.pool_px, cfg.pool_px))
             mine = (owner == i).reshape(h, w)
             mostly_mine = cv2.blur(mine.astype(np.float32), (cfg.pool_px, cfg.pool_px)) > 0.5
             weak = (pooled > cfg.pooled_snr) & mostly_mine
-            region = _clean(weak, min_area).ravel() & (labels == 0)
+            if weak.any():
+                low = (pooled > cfg.pooled_grow * cfg.pooled_snr) & mostly_mine
+                count, comp = cv2.connectedComponents(low.astype(np.uint8), connectivity=8)
+                seeded = np.zeros(count, bool)
+                seeded[np.unique(comp[weak])] = True
+                seeded[0] = False
+                weak = seeded[comp]
+            if region.any():
+                # ... as strong as the pixels the purity test kept: strong motion on noisy flow also
+                # lights up the swept, leaking background around it, far weaker than the object.
+                weak &= (bp >= cfg.relative_level * float(np.median(bp[region]))).reshape(h, w)
+            region |= _clean(weak, min_area).ravel() & (labels == 0)
         if not region.any():
             continue
         kept.append(peak)
@@ -233,6 +513,30 @@ class Exclusion:
     reason: str
 
 
+def _nanmedian_over_time(stack: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``np.nanmedian(stack, axis=0)`` (NaN where a pixel has no valid value), five times faster: the
+    frames of each pixel are sorted (NaNs last) along a contiguous axis and the middle valid ones taken.
+
+    Parameters
+    ----------
+    stack : ndarray of float32, shape (T, h, w)
+
+    Returns
+    -------
+    ndarray of float32, shape (h, w)
+    """
+    t = stack.shape[0]
+    rows = np.sort(np.ascontiguousarray(stack.reshape(t, -1).T), axis=1)
+    valid = np.count_nonzero(~np.isnan(rows), axis=1)
+    lo = np.maximum(valid - 1, 0) // 2
+    hi = valid // 2
+    pick = np.arange(rows.shape[0])
+    with np.errstate(invalid="ignore"):
+        median = (rows[pick, lo].astype(np.float64) + rows[pick, np.minimum(hi, t - 1)]) / 2
+    median[valid == 0] = np.nan
+    return np.asarray(median, np.float32).reshape(stack.shape[1:])
+
+
 def exclude_background_surfaces(
     labels: NDArray[np.int32],
     depth: NDArray[np.float32],
@@ -265,12 +569,8 @@ def exclude_background_surfaces(
     labels : ndarray of int32, shape (h, w)
     exclusions : list of Exclusion
     """
-    import warnings
-
     step = max(1, depth.shape[0] // max_frames)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels
-        median = np.nanmedian(depth[::step], axis=0)
+    median = _nanmedian_over_time(depth[::step])
     out = labels.copy()
     exclusions: list[Exclusion] = []
     background = median[(labels == 0) & np.isfinite(median)]

@@ -15,15 +15,22 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize
 
-try:  # pyfftw is a hard dependency; numpy is only a fallback for exotic platforms.
-    import pyfftw
-    import pyfftw.builders
 
-    _HAVE_FFTW = True
-except ImportError:  # pragma: no cover
-    _HAVE_FFTW = False
+@functools.cache
+def _fftw() -> Any:
+    """``pyfftw.builders``, imported on first use (it pulls in scipy.fftpack: a third of a second), or
+    None where pyfftw is missing (numpy is only a fallback for exotic platforms)."""
+    try:
+        import pyfftw.builders
+    except ImportError:  # pragma: no cover
+        return None
+    return pyfftw
+
+
+def warm_up() -> None:
+    """Import what the spectra need, so a thread can do it while frames are still being decoded."""
+    _fftw()
 
 
 class RfftPlans:
@@ -46,6 +53,7 @@ class RfftPlans:
         plans = self._plans.get(key)
         if plans is None:
             plans = []
+            pyfftw = _fftw()
             for _ in range(self.threads):
                 buf = pyfftw.empty_aligned((self.block, nfft), dtype="float32")
                 plan = pyfftw.builders.rfft(
@@ -76,7 +84,7 @@ class RfftPlans:
             raise ValueError(f"{cols} columns do not split into groups of {pairs}")
         n_freq = nfft // 2 + 1
         out = np.empty((n_freq, cols // pairs), np.float32)
-        if not _HAVE_FFTW:  # pragma: no cover
+        if _fftw() is None:  # pragma: no cover
             centred = data - data.mean(axis=0)
             spec = np.abs(np.fft.rfft(centred, n=nfft, axis=0)) ** 2
             summed: NDArray[np.float32] = spec.reshape(n_freq, -1, pairs).sum(axis=2).astype(np.float32)
@@ -196,8 +204,30 @@ class PixelSpectra:
             band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
             if band.sum() < 3:
                 band = freqs > 0
-            cache[band_hz] = np.median(self.power[band], axis=0).astype(np.float32)
+            cache[band_hz] = _median_rows(np.ascontiguousarray(self.power[band].T))
         return cache[band_hz]
+
+
+def _median_rows(rows: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``np.median(rows, axis=1)``, about four times faster: one partition along the contiguous axis
+    (numpy's median partitions for both middle elements), the lower middle taken as the maximum below it.
+
+    Parameters
+    ----------
+    rows : ndarray of float32, shape (P, B), C-contiguous, B >= 1
+
+    Returns
+    -------
+    ndarray of float32, shape (P,)
+    """
+    b = rows.shape[1]
+    k = b // 2
+    parted = np.partition(rows, k, axis=1)
+    upper = parted[:, k]
+    if b % 2:
+        return np.asarray(upper, np.float32)
+    lower = parted[:, :k].max(axis=1)
+    return np.asarray((lower.astype(np.float64) + upper) / 2, np.float32)
 
 
 def pixel_spectra(flow: NDArray[np.float32], *, fps: float, plans: RfftPlans | None = None) -> PixelSpectra:
@@ -284,10 +314,11 @@ def noise_floor(power: NDArray[np.floating[Any]], *, width: int = 9) -> NDArray[
     -------
     ndarray of float64, shape (F,)
     """
-    from scipy.ndimage import median_filter
-
     width = max(3, width | 1)
-    return np.asarray(median_filter(np.asarray(power, np.float64), size=width, mode="nearest"))
+    values = np.asarray(power, np.float64)
+    padded = np.pad(values, width // 2, mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, width)
+    return np.asarray(np.median(windows, axis=1), np.float64)
 
 
 def topographic_prominence(power: NDArray[np.float64], k: int) -> float:
@@ -536,6 +567,88 @@ def _spectral_guess(v: NDArray[np.float64], f_guess_cycles: float | None) -> flo
     return 2 * math.pi * interpolate_peak(spec, k) / nfft
 
 
+@dataclass(frozen=True)
+class _Solution:
+    x: NDArray[np.float64]
+    cost: float  # half the sum of squared residuals
+    jac: NDArray[np.float64]  # (M, n) at x
+
+
+def _jacobian(
+    fun: Any, x: NDArray[np.float64], r: NDArray[np.float64], upper: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Forward differences, stepping away from the upper bound."""
+    jac = np.empty((len(r), len(x)))
+    for i in range(len(x)):
+        h = math.sqrt(np.finfo(np.float64).eps) * max(1.0, abs(float(x[i])))
+        if x[i] + h > upper[i]:
+            h = -h
+        step = x.copy()
+        step[i] += h
+        jac[:, i] = (fun(step) - r) / h
+    return jac
+
+
+def _least_squares(
+    fun: Any,
+    x0: NDArray[np.float64],
+    *,
+    lower: NDArray[np.float64],
+    upper: NDArray[np.float64],
+    max_iterations: int = 200,
+    tolerance: float = 1e-10,
+) -> _Solution:
+    """Levenberg-Marquardt for a few bounded parameters (steps are clipped into the box).
+
+    A small problem does not need scipy.optimize, whose import costs a third of a second of every run.
+    The damping is scaled by the diagonal of JᵀJ, so parameters of different size need no scaling.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(x) -> residuals``, ndarray of float64, shape (M,).
+    x0 : ndarray of float64, shape (n,)
+
+    Returns
+    -------
+    _Solution
+        Minimiser, its cost (half the squared residual norm) and the Jacobian there.
+    """
+    x = np.clip(np.asarray(x0, np.float64), lower, upper)
+    r = fun(x)
+    cost = 0.5 * float(r @ r)
+    jac = _jacobian(fun, x, r, upper)
+    damping = 1e-3
+    for _ in range(max_iterations):
+        gradient = jac.T @ r
+        normal = jac.T @ jac
+        scale = np.maximum(np.diag(normal), 1e-30)
+        improved = False
+        while damping < 1e12:
+            try:
+                delta = np.linalg.solve(normal + damping * np.diag(scale), -gradient)
+            except np.linalg.LinAlgError:
+                damping *= 10
+                continue
+            x_new = np.clip(x + delta, lower, upper)
+            r_new = fun(x_new)
+            cost_new = 0.5 * float(r_new @ r_new)
+            if np.isfinite(cost_new) and cost_new < cost:
+                improved = True
+                break
+            damping *= 10
+        if not improved:
+            break
+        moved = np.abs(x_new - x)
+        reduction = cost - cost_new
+        x, r, cost = x_new, r_new, cost_new
+        jac = _jacobian(fun, x, r, upper)
+        damping = max(damping / 10, 1e-12)
+        if reduction <= tolerance * cost or np.all(moved <= tolerance * (np.abs(x) + tolerance)):
+            break
+    return _Solution(x=x, cost=cost, jac=jac)
+
+
 def fit_ringdown(
     velocity: NDArray[np.floating[Any]],
     *,
@@ -591,12 +704,11 @@ def fit_ringdown(
 
     best = None
     for s0 in (sigma0, sigma0 * 0.3, sigma0 * 3):
-        sol = optimize.least_squares(
+        sol = _least_squares(
             residual,
-            x0=np.array([omega0, min(max(s0, 1e-5), 0.5)]),
-            bounds=([1e-4, 0.0], [math.pi, 1.0]),
-            method="trf",
-            x_scale=[omega0 * 0.01 + 1e-4, 0.01],
+            np.array([omega0, min(max(s0, 1e-5), 0.5)]),
+            lower=np.array([1e-4, 0.0]),
+            upper=np.array([math.pi, 1.0]),
         )
         if best is None or sol.cost < best.cost:
             best = sol

@@ -5,18 +5,22 @@ object is a damped spring-mass oscillator excited either by a held force that is
 (``step_release``) or by an impulse (``impulse``); its displacement along a 3-D direction in camera
 coordinates is projected through a pinhole camera. Sensor noise is added to colour and depth.
 
-Everything is seeded: the same :class:`Scene` always renders the same clip.
+Everything is seeded: the same :class:`Scene` always renders the same clip. :func:`render` holds the whole
+clip in memory; :class:`SceneReader` is a clip reader that renders each frame when it is read, for long
+clips. Objects may be thin and plain (strings) and carry overtones in their motion.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
+from workers.pipeline.clipio.types import ClipInfo, ClosingReader, Frame, Intrinsics
 from workers.pipeline.errors import ParameterError
 
 
@@ -49,6 +53,13 @@ class SceneObject:
         Frames before this one show the object held still.
     shadow_offset_px : (dx, dy) or None
         When set, a shadow of the object falls on the background at this offset and moves with it.
+    harmonics : tuple of float
+        Relative displacement amplitudes of the 2nd, 3rd, ... partials (a plucked string's overtones):
+        partial n rings at n times the damped frequency, in phase with the fundamental at release, and
+        decays n times faster (same damping ratio). Empty: a pure damped oscillation.
+    texture : ``"noise"`` or ``"flat"``
+        Band-limited colour noise (easy to track), or one uniform colour (a string, a bare bar: only its
+        edges can be tracked).
     """
 
     center_px: tuple[float, float] = (320.0, 240.0)
@@ -64,6 +75,8 @@ class SceneObject:
     direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
     release_frame: int = 0
     shadow_offset_px: tuple[float, float] | None = None
+    harmonics: tuple[float, ...] = ()
+    texture: Literal["noise", "flat"] = "noise"
 
     @property
     def stiffness_n_per_m(self) -> float:
@@ -93,9 +106,15 @@ class SceneObject:
         if self.excitation == "step_release":
             a = self.force_n / self.stiffness_n_per_m
             x = a * env * (np.cos(wd * tt) + z / math.sqrt(1 - z * z) * np.sin(wd * tt))
-            return np.where(after, x, a)
+            held = a
+            for order, rel in enumerate(self.harmonics, start=2):
+                x = x + rel * a * np.exp(-z * order * wn * tt) * np.cos(order * wd * tt)
+                held += rel * a
+            return np.where(after, x, held)
         v0 = self.impulse_ns / self.mass_kg
         x = v0 / wd * env * np.sin(wd * tt)
+        for order, rel in enumerate(self.harmonics, start=2):
+            x = x + rel * v0 / wd * np.exp(-z * order * wn * tt) * np.sin(order * wd * tt)
         return np.where(after, x, 0.0)
 
 
@@ -248,76 +267,87 @@ def _check(scene: Scene) -> None:
             raise ParameterError(
                 "synth: objects must be in front of the background (depth_m < background_depth_m)"
             )
+        if o.texture not in ("noise", "flat"):
+            raise ParameterError(f"synth: texture={o.texture!r} is unknown; use 'noise' or 'flat'")
 
 
-def render(scene: Scene) -> SyntheticClip:
-    """Render ``scene`` into an RGB-D clip with its ground truth.
+class _Renderer:
+    """The static parts of a scene (textures, masks, trajectories), and one frame at a time on demand."""
 
-    Parameters
-    ----------
-    scene : Scene
+    def __init__(self, scene: Scene) -> None:
+        import cv2
 
-    Returns
-    -------
-    SyntheticClip
-    """
-    import cv2
+        _check(scene)
+        self.scene = scene
+        #: Draws the textures, then (in :func:`render`) the per-frame noise in frame order.
+        self.rng = rng = np.random.default_rng(scene.seed)
+        H, W, T = scene.height, scene.width, scene.frames
+        fx, fy, cx, cy = self.intrinsics = scene.intrinsics
+        self.background = _texture(rng, H, W, base=np.array([110, 120, 100], np.float32))
+        t = np.arange(T, dtype=np.float64) / scene.fps
 
-    _check(scene)
-    rng = np.random.default_rng(scene.seed)
-    H, W, T = scene.height, scene.width, scene.frames
-    fx, fy, cx, cy = scene.intrinsics
-    background = _texture(rng, H, W, base=np.array([110, 120, 100], np.float32))
-    t = np.arange(T, dtype=np.float64) / scene.fps
-
-    layers = []
-    true_mask = np.zeros((H, W), np.uint8)
-    shadow_mask = np.zeros((H, W), bool)
-    for label, obj in enumerate(scene.objects, start=1):
-        w, h = max(4, round(obj.size_px[0])), max(4, round(obj.size_px[1]))
-        pad = 2
-        tex = _texture(rng, h + 2 * pad, w + 2 * pad, base=rng.uniform(70, 190, 3).astype(np.float32))
-        alpha = np.zeros((h + 2 * pad, w + 2 * pad), np.float32)
-        alpha[pad : pad + h, pad : pad + w] = _shape_alpha(obj.shape, w, h)
-        direction = np.asarray(obj.direction, np.float64)
-        direction /= np.linalg.norm(direction)
-        disp = obj.displacement_m(t, scene.fps)
-        # Rest centre in camera coordinates.
-        X0 = (obj.center_px[0] - cx) * obj.depth_m / fx
-        Y0 = (obj.center_px[1] - cy) * obj.depth_m / fy
-        Z0 = obj.depth_m
-        rest = np.array([X0, Y0, Z0])
-        positions = rest[None, :] + disp[:, None] * direction[None, :]
-        layers.append((label, obj, tex, alpha, positions, pad))
-        # True mask at rest position.
-        m = cv2.warpAffine(
-            alpha,
-            np.array(
-                [
-                    [1, 0, obj.center_px[0] - (w + 2 * pad - 1) / 2],
-                    [0, 1, obj.center_px[1] - (h + 2 * pad - 1) / 2],
-                ],
-                np.float32,
-            ),
-            (W, H),
-            flags=cv2.INTER_LINEAR,
-        )
-        true_mask[m >= 0.5] = label
-        if obj.shadow_offset_px is not None:
-            shifted = np.roll(
-                m >= 0.5, (round(obj.shadow_offset_px[1]), round(obj.shadow_offset_px[0])), (0, 1)
+        layers = []
+        true_mask = np.zeros((H, W), np.uint8)
+        shadow_mask = np.zeros((H, W), bool)
+        for label, obj in enumerate(scene.objects, start=1):
+            w, h = max(2, round(obj.size_px[0])), max(2, round(obj.size_px[1]))
+            pad = 2
+            base = rng.uniform(70, 190, 3).astype(np.float32)
+            if obj.texture == "flat":
+                tex = np.broadcast_to(base, (h + 2 * pad, w + 2 * pad, 3)).astype(np.float32)
+            else:
+                tex = _texture(rng, h + 2 * pad, w + 2 * pad, base=base)
+            alpha = np.zeros((h + 2 * pad, w + 2 * pad), np.float32)
+            alpha[pad : pad + h, pad : pad + w] = _shape_alpha(obj.shape, w, h)
+            direction = np.asarray(obj.direction, np.float64)
+            direction /= np.linalg.norm(direction)
+            disp = obj.displacement_m(t, scene.fps)
+            # Rest centre in camera coordinates.
+            X0 = (obj.center_px[0] - cx) * obj.depth_m / fx
+            Y0 = (obj.center_px[1] - cy) * obj.depth_m / fy
+            Z0 = obj.depth_m
+            rest = np.array([X0, Y0, Z0])
+            positions = rest[None, :] + disp[:, None] * direction[None, :]
+            layers.append((label, obj, tex, alpha, positions, pad))
+            # True mask at rest position.
+            m = cv2.warpAffine(
+                alpha,
+                np.array(
+                    [
+                        [1, 0, obj.center_px[0] - (w + 2 * pad - 1) / 2],
+                        [0, 1, obj.center_px[1] - (h + 2 * pad - 1) / 2],
+                    ],
+                    np.float32,
+                ),
+                (W, H),
+                flags=cv2.INTER_LINEAR,
             )
-            shadow_mask |= shifted
+            true_mask[m >= 0.5] = label
+            if obj.shadow_offset_px is not None:
+                shifted = np.roll(
+                    m >= 0.5, (round(obj.shadow_offset_px[1]), round(obj.shadow_offset_px[0])), (0, 1)
+                )
+                shadow_mask |= shifted
+        # Draw far objects first.
+        layers.sort(key=lambda item: -item[1].depth_m)
+        self.layers = layers
+        self.true_mask = true_mask
+        self.shadow_mask = shadow_mask & (true_mask == 0)
+        self.bg_depth = np.full((H, W), scene.background_depth_m, np.float32)
 
-    # Draw far objects first.
-    layers.sort(key=lambda item: -item[1].depth_m)
-    rgb = np.empty((T, H, W, 3), np.uint8)
-    depth = np.empty((T, H, W), np.uint16)
-    bg_depth = np.full((H, W), scene.background_depth_m, np.float32)
-    for k in range(T):
-        frame = background.copy()
-        dmap = bg_depth.copy()
-        for _, obj, tex, alpha, positions, _pad in layers:
+    def frame(
+        self, k: int, rng: np.random.Generator, *, depth: bool = True
+    ) -> tuple[NDArray[np.uint8], NDArray[np.uint16] | None]:
+        """Frame ``k``: RGB (H, W, 3) uint8 and depth (H, W) uint16 millimetres (None without depth).
+        Noise is drawn from ``rng``: colour first, then depth."""
+        import cv2
+
+        scene = self.scene
+        H, W = scene.height, scene.width
+        fx, fy, cx, cy = self.intrinsics
+        frame = self.background.copy()
+        dmap = self.bg_depth.copy()
+        for _, obj, tex, alpha, positions, _pad in self.layers:
             X, Y, Z = positions[k]
             scale = obj.depth_m / Z
             u = fx * X / Z + cx
@@ -350,15 +380,107 @@ def render(scene: Scene) -> SyntheticClip:
         if scene.keyframe_every and k % scene.keyframe_every == 0:
             frame += np.float32(scene.keyframe_pulse)
         frame += rng.standard_normal(frame.shape, dtype=np.float32) * np.float32(scene.rgb_noise)
-        rgb[k] = np.clip(frame, 0, 255).astype(np.uint8)
+        rgb = np.clip(frame, 0, 255).astype(np.uint8)
+        if not depth:
+            return rgb, None
         dn = rng.standard_normal((H, W), dtype=np.float32) * np.float32(scene.depth_noise_m) * dmap**2
-        depth[k] = np.clip(np.rint((dmap + dn) * 1000.0), 0, 65535).astype(np.uint16)
+        return rgb, np.clip(np.rint((dmap + dn) * 1000.0), 0, 65535).astype(np.uint16)
+
+
+def render(scene: Scene) -> SyntheticClip:
+    """Render ``scene`` into an RGB-D clip with its ground truth.
+
+    The whole clip is held in memory; for long clips use :class:`SceneReader`, which renders frames on
+    demand.
+
+    Parameters
+    ----------
+    scene : Scene
+
+    Returns
+    -------
+    SyntheticClip
+    """
+    renderer = _Renderer(scene)
+    H, W, T = scene.height, scene.width, scene.frames
+    rgb = np.empty((T, H, W, 3), np.uint8)
+    depth = np.empty((T, H, W), np.uint16)
+    for k in range(T):
+        frame, dmap = renderer.frame(k, renderer.rng)
+        assert dmap is not None
+        rgb[k] = frame
+        depth[k] = dmap
     return SyntheticClip(
         rgb=rgb,
         depth=depth,
         fps=scene.fps,
         intrinsics=scene.intrinsics,
-        mask=true_mask,
+        mask=renderer.true_mask,
         truth=scene.truth(),
-        shadow_mask=shadow_mask & (true_mask == 0),
+        shadow_mask=renderer.shadow_mask,
     )
+
+
+class SceneReader(ClosingReader):
+    """A scene as a clip reader (:class:`~workers.pipeline.clipio.types.ClipReader`) that renders each
+    frame when it is read: memory stays at one frame whatever the clip's length.
+
+    Each frame's noise is seeded by (seed, frame index), so any frame range reads the same pixels every
+    time (they differ from :func:`render`'s, which draws the noise in frame order).
+
+    Parameters
+    ----------
+    scene : Scene
+    depth : bool
+        Deliver depth frames and intrinsics (an RGB-D camera); False for an RGB-only clip.
+
+    Attributes
+    ----------
+    mask : ndarray of uint8, shape (H, W)
+        True labels at rest (see :class:`SyntheticClip`).
+    truth : dict
+        See :meth:`Scene.truth`.
+    """
+
+    def __init__(self, scene: Scene, *, depth: bool = True) -> None:
+        self._renderer = _Renderer(scene)
+        self._depth = depth
+        self.scene = scene
+        self.mask = self._renderer.true_mask
+        self.truth = scene.truth()
+        fx, fy, cx, cy = scene.intrinsics
+        self._info = ClipInfo(
+            format="synthetic",
+            frames=scene.frames,
+            width=scene.width,
+            height=scene.height,
+            fps=scene.fps,
+            fps_source="bundle",
+            has_depth=depth,
+            depth_scale=0.001 if depth else None,
+            intrinsics=Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy) if depth else None,
+            container_fps=scene.fps,
+            depth_source="rendered" if depth else None,
+        )
+
+    @property
+    def info(self) -> ClipInfo:
+        return self._info
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield frames ``start <= index < stop``, rendered one at a time."""
+        total = self.scene.frames
+        stop = total if stop is None else min(stop, total)
+        if not 0 <= start <= stop:
+            raise ParameterError(f"synth: frame range [{start}, {stop}) is outside the clip's {total} frames")
+        for k in range(start, stop):
+            rng = np.random.default_rng([self.scene.seed, k])
+            rgb, dmap = self._renderer.frame(k, rng, depth=self._depth)
+            depth_m = None
+            if dmap is not None:
+                depth_m = dmap.astype(np.float32) * np.float32(0.001)
+                depth_m[dmap == 0] = np.nan
+            yield Frame(index=k, rgb=rgb, depth_m=depth_m, timestamp_s=k / self.scene.fps)
+
+    def close(self) -> None:
+        """Nothing to release (frames are rendered on demand)."""

@@ -203,6 +203,32 @@ def test_video_pyav_written(truth: Truth, tmp_path: Path, name: str, codec: str,
     assert err == 0 if exact else err < 8.0  # lossy 4:2:0 codecs on a noisy 96x80 texture
 
 
+@pytest.mark.parametrize(
+    ("name", "codec"),
+    [("c.mkv", "ffv1"), ("c.mp4", "libx264"), ("c.avi", "mjpeg")],
+    ids=["bgr0", "yuv", "yuvj"],
+)
+def test_video_grey_frames_for_a_quick_survey(truth: Truth, tmp_path: Path, name: str, codec: str) -> None:
+    """``gray_frames`` copies the decoder's luma plane (or converts a packed RGB stream): the grey image
+    of each frame, whatever the stride of the decoder's buffer, in order, for any frame range."""
+    import cv2
+
+    from workers.pipeline.clipio import open_clip
+
+    path = w.write_video(tmp_path / name, truth.rgb, fps=30.0, codec=codec)
+    with open_clip(path) as reader:
+        grays = list(reader.gray_frames())  # type: ignore[attr-defined]
+        part = list(reader.gray_frames(5, 9))  # type: ignore[attr-defined]
+    assert len(grays) == 24
+    assert all(g.shape == (80, 96) and g.dtype == np.uint8 for g in grays)
+    expected = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in truth.rgb]).astype(float)
+    # Studio-range luma (16-235) differs from full-range grey by a gain and an offset: compare shapes.
+    got = np.stack(grays).astype(float)
+    for g, e in zip(got, expected, strict=True):
+        assert np.corrcoef(g.ravel(), e.ravel())[0, 1] > 0.97
+    np.testing.assert_array_equal(np.stack(part), np.stack(grays[5:9]))
+
+
 def test_video_opencv_written_avi(truth: Truth, tmp_path: Path) -> None:
     import cv2
 

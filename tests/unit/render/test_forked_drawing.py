@@ -1,0 +1,46 @@
+"""Part of the figures is drawn in a forked child on the second core; whatever happens to the child, every
+image is written, with the same pixels as when the parent draws them all."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.unit.render.conftest import Analysed
+from workers.pipeline import render
+
+
+def _images(folder: Path) -> dict[str, np.ndarray]:
+    return {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted(folder.glob("*.png"))}
+
+
+def _failing_child(*_args: object) -> int:
+    pid = os.fork()
+    if pid == 0:
+        os._exit(3)  # a child that dies before drawing anything
+    return pid
+
+
+@pytest.mark.parametrize("child", ["forked", "fails", "none"])
+def test_every_image_is_written_whatever_the_child_does(child, one_object: Analysed, tmp_path, monkeypatch):
+    reference = tmp_path / "parent-only"
+    monkeypatch.setattr(render, "_fork_drawer", lambda *a: None)
+    render.render_all(one_object.analysis, reference)
+    monkeypatch.undo()
+    if child == "fails":
+        monkeypatch.setattr(render, "_fork_drawer", _failing_child)
+    elif child == "none":
+        monkeypatch.setattr(render, "_fork_drawer", lambda *a: None)
+    out = tmp_path / child
+    names = render.render_all(one_object.analysis, out)
+    assert set(names) == {"mask", "overlay", "frequency_map", "spectrum", "displacement", "ringdown"}
+    got, expected = _images(out), _images(reference)
+    assert got.keys() == expected.keys()
+    assert len(got) == 6
+    for name, image in expected.items():
+        assert np.array_equal(got[name], image), name
+    assert not list(out.glob("*.tmp*")), "no temporary files left behind"

@@ -1,0 +1,696 @@
+"""A cheap first look at a whole clip: when does something move, and at which frequencies.
+
+A long clip (thousands of frames) cannot be analysed as one buffer of full-resolution flow, and its first
+few hundred frames may show nothing but the hand that strikes the object. :func:`survey_motion` streams
+the whole clip once on a heavily downscaled grey grid, computes DIS flow between consecutive frames and
+keeps only summaries whose size does not depend on the clip's length:
+
+- a Welch-averaged motion spectrum: per-pixel power of signed flow in Hann-windowed segments with 50 %
+  overlap, summed over the pixels as power (parts moving in anti-phase add up instead of cancelling),
+  also whitened by each pixel's own noise (weak motion spread over many pixels) and at the median pixel
+  (what the static background sees: camera shake, flicker and codec pulses are everywhere);
+- each segment's summed spectrum, merged pairwise when there are too many, so the time course of each
+  frequency is known;
+- the motion energy per block of frames, merged the same way;
+- the largest per-frame motion, which bounds how many frames may be skipped between flow maps.
+
+:func:`plan_window` then chooses the main analysis window: from where the strongest ring-down starts,
+long enough for enough periods of the lowest confidently seen frequency, within a budget of flow maps,
+analysing every k-th frame when every frequency seen is far below the Nyquist rate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.errors import ParameterError
+from workers.pipeline.spectrum import Peak, find_peaks, fold_harmonics, noise_floor
+
+#: Floats held by the survey's segment buffer (flow of every survey pixel over one Welch segment).
+SURVEY_BUFFER_FLOATS = 8_000_000
+#: Stored segment spectra and energy blocks; beyond this neighbours are merged pairwise.
+MAX_SEGMENTS = 256
+MAX_BLOCKS = 2048
+#: A peak whose whitened power at the median pixel exceeds this (power over the pixel's own noise) is seen
+#: over the static background too: camera motion, flicker or codec pulses rather than an object.
+GLOBAL_MEDIAN_SNR = 2.5
+#: RMS per-frame motion of the survey grid's border (input pixels) above which it is removed as camera
+#: motion.
+CAMERA_MOTION_MIN_PX = 0.05
+
+
+@dataclass(frozen=True)
+class Survey:
+    """What :func:`survey_motion` saw in a whole clip.
+
+    Attributes
+    ----------
+    fps : float
+        Frame rate of the surveyed frames, Hz.
+    first_frame : int
+        Clip index of the first surveyed frame.
+    frames : int
+        Frames surveyed (flow maps + 1).
+    grid_shape : (h, w)
+        Survey grid; ``grid_scale`` survey pixels per input pixel.
+    grid_scale : float
+    segment_frames : int
+        Welch segment length, flow samples (hop: half of it).
+    frequencies_hz : ndarray of float64, shape (F,)
+    power : ndarray of float64, shape (F,)
+        Welch average of the summed per-pixel power (survey pixels² / frame²).
+    whitened : ndarray of float64, shape (F,)
+        Welch average of the per-pixel power over each pixel's median power in the band, summed.
+    median_snr : ndarray of float64, shape (F,)
+        Welch average of the median pixel's whitened power: about 1 for noise, high for a frequency seen
+        all over the picture.
+    segments : int
+        Welch segments averaged.
+    segment_starts : ndarray of int64, shape (S,)
+        Clip index of the first frame of each stored segment (each covers ``segment_span`` frames).
+    segment_span : int
+    segment_power : ndarray of float32, shape (S, F)
+        Summed per-pixel power of each stored segment (merged segments are added).
+    block_frames : int
+        Frames per entry of ``block_energy``.
+    block_energy : ndarray of float64, shape (B,)
+        Mean squared motion per frame, input px², of block b, which starts at clip frame
+        ``first_frame + b * block_frames``.
+    max_step_px : float
+        Per-frame motion of the fastest moving pixels (99th percentile over the pixels), input pixels, in
+        the frames where it is largest (90th percentile over the frames, robust to a few glitches).
+    peaks : list of Peak
+        Confident peaks, strongest first, harmonics folded in (``snr_db`` over the whitened floor).
+    global_peaks_hz : list of float
+        The peaks (among ``peaks``) that are seen over the whole picture.
+    """
+
+    fps: float
+    first_frame: int
+    frames: int
+    grid_shape: tuple[int, int]
+    grid_scale: float
+    segment_frames: int
+    frequencies_hz: NDArray[np.float64]
+    power: NDArray[np.float64]
+    whitened: NDArray[np.float64]
+    median_snr: NDArray[np.float64]
+    segments: int
+    segment_starts: NDArray[np.int64]
+    segment_span: int
+    segment_power: NDArray[np.float32]
+    block_frames: int
+    block_energy: NDArray[np.float64]
+    max_step_px: float
+    peaks: list[Peak]
+    global_peaks_hz: list[float]
+
+    @property
+    def bin_hz(self) -> float:
+        """Width of one Welch bin, Hz."""
+        return self.fps / self.segment_frames
+
+    @property
+    def object_peaks(self) -> list[Peak]:
+        """Confident peaks that are not seen over the whole picture, strongest first."""
+        return [p for p in self.peaks if p.frequency_hz not in self.global_peaks_hz]
+
+    def band_energy(self, frequency_hz: float, *, half_width_bins: float = 1.5) -> NDArray[np.float64]:
+        """Power of each stored segment near ``frequency_hz`` (within ``half_width_bins``).
+
+        Returns
+        -------
+        ndarray of float64, shape (S,)
+        """
+        sel = np.abs(self.frequencies_hz - frequency_hz) <= half_width_bins * self.bin_hz
+        if not sel.any():
+            sel[int(np.argmin(np.abs(self.frequencies_hz - frequency_hz)))] = True
+        return np.asarray(self.segment_power[:, sel].sum(axis=1), np.float64)
+
+    def explains(self, frequency_hz: float, *, tolerance: float = 0.02) -> bool:
+        """Whether ``frequency_hz`` is one of the survey's peaks, or a harmonic of one, within
+        ``tolerance`` (relative) or one and a half Welch bins, whichever is wider."""
+        slack = max(tolerance * frequency_hz, 1.5 * self.bin_hz)
+        for peak in self.peaks:
+            for f in (peak.frequency_hz, *peak.harmonics_hz):
+                if abs(f - frequency_hz) <= slack:
+                    return True
+        return False
+
+
+@dataclass(frozen=True)
+class WindowPlan:
+    """The main analysis window chosen by :func:`plan_window`.
+
+    Attributes
+    ----------
+    start_frame, stop_frame : int
+        Clip frames [start, stop) analysed.
+    frame_step : int
+        Every ``frame_step``-th frame of the window is analysed (1: all).
+    reference_hz : float or None
+        Frequency whose periods set the length (the lowest confident one); None when nothing stood out.
+    periods : float
+        Periods of ``reference_hz`` the window spans.
+    reason : str
+        One sentence for the result's quality notes.
+    """
+
+    start_frame: int
+    stop_frame: int
+    frame_step: int
+    reference_hz: float | None
+    periods: float
+    reason: str
+
+    @property
+    def samples(self) -> int:
+        """Flow maps the window gives."""
+        return (self.stop_frame - self.start_frame - 1) // self.frame_step
+
+
+def survey_factor(height: int, width: int, *, segment_frames: int, width_px: int = 96) -> int:
+    """Integer downscale factor from ``height`` x ``width`` frames to the survey grid: about ``width_px``
+    wide, fewer pixels when the segment is long, so that the segment buffer holds at most
+    ``SURVEY_BUFFER_FLOATS`` floats. (An integer factor keeps area averaging exact and fast.)
+
+    Returns
+    -------
+    int
+        The grid is ``(height // factor, width // factor)``.
+    """
+    pixels = SURVEY_BUFFER_FLOATS // (2 * max(segment_frames, 1))
+    target = min(width_px, math.sqrt(pixels * width / max(height, 1)))
+    factor = max(1, math.ceil(width / max(target, 1.0)))
+    # Never below 16 x 12 survey pixels (or the frame itself when smaller).
+    while factor > 1 and (width // factor < min(16, width) or height // factor < min(12, height)):
+        factor -= 1
+    return factor
+
+
+def segment_length(frames: int) -> int:
+    """Welch segment length (flow samples) for a clip of ``frames``: a power of two near a quarter of the
+    clip, from 64 to 1024, and never more than the clip gives."""
+    target = max(frames // 4, 1)
+    length = 1 << max(6, math.ceil(math.log2(target)))
+    length = min(length, 1024)
+    while length > 16 and length > frames - 1:
+        length //= 2
+    return length
+
+
+def survey_motion(
+    grays: Iterable[NDArray[np.uint8]],
+    *,
+    fps: float,
+    total_frames: int,
+    first_frame: int = 0,
+    width_px: int = 96,
+    segment_frames: int | None = None,
+    min_snr_db: float = 6.0,
+) -> Survey:
+    """Stream a clip once and summarise its motion with bounded memory.
+
+    Parameters
+    ----------
+    grays : iterable of ndarray of uint8, shape (H, W)
+        The clip's frames in order, grey (any size; they are area-averaged down to the survey grid).
+    fps : float
+        Frame rate, Hz.
+    total_frames : int
+        Frames ``grays`` will yield (sets the Welch segment length); fewer is accepted.
+    first_frame : int
+        Clip index of the first frame (for ``segment_starts``).
+    width_px : int
+        Survey grid width at most (fewer for long segments, see :func:`survey_factor`).
+    segment_frames : int, optional
+        Welch segment length in flow samples; default :func:`segment_length` of ``total_frames``.
+    min_snr_db : float
+        A peak of the whitened Welch spectrum must stand this far above its running median.
+
+    Returns
+    -------
+    Survey
+
+    Raises
+    ------
+    ParameterError
+        On a non-positive ``fps``, fewer than 17 frames, or frames that change size.
+    """
+    import cv2
+
+    if not (math.isfinite(fps) and fps > 0):
+        raise ParameterError(f"survey: fps={fps} must be a positive number of frames per second")
+    if total_frames < 17:
+        raise ParameterError(
+            f"survey: a clip of {total_frames} frames is too short to survey; analyse it whole"
+        )
+    length = segment_frames or segment_length(total_frames)
+    if length < 16 or length % 2:
+        raise ParameterError(f"survey: segment_frames={length} must be an even number >= 16")
+    iterator = iter(grays)
+    try:
+        first = next(iterator)
+    except StopIteration:
+        raise ParameterError("survey: the clip yielded no frames") from None
+    height, width = first.shape[:2]
+    factor = survey_factor(height, width, segment_frames=length, width_px=width_px)
+    h, w = height // factor, width // factor
+    scale = 1.0 / factor
+
+    def small(gray: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        if gray.shape[:2] != (height, width):
+            raise ParameterError(
+                f"survey: a frame is {gray.shape[1]}x{gray.shape[0]}, the clip started at "
+                f"{width}x{height}; re-encode the clip at one size"
+            )
+        if factor == 1:
+            return np.ascontiguousarray(gray)
+        crop = gray[: h * factor, : w * factor]
+        return np.asarray(cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
+
+    dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
+    dis.setFinestScale(0)  # the grid is already coarse: do not skip its finest level
+    dis.setPatchStride(6)  # ... but sparser patches keep it about as cheap as decoding a frame
+    ring = np.ones((h, w), bool)
+    mh, mw = max(1, round(0.12 * h)), max(1, round(0.12 * w))
+    ring[mh:-mh, mw:-mw] = False
+    ring_idx = np.flatnonzero(ring.ravel())[::2]
+
+    acc = _WelchAccumulator(
+        length=length, pixels=h * w, fps=fps, first_frame=first_frame, scale=scale, ring=ring_idx
+    )
+    previous = [small(first)]
+
+    def flow_to(gray: NDArray[np.uint8]) -> NDArray[np.float32]:
+        nxt = small(gray)
+        flow = np.asarray(dis.calc(previous[0], nxt, None), np.float32)
+        previous[0] = nxt
+        return flow
+
+    # Downscaling and flow run in one worker thread (in frame order) while the main thread decodes the
+    # next frames and accumulates; OpenCV and the decoder release the GIL.
+    pending: deque[Future[NDArray[np.float32]]] = deque()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="survey") as pool:
+        try:
+            for gray in iterator:
+                pending.append(pool.submit(flow_to, gray))
+                if len(pending) >= 3:
+                    acc.add(pending.popleft().result())
+            while pending:
+                acc.add(pending.popleft().result())
+        finally:
+            for job in pending:
+                job.cancel()
+    count = acc.samples
+    if count < 16:
+        raise ParameterError(f"survey: the clip yielded only {count + 1} frames; analyse it whole")
+    acc.finish()
+    freqs = acc.frequencies_hz
+    power, whitened, median_snr, background = acc.averages()
+    nyquist = fps / 2
+    bin_hz = fps / acc.length
+    # Peaks are searched from the first bin so that a low peak's left flank counts for its prominence;
+    # those below two bins (unresolved from the mean and slow drift) are dropped afterwards.
+    band = (0.5 * bin_hz, 0.98 * nyquist)
+    strong = find_peaks(freqs, power, band_hz=band, noise=background, min_snr_db=10.0)
+    weak = find_peaks(
+        freqs,
+        whitened,
+        band_hz=band,
+        noise=noise_floor(whitened, width=max(9, len(whitened) // 8)),
+        min_snr_db=min_snr_db,
+    )
+    candidates = [*strong, *(Peak(**{**vars(p), "harmonics_hz": []}) for p in weak)]
+    candidates = [p for p in candidates if p.frequency_hz >= 2 * bin_hz]
+    peaks = fold_harmonics(candidates, bin_hz=bin_hz)
+    global_hz = [p.frequency_hz for p in peaks if median_snr[p.bin] > GLOBAL_MEDIAN_SNR]
+    starts, span, seg_power = acc.segments_stored()
+    return Survey(
+        fps=fps,
+        first_frame=first_frame,
+        frames=count + 1,
+        grid_shape=(h, w),
+        grid_scale=scale,
+        segment_frames=acc.length,
+        frequencies_hz=freqs,
+        power=power,
+        whitened=whitened,
+        median_snr=median_snr,
+        segments=acc.count,
+        segment_starts=starts,
+        segment_span=span,
+        segment_power=seg_power,
+        block_frames=acc.blocks.size,
+        block_energy=acc.blocks.values(),
+        max_step_px=acc.steps.quantile(0.9),
+        peaks=peaks,
+        global_peaks_hz=global_hz,
+    )
+
+
+class _BlockEnergy:
+    """Per-frame values averaged over blocks of frames; pairs merge when there are too many blocks."""
+
+    def __init__(self) -> None:
+        self.size = 1
+        self._done: list[float] = []
+        self._sum = 0.0
+        self._n = 0
+
+    def add(self, value: float) -> None:
+        self._sum += value
+        self._n += 1
+        if self._n == self.size:
+            self._done.append(self._sum / self._n)
+            self._sum, self._n = 0.0, 0
+            if len(self._done) >= MAX_BLOCKS:
+                self._done = [(a + b) / 2 for a, b in zip(self._done[::2], self._done[1::2], strict=True)]
+                self.size *= 2
+
+    def values(self) -> NDArray[np.float64]:
+        tail = [self._sum / self._n] if self._n else []
+        return np.asarray(self._done + tail, np.float64)
+
+
+class _Quantiles:
+    """Quantiles of a stream of positive values from a fixed log-spaced histogram (1e-4 to 1e4)."""
+
+    def __init__(self, bins_per_decade: int = 40) -> None:
+        self._edges = np.logspace(-4, 4, 8 * bins_per_decade + 1)
+        self._counts = np.zeros(len(self._edges) + 1, np.int64)
+
+    def add(self, value: float) -> None:
+        self._counts[int(np.searchsorted(self._edges, value))] += 1
+
+    def quantile(self, q: float) -> float:
+        total = int(self._counts.sum())
+        if total == 0:
+            return 0.0
+        i = int(np.searchsorted(np.cumsum(self._counts), q * total))
+        return float(self._edges[min(i, len(self._edges) - 1)])
+
+
+class _WelchAccumulator:
+    """Per-pixel Welch spectra of signed flow, kept as sums over pixels and segments."""
+
+    def __init__(
+        self, *, length: int, pixels: int, fps: float, first_frame: int, scale: float, ring: NDArray[np.intp]
+    ) -> None:
+        self.ring = ring
+        self.blocks = _BlockEnergy()
+        self.steps = _Quantiles()
+        self._stats_done = 0
+        self.length = length
+        self.hop = length // 2
+        self.pixels = pixels
+        self.fps = fps
+        self.first_frame = first_frame
+        self.scale = scale
+        self.buffer = np.zeros((length, pixels * 2), np.float32)
+        self.camera = np.zeros((length, 2), np.float32)
+        self.taper = np.hanning(length + 2)[1:-1].astype(np.float32)
+        self.frequencies_hz = np.fft.rfftfreq(length, d=1.0 / fps).astype(np.float64)
+        n_freq = len(self.frequencies_hz)
+        self.count = 0
+        self.samples = 0
+        self._power = np.zeros(n_freq)
+        self._whitened = np.zeros(n_freq)
+        self._median = np.zeros(n_freq)
+        self._background = np.zeros(n_freq)
+        self._starts: list[int] = []
+        self._seg: list[NDArray[np.float32]] = []
+        self._merge = 1
+        self._open = 0
+
+    def add(self, flow: NDArray[np.float32]) -> None:
+        """Store one flow map (h, w, 2); statistics run every hop, a segment every hop once full."""
+        self.buffer[self.samples % self.length] = flow.ravel()
+        self.samples += 1
+        if self.samples - self._stats_done >= self.hop:
+            self._stats()
+        if self.samples >= self.length and (self.samples - self.length) % self.hop == 0:
+            self._segment(self.samples - self.length, self.length)
+
+    def _stats(self) -> None:
+        """Per-frame camera motion (median of the border ring), motion energy and fastest motion of the
+        frames stored since the last call, vectorised over them."""
+        n = self.samples - self._stats_done
+        if n <= 0:
+            return
+        order = (np.arange(self._stats_done, self.samples) % self.length).astype(np.intp)
+        data = self.buffer[order].reshape(n, self.pixels, 2)
+        camera = np.median(data[:, self.ring, :], axis=1)
+        self.camera[order] = camera
+        moved = data - camera[:, None, :]
+        sq = moved[..., 0] ** 2 + moved[..., 1] ** 2
+        top = max(0, int(0.99 * self.pixels) - 1)
+        fastest = np.sqrt(np.partition(sq, top, axis=1)[:, top]) / self.scale
+        energy = sq.mean(axis=1) / self.scale**2
+        for e, v in zip(energy.tolist(), fastest.tolist(), strict=True):
+            self.blocks.add(e)
+            self.steps.add(v)
+        self._stats_done = self.samples
+
+    def finish(self) -> None:
+        """Statistics of the last frames; a clip shorter than one segment is transformed whole."""
+        self._stats()
+        if self.count == 0:
+            n = self.samples - self.samples % 2
+            self.length = n
+            self.hop = n // 2
+            self.taper = np.hanning(n + 2)[1:-1].astype(np.float32)
+            self.frequencies_hz = np.fft.rfftfreq(n, d=1.0 / self.fps).astype(np.float64)
+            n_freq = len(self.frequencies_hz)
+            self._power = np.zeros(n_freq)
+            self._whitened = np.zeros(n_freq)
+            self._median = np.zeros(n_freq)
+            self._background = np.zeros(n_freq)
+            self._segment(0, n)
+
+    def _segment(self, first_sample: int, n: int) -> None:
+        from scipy import fft
+
+        order = (np.arange(first_sample, first_sample + n) % self.buffer.shape[0]).astype(np.intp)
+        camera = self.camera[order]
+        # Remove the camera's motion only when it really moves: subtracting a still camera's jitter
+        # would add the border's noise to every pixel.
+        moving = float(np.sqrt(np.mean(camera.astype(np.float64) ** 2))) / self.scale > CAMERA_MOTION_MIN_PX
+        # Transformed in blocks of pixels (time in order, mean removed, tapered): the complex spectrum
+        # of the whole buffer would double it.
+        power = np.empty((n // 2 + 1, self.pixels), np.float32)
+        chunk = 4096
+        taper = self.taper[:, None]
+        for c in range(0, 2 * self.pixels, chunk):
+            data = self.buffer[order, c : c + chunk]
+            if moving:
+                data = (data.reshape(n, -1, 2) - camera[:, None, :]).reshape(n, -1)
+            data = (data - data.mean(axis=0)) * taper
+            spec = fft.rfft(data, axis=0, workers=2)
+            power[:, c // 2 : (c + spec.shape[1]) // 2] = (
+                (spec.real**2 + spec.imag**2).reshape(len(spec), -1, 2).sum(axis=2)
+            )
+        freqs = self.frequencies_hz
+        band = (freqs >= 2.5 * self.fps / n) & (freqs <= 0.98 * self.fps / 2)
+        if band.sum() < 3:
+            band = freqs > 0
+        in_band = np.flatnonzero(band)
+        in_band = in_band[:: max(1, len(in_band) // 64)]  # the noise level from at most 64 bins
+        median = np.median(power[in_band], axis=0)
+        scale = np.where(median > 0, 1.0 / np.maximum(median, 1e-30), 0.0).astype(np.float32)
+        summed = power.sum(axis=1, dtype=np.float64)
+        self._power += summed
+        self._whitened += (power @ scale).astype(np.float64)
+        step = max(1, power.shape[1] // 1000)
+        sample = power[:, ::step]
+        self._median += np.median(sample * scale[::step], axis=1) * math.log(2)
+        self._background += np.percentile(sample, 20, axis=1) * power.shape[1]
+        self.count += 1
+        self._add_stored(self.first_frame + first_sample, summed.astype(np.float32))
+
+    def _add_stored(self, start: int, summed: NDArray[np.float32]) -> None:
+        """Keep each segment's spectrum; groups of ``_merge`` consecutive segments are added up, and
+        when ``MAX_SEGMENTS`` full groups are stored neighbouring pairs merge (the groups double)."""
+        if self._seg and self._open < self._merge:
+            self._seg[-1] = self._seg[-1] + summed
+            self._open += 1
+        else:
+            self._starts.append(start)
+            self._seg.append(summed)
+            self._open = 1
+        if len(self._seg) >= MAX_SEGMENTS and self._open == self._merge:
+            self._starts = self._starts[::2]
+            self._seg = [a + b for a, b in zip(self._seg[::2], self._seg[1::2], strict=True)]
+            self._merge *= 2
+            self._open = self._merge
+
+    def segments_stored(self) -> tuple[NDArray[np.int64], int, NDArray[np.float32]]:
+        """(first frame of each stored group, frames a group spans, summed power (S, F))."""
+        span = self.length + (self._merge - 1) * self.hop
+        power = np.asarray(self._seg, np.float32).reshape(len(self._seg), -1)
+        return np.asarray(self._starts, np.int64), span, power
+
+    def averages(
+        self,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        m = max(self.count, 1)
+        return self._power / m, self._whitened / m, self._median / m, self._background / m
+
+
+def plan_window(
+    survey: Survey,
+    *,
+    total_frames: int,
+    default_frames: int,
+    max_samples: int,
+    grid_scale: float,
+    min_periods: float = 10.0,
+    max_step_grid_px: float = 6.0,
+    samples_per_period: float = 10.0,
+) -> WindowPlan:
+    """Choose the main analysis window from a survey of the whole clip.
+
+    The window starts where the strongest ring-down of the strongest object frequency begins, and spans
+    at least ``min_periods`` periods of the lowest confident object frequency (peaks seen over the whole
+    picture, such as camera shake, do not count) and at least ``default_frames`` frames when the clip
+    has them. When that needs more than ``default_frames`` flow maps, every k-th frame is analysed,
+    provided each frequency seen keeps at least ``samples_per_period`` samples per period (its strong
+    harmonics stay below the Nyquist rate) and the motion between analysed frames stays below
+    ``max_step_grid_px``; the window never gives more than ``max_samples`` flow maps.
+
+    Parameters
+    ----------
+    survey : Survey
+    total_frames : int
+        Frames in the clip.
+    default_frames : int
+        Window length when nothing asks for more.
+    max_samples : int
+        Most flow maps the main analysis may hold (its memory budget).
+    grid_scale : float
+        Main flow grid pixels per input pixel.
+    min_periods, max_step_grid_px, samples_per_period : float
+
+    Returns
+    -------
+    WindowPlan
+    """
+    if max_samples < 8 or default_frames < 9:
+        raise ParameterError(
+            f"plan_window: max_samples={max_samples} and default_frames={default_frames} are too small; "
+            "allow at least 8 flow maps"
+        )
+    fps = survey.fps
+    objects = survey.object_peaks
+    if not objects:
+        stop = min(total_frames, default_frames)
+        return WindowPlan(
+            start_frame=0,
+            stop_frame=stop,
+            frame_step=1,
+            reference_hz=None,
+            periods=0.0,
+            reason=(
+                f"nothing stood out in a survey of all {total_frames} frames: the first {stop} were "
+                "analysed; give start_frame and frames to choose the window"
+            ),
+        )
+    main = objects[0]
+    lowest = min(p.frequency_hz for p in objects)
+    onset = _onset_frame(survey, main.frequency_hz)
+    needed = math.ceil(min_periods * fps / lowest) + 1
+    length = max(needed, min(default_frames, total_frames))
+    # Frames skipped between analysed frames: as few as keep the buffer near the default size.
+    step = max(1, math.ceil((length - 1) / max(default_frames - 1, 1)))
+    step_max_rate = _max_step_for_rate(survey, samples_per_period=samples_per_period)
+    per_frame_grid_px = survey.max_step_px * grid_scale
+    step_max_motion = max(1, math.floor(max_step_grid_px / max(per_frame_grid_px, 1e-9)))
+    step = max(1, min(step, step_max_rate, step_max_motion))
+    length = min(length, step * max_samples + 1)
+    start = max(0, onset)
+    stop = min(total_frames, start + length)
+    if stop - start < min(length, total_frames):
+        start = max(0, stop - length)  # late ring-down: take the frames before it rather than fewer
+    # Whole steps: round the window up to the next analysed frame when the clip has it, else down.
+    intervals = math.ceil((stop - start - 1) / step)
+    if start + intervals * step + 1 > total_frames:
+        intervals = (stop - start - 1) // step
+    stop = start + intervals * step + 1
+    periods = lowest * (stop - start - 1) / fps
+    every = "" if step == 1 else f" (one frame in {step})"
+    reason = (
+        f"a survey of all {total_frames} frames found motion at {main.frequency_hz:.3g} Hz starting near "
+        f"frame {onset}; frames {start}-{stop}{every} span {periods:.1f} periods of {lowest:.3g} Hz"
+    )
+    return WindowPlan(
+        start_frame=start,
+        stop_frame=stop,
+        frame_step=step,
+        reference_hz=lowest,
+        periods=periods,
+        reason=reason,
+    )
+
+
+def _max_step_for_rate(
+    survey: Survey, *, samples_per_period: float, relative_power: float = 0.1, harmonic_samples: float = 2.5
+) -> int:
+    """Largest frame step that keeps ``samples_per_period`` samples in each period of every confident
+    peak, and each harmonic carrying ``relative_power`` of its peak's power below the reduced Nyquist
+    rate (``harmonic_samples`` per period; weaker overtones fold back as faint peaks, which the
+    segmentation recognises as folded harmonics)."""
+    fps = survey.fps
+    step = math.inf
+    bins = survey.frequencies_hz
+    for peak in survey.peaks:
+        step = min(step, fps / (samples_per_period * peak.frequency_hz))
+        base = float(survey.power[max(peak.bin - 1, 0) : peak.bin + 2].max())
+        for f in peak.harmonics_hz:
+            k = int(np.argmin(np.abs(bins - f)))
+            if survey.power[max(k - 1, 0) : k + 2].max() >= relative_power * base:
+                step = min(step, fps / (harmonic_samples * f))
+    return max(1, math.floor(step)) if math.isfinite(step) else 1
+
+
+def _onset_frame(survey: Survey, frequency_hz: float) -> int:
+    """Clip frame where the strongest burst of motion at ``frequency_hz`` starts (a few frames early)."""
+    energy = survey.band_energy(frequency_hz)
+    for harmonic in next((p.harmonics_hz for p in survey.peaks if p.frequency_hz == frequency_hz), []):
+        energy = energy + survey.band_energy(harmonic)
+    if energy.size == 0:
+        return survey.first_frame
+    strongest = int(np.argmax(energy))
+    quiet = float(np.min(energy))
+    threshold = quiet + 0.1 * (float(energy[strongest]) - quiet)
+    first = strongest
+    while first > 0 and energy[first - 1] >= threshold:
+        first -= 1
+    # The burst begins inside segment ``first`` (or before the clip when that is the first one): find
+    # where the motion energy rises within it.
+    seg_start = int(survey.segment_starts[first])
+    seg_stop = seg_start + survey.segment_span
+    blocks = survey.block_energy
+    b0 = max(0, (seg_start - survey.first_frame) // survey.block_frames)
+    b1 = min(len(blocks), (seg_stop - survey.first_frame) // survey.block_frames + 1)
+    if b1 - b0 < 2:
+        return seg_start
+    inside = blocks[b0:b1]
+    floor = float(np.percentile(blocks, 10))
+    peak = float(inside.max())
+    rising = np.flatnonzero(inside >= floor + 0.2 * (peak - floor))
+    b = b0 + int(rising[0]) if rising.size else b0
+    # Walk back over the ramp (a released object starts from rest): blocks still above the quiet level.
+    while b > b0 and blocks[b - 1] > floor + 0.02 * (peak - floor):
+        b -= 1
+    margin = max(2, survey.block_frames)
+    return max(survey.first_frame, survey.first_frame + b * survey.block_frames - margin)
+
+
+__all__ = ["Survey", "WindowPlan", "plan_window", "segment_length", "survey_factor", "survey_motion"]
