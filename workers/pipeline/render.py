@@ -1459,19 +1459,25 @@ def _fork_drawer(analysis: Analysis, out: Path, keys: Sequence[str]) -> int | No
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if not hasattr(os, "fork") or cores < 2:
         return None
-    try:
-        pid = os.fork()
-    except OSError:
-        return None
-    if pid:
-        return pid
-    code = 1
-    try:  # the child: never returns, never raises into the caller's stack
-        for key in keys:
-            _write_image(out / ARTIFACT_FILES[key], _DRAWERS[key](analysis))
-        code = 0
-    finally:
-        os._exit(code)
+    from matplotlib.figure import Figure
+
+    # Another thread may be drawing (a concurrent render, the warm-up): the child would inherit
+    # matplotlib's render lock held by a thread that does not exist in it, and wait for it forever.
+    # Forking while this thread holds the lock gives the child a lock it owns itself.
+    with Figure._render_lock:
+        try:
+            pid = os.fork()
+        except OSError:
+            return None
+        if pid:
+            return pid
+        code = 1
+        try:  # the child: never returns, never raises into the caller's stack
+            for key in keys:
+                _write_image(out / ARTIFACT_FILES[key], _DRAWERS[key](analysis))
+            code = 0
+        finally:
+            os._exit(code)
 
 
 def _child_succeeded(pid: int) -> bool:

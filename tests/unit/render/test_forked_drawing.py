@@ -44,3 +44,40 @@ def test_every_image_is_written_whatever_the_child_does(child, one_object: Analy
     for name, image in expected.items():
         assert np.array_equal(got[name], image), name
     assert not list(out.glob("*.tmp*")), "no temporary files left behind"
+
+
+def test_a_drawing_thread_elsewhere_does_not_stall_the_child(one_object: Analysed, tmp_path, monkeypatch):
+    """Forking while another thread draws (a concurrent render, the matplotlib warm-up) must not hand the
+    child matplotlib's render lock held by a thread that does not exist in it: the child would wait for
+    it until the timeout and the parent would draw everything again, tens of seconds later."""
+    import threading
+    import time
+
+    from matplotlib.figure import Figure
+
+    results: list[bool] = []
+    original = render._child_succeeded
+
+    def spy(pid: int) -> bool:
+        ok = original(pid)
+        results.append(ok)
+        return ok
+
+    monkeypatch.setattr(render, "_child_succeeded", spy)
+    monkeypatch.setattr(render, "_CHILD_TIMEOUT_S", 10.0)
+    holding = threading.Event()
+
+    def draw_elsewhere() -> None:
+        with Figure._render_lock:  # what another thread's figure.draw() holds
+            holding.set()
+            time.sleep(0.5)
+
+    other = threading.Thread(target=draw_elsewhere)
+    other.start()
+    holding.wait()
+    started = time.perf_counter()
+    render.render_all(one_object.analysis, tmp_path / "out")
+    elapsed = time.perf_counter() - started
+    other.join()
+    assert results == [True], "the forked child failed or was killed"
+    assert elapsed < 5.0, f"rendering took {elapsed:.1f} s"
