@@ -20,6 +20,7 @@ Sizes (pixels, width x height), fixed so that tests and clients can rely on them
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import os
@@ -1464,7 +1465,8 @@ def _fork_drawer(analysis: Analysis, out: Path, keys: Sequence[str]) -> int | No
     # Another thread may be drawing (a concurrent render, the warm-up): the child would inherit
     # matplotlib's render lock held by a thread that does not exist in it, and wait for it forever.
     # Forking while this thread holds the lock gives the child a lock it owns itself.
-    with Figure._render_lock:
+    render_lock: Any = getattr(Figure, "_render_lock", contextlib.nullcontext())
+    with render_lock:
         try:
             pid = os.fork()
         except OSError:
