@@ -550,11 +550,14 @@ def _stream(
                 first_rgb = np.array(frame.rgb, copy=True)
             if has_depth and frame.depth_m is not None:
                 if depth_buf is None:
-                    depth_buf = np.full((n + 1, h, w), np.nan, np.float32)
+                    depth_buf = np.empty((n + 1, h, w), np.float32)
+                    depth_buf[:i] = np.nan
                 d = frame.depth_m
                 if d.shape != grid:
                     d = cv2.resize(d, (w, h), interpolation=cv2.INTER_NEAREST)
                 depth_buf[i] = d
+            elif depth_buf is not None:
+                depth_buf[i] = np.nan
             if gray_buf is not None:
                 full = prepare_gray(frame.rgb, (info.height, info.width))
                 gray_buf[i] = full
@@ -570,20 +573,20 @@ def _stream(
     mh, mw = max(1, round(0.12 * h)), max(1, round(0.12 * w))
     ring[mh:-mh, mw:-mw] = False
     ring_idx = np.flatnonzero(ring.ravel())[::3]
-    for i, flow in enumerate(flow_stream(grays(), config=flow_cfg)):
+    camera = np.zeros((n, 2), np.float32)
+    # Flow is written straight into the buffer by the flow threads (magnitudes are reduced here); the
+    # camera's motion is taken from each map while the threads compute the next ones.
+    direct = None if magnitude else flow_buf
+    for i, flow in enumerate(flow_stream(grays(), config=flow_cfg, out=direct)):
         if magnitude:
             flow_buf[i, ..., 0] = flow_magnitude(flow)
         else:
-            flow_buf[i] = flow
+            camera[i] = np.median(flow.reshape(-1, 2)[ring_idx], axis=0)
         count = i + 1
         if progress is not None and (i % 8 == 0 or i == n - 1):
             progress("flow", 0.05 + 0.75 * count / n)
     if count < n or first_rgb is None:
         raise AnalysisError(f"the clip ended after {count + 1} of the {n + 1} frames it announced")
-    camera = np.zeros((n, 2), np.float32)
-    if not magnitude:
-        ring_flow = np.ascontiguousarray(flow_buf.reshape(n, -1, 2)[:, ring_idx].transpose(0, 2, 1))
-        camera[:] = np.median(ring_flow, axis=2)
     # Compensate only real camera motion: subtracting the jitter of a still camera (codec noise) from
     # every pixel would bury a sub-pixel vibration.
     if not magnitude and float(np.sqrt(np.mean(camera.astype(np.float64) ** 2))) > CAMERA_MOTION_MIN_PX:

@@ -8,6 +8,7 @@ and holding at most ``2 * threads`` frames in flight.
 
 from __future__ import annotations
 
+import itertools
 import threading
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -113,12 +114,14 @@ class _Engine:
         self.config = config
         self._local = threading.local()
 
-    def __call__(self, prev: NDArray[np.uint8], nxt: NDArray[np.uint8]) -> NDArray[np.float32]:
+    def __call__(
+        self, prev: NDArray[np.uint8], nxt: NDArray[np.uint8], out: NDArray[np.float32] | None = None
+    ) -> NDArray[np.float32]:
         cfg = self.config
         if cfg.method == "farneback":
             pyr, levels, win, iters, poly_n, poly_sigma = cfg.farneback
             flow = cv2.calcOpticalFlowFarneback(
-                prev, nxt, None, pyr, levels, win, iters, poly_n, poly_sigma, 0
+                prev, nxt, out, pyr, levels, win, iters, poly_n, poly_sigma, 0
             )
         else:
             dis = getattr(self._local, "dis", None)
@@ -132,8 +135,14 @@ class _Engine:
                     dis.setGradientDescentIterations(descent)
                     dis.setVariationalRefinementIterations(refine)
                 self._local.dis = dis
+            # Never hand DIS a buffer to write into: it reads what the buffer holds (NaN crashes it,
+            # zeros change the result), so it gets a fresh one and the flow is copied.
             flow = dis.calc(prev, nxt, None)
-        return np.asarray(flow, dtype=np.float32)
+        if out is None:
+            return np.asarray(flow, dtype=np.float32)
+        if not np.shares_memory(flow, out):
+            out[...] = flow
+        return out
 
 
 def compute_flow(
@@ -156,7 +165,10 @@ def compute_flow(
 
 
 def flow_stream(
-    grays: Iterable[NDArray[np.uint8]], *, config: FlowConfig | None = None
+    grays: Iterable[NDArray[np.uint8]],
+    *,
+    config: FlowConfig | None = None,
+    out: NDArray[np.float32] | None = None,
 ) -> Iterator[NDArray[np.float32]]:
     """Flow between each pair of consecutive grey frames, in order.
 
@@ -165,11 +177,15 @@ def flow_stream(
     grays : iterable of ndarray of uint8, shape (h, w)
         Frames on the flow grid; consumed lazily.
     config : FlowConfig, optional
+    out : ndarray of float32, shape (N, h, w, 2), optional
+        Where to write the flow maps: flow i goes straight into ``out[i]`` (written by the worker
+        threads, so the caller neither copies it nor first-touches the buffer's memory itself). At most
+        N pairs are computed; the frames after them are not consumed.
 
     Yields
     ------
     ndarray of float32, shape (h, w, 2)
-        Flow from frame i to frame i + 1, for i = 0, 1, ...
+        Flow from frame i to frame i + 1, for i = 0, 1, ...; ``out[i]`` itself when ``out`` is given.
     """
     config = config or FlowConfig()
     engine = _Engine(config)
@@ -178,16 +194,21 @@ def flow_stream(
         prev = next(iterator)
     except StopIteration:
         return
+    following = iterator if out is None else itertools.islice(iterator, len(out))
+
+    def slot(i: int) -> NDArray[np.float32] | None:
+        return None if out is None else out[i]
+
     if config.threads == 1:
-        for nxt in iterator:
-            yield engine(prev, nxt)
+        for i, nxt in enumerate(following):
+            yield engine(prev, nxt, slot(i))
             prev = nxt
         return
     pending: deque[Future[NDArray[np.float32]]] = deque()
     with ThreadPoolExecutor(max_workers=config.threads, thread_name_prefix="flow") as pool:
         try:
-            for nxt in iterator:
-                pending.append(pool.submit(engine, prev, nxt))
+            for i, nxt in enumerate(following):
+                pending.append(pool.submit(engine, prev, nxt, slot(i)))
                 prev = nxt
                 if len(pending) >= 2 * config.threads:
                     yield pending.popleft().result()

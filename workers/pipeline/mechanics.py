@@ -289,9 +289,14 @@ def register_translation(
         except np.linalg.LinAlgError:
             return None
 
-    def track(order: range, previous: NDArray[np.float64]) -> int:
+    def track(segments: list[tuple[range, int]]) -> int:
+        return sum(track_segment(order, last) for order, last in segments)
+
+    def track_segment(order: range, last: int) -> int:
+        """Register the frames of ``order`` in turn, each started from the one before; ``last`` is the
+        frame next to the first on the reference's side, whose flow estimate seeds the chain."""
         failures = 0
-        last = ref_index
+        previous = np.zeros(2) if last == ref_index else initial_px[last].astype(np.float64)
         for k in order:
             cur = crop(k)
             # Starts, cheapest first: the flow's estimate; the last registered position moved by the
@@ -318,19 +323,36 @@ def register_translation(
         return failures
 
     out[ref_index] = 0.0
-    # Forward and backward from the reference are independent: one thread each (OpenCV drops the GIL).
-
+    # Chains of frames are independent: two threads share them evenly (OpenCV drops the GIL).
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="ecc") as pool:
-        jobs = [
-            pool.submit(track, range(ref_index + 1, t_count), np.zeros(2)),
-            pool.submit(track, range(ref_index - 1, -1, -1), np.zeros(2)),
-        ]
+        jobs = [pool.submit(track, share) for share in _tracking_shares(ref_index, t_count)]
         failures = sum(job.result() for job in jobs)
         # Six affine parameters need many textured pixels; on a small outline they only add noise.
         if affine and len(xx) >= AFFINE_MIN_PIXELS and warps:
             radius = math.sqrt(float(np.mean((xx - centroid[0]) ** 2 + (yy - centroid[1]) ** 2)))
             _refine_where_scale_matters(out, sorted(warps), refine_affine, pool, radius_px=radius)
     return out, failures / max(t_count - 1, 1)
+
+
+def _tracking_shares(ref_index: int, t_count: int) -> tuple[list[tuple[range, int]], list[tuple[range, int]]]:
+    """Two equal shares of the frames to register, as chains ``(frames, seed)`` that run outward from the
+    reference (``seed`` is the frame next to a chain's first one, towards the reference).
+
+    The reference is often near one end of the clip (the largest motion follows the release), so
+    "forward" and "backward" alone would leave one thread with nearly all the work; the longer side is
+    cut in two instead.
+    """
+    forward, backward = t_count - 1 - ref_index, ref_index
+    half = (forward + backward + 1) // 2
+    if forward >= backward:
+        cut = ref_index + half  # the first share: ref+1 .. cut; the second: the backward side and the rest
+        first = [(range(ref_index + 1, cut + 1), ref_index)]
+        second = [(range(ref_index - 1, -1, -1), ref_index), (range(cut + 1, t_count), cut)]
+    else:
+        cut = ref_index - half
+        first = [(range(ref_index - 1, cut - 1, -1), ref_index)]
+        second = [(range(ref_index + 1, t_count), ref_index), (range(cut - 1, -1, -1), cut)]
+    return first, [(order, seed) for order, seed in second if len(order)]
 
 
 #: Frames the affine refinement is first tried on, to see whether the object changes scale at all.

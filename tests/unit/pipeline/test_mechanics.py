@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from workers.pipeline.mechanics import stiffness_and_mass
+from workers.pipeline.mechanics import _tracking_shares, stiffness_and_mass
 
 
 def test_step_release_gives_k_from_force_over_amplitude_and_m_from_omega():
@@ -107,3 +107,21 @@ def test_registration_ignores_static_background_inside_the_outline(affine):
     assert gain == pytest.approx(1.0, abs=0.01)
     assert np.abs(disp[:, 0] - shift).max() < 0.12
     assert np.abs(disp[:, 1]).max() < 0.12
+
+
+@pytest.mark.parametrize(
+    ("ref", "count"), [(0, 257), (12, 257), (128, 257), (256, 257), (3, 10), (9, 10), (0, 2), (1, 2), (0, 1)]
+)
+def test_registration_work_is_shared_evenly_in_chains_running_outward(ref: int, count: int):
+    """Both registration threads get half the frames (within one), each frame once, the reference never;
+    every chain steps away from the reference one frame at a time, seeded by the frame before it."""
+    shares = _tracking_shares(ref, count)
+    frames = [[k for order, _ in share for k in order] for share in shares]
+    assert sorted(frames[0] + frames[1]) == [k for k in range(count) if k != ref]
+    assert abs(len(frames[0]) - len(frames[1])) <= 1
+    for share in shares:
+        for order, seed in share:
+            chain = [seed, *order]
+            steps = set(np.diff(chain).tolist())
+            assert steps in ({1}, {-1}, set()), chain
+            assert (chain[1] - ref) * (chain[1] - seed) > 0 if len(chain) > 1 else True
