@@ -110,8 +110,10 @@ def run_analysis(
     from workers.pipeline.analysis import AnalysisConfig, analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
     from workers.pipeline.flow import FlowConfig
+    from workers.allocator import tune_malloc
     from workers.pipeline.render import render_all, warm_up
 
+    tune_malloc()  # once per process: freed buffers are reused instead of faulted in afresh
     warm_up()
 
     params = parameters or AnalysisParameters()

@@ -749,7 +749,7 @@ def _analyze_default(
                 "info",
             )
         )
-    spectra = pixel_spectra(uniform_flow, fps=fps)
+    spectra = pixel_spectra(uniform_flow, fps=fps, band_hz=band)
     del uniform_flow
     summed = spectra.power.sum(axis=1, dtype=np.float64)
     noise = background_spectrum(spectra)

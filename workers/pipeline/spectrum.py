@@ -63,7 +63,14 @@ class RfftPlans:
             self._plans[key] = plans
         return plans
 
-    def power(self, data: NDArray[np.float32], *, nfft: int, pairs: int = 2) -> NDArray[np.float32]:
+    def power(
+        self,
+        data: NDArray[np.float32],
+        *,
+        nfft: int,
+        pairs: int = 2,
+        medians: tuple[slice, NDArray[np.float32]] | None = None,
+    ) -> NDArray[np.float32]:
         """Mean-removed power spectra of every column, summed over groups of ``pairs`` adjacent columns.
 
         Parameters
@@ -74,6 +81,10 @@ class RfftPlans:
             Transform length (>= N; zero-padded).
         pairs : int
             Columns summed into one spectrum (2 for the two flow components of a pixel).
+        medians : (slice, ndarray of float32, shape (C // pairs,)), optional
+            ``(bins, out)``: also write each spectrum's median power over ``bins`` into ``out``, taken
+            per block while the block's spectra lie contiguous in cache (a separate pass would first
+            transpose all of them).
 
         Returns
         -------
@@ -88,6 +99,8 @@ class RfftPlans:
             centred = data - data.mean(axis=0)
             spec = np.abs(np.fft.rfft(centred, n=nfft, axis=0)) ** 2
             summed: NDArray[np.float32] = spec.reshape(n_freq, -1, pairs).sum(axis=2).astype(np.float32)
+            if medians is not None:
+                medians[1][:] = _median_rows(np.ascontiguousarray(summed[medians[0]].T))
             return summed
         block = self.block - self.block % pairs
         starts = list(range(0, cols, block))
@@ -102,7 +115,13 @@ class RfftPlans:
                 buf[:w, :n] -= buf[:w, :n].mean(axis=1, keepdims=True)
                 spec = plan()
                 pw = spec.real[:w] ** 2 + spec.imag[:w] ** 2
-                out[:, c // pairs : (c + w) // pairs] = pw.reshape(w // pairs, pairs, n_freq).sum(axis=1).T
+                per_pixel = pw.reshape(w // pairs, pairs, n_freq).sum(axis=1)
+                out[:, c // pairs : (c + w) // pairs] = per_pixel.T
+                if medians is not None:
+                    bins, medians_out = medians
+                    medians_out[c // pairs : (c + w) // pairs] = _median_rows(
+                        np.ascontiguousarray(per_pixel[:, bins])
+                    )
 
         if len(workers) == 1 or len(starts) == 1:
             run(0)
@@ -200,12 +219,18 @@ class PixelSpectra:
         """
         cache: dict[tuple[float, float], NDArray[np.float32]] = self.__dict__.setdefault("_medians", {})
         if band_hz not in cache:
-            freqs = self.frequencies_hz
-            band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
-            if band.sum() < 3:
-                band = freqs > 0
-            cache[band_hz] = _median_rows(np.ascontiguousarray(self.power[band].T))
+            bins = median_bins(self.frequencies_hz, band_hz)
+            cache[band_hz] = _median_rows(np.ascontiguousarray(self.power[bins].T))
         return cache[band_hz]
+
+
+def median_bins(frequencies_hz: NDArray[np.float64], band_hz: tuple[float, float]) -> slice:
+    """The bins a pixel's noise level is the median of: those of ``band_hz``, or every bin above zero
+    when the band holds fewer than three."""
+    inside = np.flatnonzero((frequencies_hz >= band_hz[0]) & (frequencies_hz <= band_hz[1]))
+    if len(inside) < 3:
+        return slice(1, len(frequencies_hz)) if frequencies_hz[0] <= 0 else slice(0, len(frequencies_hz))
+    return slice(int(inside[0]), int(inside[-1]) + 1)
 
 
 def _median_rows(rows: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -230,7 +255,13 @@ def _median_rows(rows: NDArray[np.float32]) -> NDArray[np.float32]:
     return np.asarray((lower.astype(np.float64) + upper) / 2, np.float32)
 
 
-def pixel_spectra(flow: NDArray[np.float32], *, fps: float, plans: RfftPlans | None = None) -> PixelSpectra:
+def pixel_spectra(
+    flow: NDArray[np.float32],
+    *,
+    fps: float,
+    plans: RfftPlans | None = None,
+    band_hz: tuple[float, float] | None = None,
+) -> PixelSpectra:
     """Per-pixel power spectra of signed flow, mean removed.
 
     Parameters
@@ -241,6 +272,9 @@ def pixel_spectra(flow: NDArray[np.float32], *, fps: float, plans: RfftPlans | N
         Sampling rate of the flow maps, Hz.
     plans : RfftPlans, optional
         FFT plan cache; the process-wide one by default.
+    band_hz : (float, float), optional
+        The analysis band: each pixel's median power in it (:meth:`PixelSpectra.band_median`) is then
+        computed along with the transforms, at a fraction of the cost of a later pass.
 
     Returns
     -------
@@ -249,9 +283,15 @@ def pixel_spectra(flow: NDArray[np.float32], *, fps: float, plans: RfftPlans | N
     n = flow.shape[0]
     flat = flow.reshape(n, -1)
     nfft = fast_length(n)
-    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2)
     freqs = np.fft.rfftfreq(nfft, d=1.0 / fps).astype(np.float64)
-    return PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
+    medians = None
+    if band_hz is not None:
+        medians = (median_bins(freqs, band_hz), np.empty(flat.shape[1] // 2, np.float32))
+    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, medians=medians)
+    spectra = PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
+    if band_hz is not None and medians is not None:
+        spectra.__dict__.setdefault("_medians", {})[band_hz] = medians[1]
+    return spectra
 
 
 @dataclass(frozen=True)
