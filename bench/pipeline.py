@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -24,26 +25,25 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-CHILD = """
-import resource, sys
-from eigenscope.cli import main
-code = main(sys.argv[1:])
-print("MAXRSS_KB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)
-raise SystemExit(code)
-"""
-
 
 def run_analyze(clip: Path, out: Path, method: str, force: float) -> dict[str, object]:
-    cmd = [sys.executable, "-c", CHILD, "analyze", str(clip), "--force-n", str(force), "--out", str(out)]
-    cmd += ["--method", method, "--json"]
-    start = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False)
-    wall = time.perf_counter() - start
+    """``eigenscope analyze`` in a fresh process, exactly as a user runs it: wall time, peak memory (the
+    child's own maximum resident set, from ``wait4``) and the result JSON."""
+    cmd = [sys.executable, "-m", "eigenscope", "analyze", str(clip), "--force-n", str(force)]
+    cmd += ["--out", str(out), "--method", method, "--json"]
+    with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
+        start = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=stdout, stderr=stderr, cwd=ROOT)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - start
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        stdout.seek(0)
+        stderr.seek(0)
+        text, errors = stdout.read(), stderr.read()
     if proc.returncode != 0:
-        raise SystemExit(f"bench: analyze failed ({method}): {proc.stderr.strip().splitlines()[-1:]}")
-    rss_kb = next(int(line.split()[1]) for line in proc.stderr.splitlines() if line.startswith("MAXRSS_KB"))
-    result = json.loads(proc.stdout)
-    return {"wall_s": wall, "peak_mb": rss_kb / 1024, "result": result}
+        raise SystemExit(f"bench: analyze failed ({method}): {errors.strip().splitlines()[-1:]}")
+    result = json.loads(text)
+    return {"wall_s": wall, "peak_mb": usage.ru_maxrss / 1024, "result": result}
 
 
 def main() -> None:

@@ -1,3 +1,3 @@
-from eigenscope.cli import main
+from eigenscope.cli import console_main
 
-raise SystemExit(main())
+console_main()

@@ -82,6 +82,29 @@ def _finite(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
+#: Stages from which the image library is loaded in the background: the stream of frames before them
+#: keeps both cores busy (an import there, holding the interpreter, slowed it by a quarter), while the
+#: registration after them mostly waits on OpenCV threads.
+_WARM_UP_STAGES = frozenset({"mechanics", "rendering", "done"})
+
+
+def _warming_up_for_images(
+    progress: ProgressCallback | None, warm_up: Callable[[], object]
+) -> ProgressCallback:
+    """``progress`` that also starts ``warm_up`` (once) when the analysis reaches the mechanics stage."""
+    started = False
+
+    def report(stage: str, fraction: float) -> None:
+        nonlocal started
+        if not started and stage in _WARM_UP_STAGES:
+            started = True
+            warm_up()
+        if progress is not None:
+            progress(stage, fraction)
+
+    return report
+
+
 def run_analysis(
     clip_path: str | Path,
     out_dir: str | Path,
@@ -107,14 +130,14 @@ def run_analysis(
         Subclasses for bad clips (``ClipError``), bad parameters (``ParameterError``) and clips that
         cannot be analysed (``AnalysisError``); their messages are meant for the user.
     """
+    from workers.allocator import tune_malloc
     from workers.pipeline.analysis import AnalysisConfig, analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
     from workers.pipeline.flow import FlowConfig
-    from workers.allocator import tune_malloc
     from workers.pipeline.render import render_all, warm_up
 
     tune_malloc()  # once per process: freed buffers are reused instead of faulted in afresh
-    warm_up()
+    report = _warming_up_for_images(progress, warm_up)
 
     params = parameters or AnalysisParameters()
     overrides = ClipOverrides(
@@ -150,9 +173,8 @@ def run_analysis(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with open_clip(clip_path, overrides=overrides, depth=depth_path, scratch_dir=scratch_dir) as reader:
-        analysis = analyze(reader, config=config, excitation=exc, progress=progress)
-    if progress:
-        progress("rendering", 0.97)
+        analysis = analyze(reader, config=config, excitation=exc, progress=report)
+    report("rendering", 0.97)
     from time import perf_counter
 
     started = perf_counter()
@@ -216,8 +238,7 @@ def run_analysis(
         version=_version(),
     )
     _atomic_write_text(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
-    if progress:
-        progress("done", 1.0)
+    report("done", 1.0)
     return result
 
 

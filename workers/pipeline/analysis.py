@@ -55,6 +55,7 @@ from workers.pipeline.spectrum import (
     find_peaks,
     fit_ringdown,
     fold_harmonics,
+    median_rows,
     noise_floor,
     pixel_spectra,
     sliding_ringdown,
@@ -559,8 +560,7 @@ def _stream(
             elif depth_buf is not None:
                 depth_buf[i] = np.nan
             if gray_buf is not None:
-                full = prepare_gray(frame.rgb, (info.height, info.width))
-                gray_buf[i] = full
+                full = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY, dst=gray_buf[i])
                 yield full if full.shape == grid else cv2.resize(full, (w, h), interpolation=cv2.INTER_AREA)
             else:
                 yield prepare_gray(frame.rgb, grid)
@@ -573,6 +573,8 @@ def _stream(
     mh, mw = max(1, round(0.12 * h)), max(1, round(0.12 * w))
     ring[mh:-mh, mw:-mw] = False
     ring_idx = np.flatnonzero(ring.ravel())[::3]
+    # (u, v) of the ring's pixels in the flattened map: u indices first, then v.
+    ring_uv = (ring_idx[None, :] * 2 + np.arange(2)[:, None]).ravel()
     camera = np.zeros((n, 2), np.float32)
     # Flow is written straight into the buffer by the flow threads (magnitudes are reduced here); the
     # camera's motion is taken from each map while the threads compute the next ones.
@@ -581,7 +583,7 @@ def _stream(
         if magnitude:
             flow_buf[i, ..., 0] = flow_magnitude(flow)
         else:
-            camera[i] = np.median(flow.reshape(-1, 2)[ring_idx], axis=0)
+            camera[i] = median_rows(flow.reshape(-1).take(ring_uv).reshape(2, -1))
         count = i + 1
         if progress is not None and (i % 8 == 0 or i == n - 1):
             progress("flow", 0.05 + 0.75 * count / n)

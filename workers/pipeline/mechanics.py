@@ -356,7 +356,7 @@ def _tracking_shares(ref_index: int, t_count: int) -> tuple[list[tuple[range, in
 
 
 #: Frames the affine refinement is first tried on, to see whether the object changes scale at all.
-AFFINE_PROBE_FRAMES = 24
+AFFINE_PROBE_FRAMES = 12
 #: Bound on the bias (scale range x outline radius), as a fraction of the displacement range, from which
 #: every frame is refined with an affine fit. The bound overstates the real bias several times, and the
 #: affine scale's own scatter reaches 1 % of it for motion in the image plane (0.5 % on DIS "medium"

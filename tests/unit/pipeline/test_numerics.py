@@ -10,13 +10,13 @@ import pytest
 from scipy import ndimage, optimize
 
 from workers.pipeline.segmentation import _fill_holes
-from workers.pipeline.spectrum import RfftPlans, _least_squares, _median_rows, noise_floor, pixel_spectra
+from workers.pipeline.spectrum import RfftPlans, _least_squares, median_rows, noise_floor, pixel_spectra
 
 
 @pytest.mark.parametrize("bins", [1, 2, 3, 124, 125])
 def test_median_rows_equals_numpy_median(bins):
     rows = np.random.default_rng(bins).exponential(size=(500, bins)).astype(np.float32)
-    np.testing.assert_allclose(_median_rows(rows), np.median(rows, axis=1), rtol=1e-6)
+    np.testing.assert_allclose(median_rows(rows), np.median(rows, axis=1), rtol=1e-6)
 
 
 @pytest.mark.parametrize(
