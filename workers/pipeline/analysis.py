@@ -315,6 +315,8 @@ class Analysis:
     noise_power: NDArray[np.float64] | None = None
     #: Peaks that were not objects (flicker, keyframes, camera motion), with the reason.
     rejected_peaks: list[RejectedPeak] = field(default_factory=list)
+    #: Ring-down fit SNR (dB) of each region dropped because its motion did not ring down coherently.
+    incoherent_snr_db: list[float] = field(default_factory=list)
     frame_step: int = 1
     window_survey: Survey | None = None
 
@@ -694,15 +696,19 @@ def analyze(
 
 #: Objects whose ring-down stands less than this above the noise are measured again on careful flow.
 CAREFUL_FLOW_SNR_DB = 10.0
+#: ... as are clips with a region dropped as incoherent whose ring-down fit still explained at least as
+#: much as its residual (a weak vibration the fast flow may have blurred); regions further below are
+#: noise (a clear 5 Hz object at 1280x720 left one at -5 dB, which cost a second, careful pass).
+CAREFUL_FLOW_INCOHERENT_DB = 0.0
 
 
 def _needs_careful_flow(result: Analysis) -> bool:
-    """Whether the fast flow may have missed or blurred something: no object, a weak one, or a peak
-    that was rejected (a weak vibration on noisy flow can look like an artefact, and an artefact such
-    as flicker is characterised better on the careful flow)."""
+    """Whether the fast flow may have missed or blurred something: no object, a weak one, a peak that
+    was rejected (a weak vibration on noisy flow can look like an artefact, and an artefact such as
+    flicker is characterised better on the careful flow), or a dropped region that was nearly coherent."""
     if not result.objects or result.rejected_peaks:
         return True
-    if any(q.code == "artefact_peak" for q in result.quality):
+    if any(snr >= CAREFUL_FLOW_INCOHERENT_DB for snr in result.incoherent_snr_db):
         return True
     return any(o.snr_db is None or o.snr_db < CAREFUL_FLOW_SNR_DB for o in result.objects)
 
@@ -813,7 +819,9 @@ def _analyze_default(
                 excluded=[e.reason for e in exclusions if e.label == label],
             )
         )
+    measured = list(objects)
     objects, labels_full = _drop_incoherent(objects, labels_full, quality, by_label)
+    incoherent = [o.snr_db or 0.0 for o in measured if not any(o is kept for kept in objects)]
     if not objects:
         quality.append(
             QualityNote(
@@ -859,6 +867,7 @@ def _analyze_default(
         peaks=seg.peaks,
         noise_power=noise,
         rejected_peaks=rejected,
+        incoherent_snr_db=incoherent,
         frame_step=plan.step,
         window_survey=plan.survey,
     )
