@@ -117,12 +117,14 @@ def run_analysis(
     progress: ProgressCallback | None = None,
     depth_path: str | Path | None = None,
     scratch_dir: str | Path | None = None,
+    flow_threads: int | None = None,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
 
     Files are written to a temporary name and renamed, so a reader never sees half a result.
     ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``scratch_dir`` is where a
-    zipped ROS 2 bag may be unpacked (default: the system temporary folder).
+    zipped ROS 2 bag may be unpacked (default: the system temporary folder). ``flow_threads`` bounds the
+    frame pairs whose flow is computed at once (default two).
 
     Raises
     ------
@@ -161,6 +163,7 @@ def run_analysis(
         min_frequency_hz=params.min_frequency_hz,
         max_frequency_hz=params.max_frequency_hz,
         depth_m=params.depth_m,
+        flow_threads=flow_threads,
     )
     if excitation is None:
         requested: list[StepReleaseExcitation | ImpulseExcitation] = []

@@ -42,6 +42,11 @@ def register(sub: Any) -> None:
     p.add_argument("--max-frequency-hz", type=float)
     p.add_argument("--method", choices=["default", "paper"], default="default")
     p.add_argument("--flow", choices=["farneback", "dis"], help="optical flow (default: the method's)")
+    p.add_argument(
+        "--flow-threads",
+        type=int,
+        help="frame pairs whose optical flow is computed at once (default 2; 1 runs it as the paper did)",
+    )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--json", action="store_true", help="print result.json instead of a summary")
     p.set_defaults(handler=run)
@@ -54,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
     from eigenscope.cli import UsageError
     from workers.runner import run_analysis
 
+    if args.flow_threads is not None and args.flow_threads < 1:
+        raise UsageError(f"--flow-threads={args.flow_threads} must be at least 1")
     try:
         params = AnalysisParameters(
             method=args.method,
@@ -97,7 +104,12 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--{where.replace('_', '-')}: {err['msg']}") from None
 
     result = run_analysis(
-        args.clip, args.out, excitation=excitation, parameters=params, depth_path=args.depth
+        args.clip,
+        args.out,
+        excitation=excitation,
+        parameters=params,
+        depth_path=args.depth,
+        flow_threads=args.flow_threads,
     )
     if args.json:
         json.dump(result.model_dump(mode="json"), sys.stdout, indent=2)
