@@ -477,9 +477,14 @@ def frequency_map(
     if len(idx) == 0:
         z = np.zeros(grid_shape, np.float32)
         return z, np.zeros(grid_shape, bool)
-    sub = spectra.power[idx]
-    k = np.argmax(sub, axis=0)
-    peak_power = np.take_along_axis(sub, k[None, :], axis=0)[0]
+    summary = spectra.band_summary(band_hz)
+    if summary.bins == slice(int(idx[0]), int(idx[-1]) + 1):  # the band itself (not a short band's stand-in)
+        k, peak_power = summary.argmax, summary.peak
+    else:
+        sub_all = spectra.power[idx]
+        k = np.argmax(sub_all, axis=0)
+        peak_power = np.take_along_axis(sub_all, k[None, :], axis=0)[0]
+    sub = spectra.power[idx[0] : idx[-1] + 1]
     background = np.median(sub[:, :: max(1, sub.shape[1] // 20_000)], axis=1)
     valid = peak_power > noise_factor * background[k]
     freq = freqs[idx][k].astype(np.float32)

@@ -69,7 +69,7 @@ class RfftPlans:
         *,
         nfft: int,
         pairs: int = 2,
-        medians: tuple[slice, NDArray[np.float32]] | None = None,
+        medians: BandSummary | None = None,
     ) -> NDArray[np.float32]:
         """Mean-removed power spectra of every column, summed over groups of ``pairs`` adjacent columns.
 
@@ -81,10 +81,10 @@ class RfftPlans:
             Transform length (>= N; zero-padded).
         pairs : int
             Columns summed into one spectrum (2 for the two flow components of a pixel).
-        medians : (slice, ndarray of float32, shape (C // pairs,)), optional
-            ``(bins, out)``: also write each spectrum's median power over ``bins`` into ``out``, taken
-            per block while the block's spectra lie contiguous in cache (a separate pass would first
-            transpose all of them).
+        medians : BandSummary, optional
+            Also write each spectrum's median, maximum and the maximum's position over the summary's
+            bins into its arrays, taken per block while the block's spectra lie contiguous in cache (a
+            separate pass would first transpose all of them).
 
         Returns
         -------
@@ -100,7 +100,7 @@ class RfftPlans:
             spec = np.abs(np.fft.rfft(centred, n=nfft, axis=0)) ** 2
             summed: NDArray[np.float32] = spec.reshape(n_freq, -1, pairs).sum(axis=2).astype(np.float32)
             if medians is not None:
-                medians[1][:] = median_rows(np.ascontiguousarray(summed[medians[0]].T))
+                medians.fill(np.ascontiguousarray(summed[medians.bins].T), 0)
             return summed
         block = self.block - self.block % pairs
         starts = list(range(0, cols, block))
@@ -118,10 +118,7 @@ class RfftPlans:
                 per_pixel = pw.reshape(w // pairs, pairs, n_freq).sum(axis=1)
                 out[:, c // pairs : (c + w) // pairs] = per_pixel.T
                 if medians is not None:
-                    bins, medians_out = medians
-                    medians_out[c // pairs : (c + w) // pairs] = median_rows(
-                        np.ascontiguousarray(per_pixel[:, bins])
-                    )
+                    medians.fill(np.ascontiguousarray(per_pixel[:, medians.bins]), c // pairs)
 
         if len(workers) == 1 or len(starts) == 1:
             run(0)
@@ -217,11 +214,55 @@ class PixelSpectra:
         -------
         ndarray of float32, shape (P,)
         """
-        cache: dict[tuple[float, float], NDArray[np.float32]] = self.__dict__.setdefault("_medians", {})
+        return self.band_summary(band_hz).median
+
+    def band_summary(self, band_hz: tuple[float, float]) -> BandSummary:
+        """Each pixel's median and maximum power over the bins of ``band_hz`` (see :func:`median_bins`),
+        computed once (along with the transforms when :func:`pixel_spectra` was given the band)."""
+        cache: dict[tuple[float, float], BandSummary] = self.__dict__.setdefault("_summaries", {})
         if band_hz not in cache:
             bins = median_bins(self.frequencies_hz, band_hz)
-            cache[band_hz] = median_rows(np.ascontiguousarray(self.power[bins].T))
+            summary = BandSummary.empty(bins, self.power.shape[1])
+            summary.fill(np.ascontiguousarray(self.power[bins].T), 0)
+            cache[band_hz] = summary
         return cache[band_hz]
+
+
+@dataclass(frozen=True)
+class BandSummary:
+    """Per-pixel summaries of the power in a band's bins, filled block by block by :meth:`RfftPlans.power`.
+
+    Attributes
+    ----------
+    bins : slice
+        The band's bins.
+    median, peak : ndarray of float32, shape (P,)
+        Median and maximum power over the bins.
+    argmax : ndarray of int64, shape (P,)
+        Position of the maximum, counted from ``bins.start``.
+    """
+
+    bins: slice
+    median: NDArray[np.float32]
+    peak: NDArray[np.float32]
+    argmax: NDArray[np.int64]
+
+    @classmethod
+    def empty(cls, bins: slice, pixels: int) -> BandSummary:
+        return cls(
+            bins=bins,
+            median=np.empty(pixels, np.float32),
+            peak=np.empty(pixels, np.float32),
+            argmax=np.empty(pixels, np.int64),
+        )
+
+    def fill(self, rows: NDArray[np.float32], first: int) -> None:
+        """Summarise ``rows`` (pixels ``first, first + 1, ...``; the band's bins along axis 1)."""
+        end = first + len(rows)
+        self.median[first:end] = median_rows(rows)
+        k = np.argmax(rows, axis=1)
+        self.argmax[first:end] = k
+        self.peak[first:end] = np.take_along_axis(rows, k[:, None], axis=1)[:, 0]
 
 
 def median_bins(frequencies_hz: NDArray[np.float64], band_hz: tuple[float, float]) -> slice:
@@ -284,13 +325,13 @@ def pixel_spectra(
     flat = flow.reshape(n, -1)
     nfft = fast_length(n)
     freqs = np.fft.rfftfreq(nfft, d=1.0 / fps).astype(np.float64)
-    medians = None
+    summary = None
     if band_hz is not None:
-        medians = (median_bins(freqs, band_hz), np.empty(flat.shape[1] // 2, np.float32))
-    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, medians=medians)
+        summary = BandSummary.empty(median_bins(freqs, band_hz), flat.shape[1] // 2)
+    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, medians=summary)
     spectra = PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
-    if band_hz is not None and medians is not None:
-        spectra.__dict__.setdefault("_medians", {})[band_hz] = medians[1]
+    if band_hz is not None and summary is not None:
+        spectra.__dict__.setdefault("_summaries", {})[band_hz] = summary
     return spectra
 
 

@@ -37,6 +37,12 @@ def test_band_medians_taken_with_the_transforms_equal_those_taken_after(band_hz,
     if band.sum() < 3:
         band = freqs > 0
     np.testing.assert_allclose(medians, np.median(after.power[band], axis=0), rtol=1e-6)
+    summary, direct = together.band_summary(band_hz), after.band_summary(band_hz)
+    np.testing.assert_array_equal(summary.argmax, direct.argmax)
+    np.testing.assert_array_equal(summary.peak, direct.peak)
+    first = int(np.flatnonzero(band)[0])
+    np.testing.assert_array_equal(summary.argmax + first, np.argmax(after.power[band], axis=0) + first)
+    np.testing.assert_array_equal(summary.peak, after.power[band].max(axis=0))
 
 
 @pytest.mark.parametrize("width", [3, 8, 9, 41])
