@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from workers.pipeline._agg import cache_mark, caching_canvas, load_added, save_added
+
 if TYPE_CHECKING:
     from workers.pipeline.analysis import Analysis, ObjectMeasurement
 
@@ -192,14 +194,13 @@ def _unhinted_text() -> None:
 
 def _figure(size_px: tuple[int, int], *, transparent: bool = False) -> tuple[Any, Any]:
     """A Figure of exactly ``size_px`` pixels on its own Agg canvas (no pyplot, no global state)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     _unhinted_text()
 
     face = (1.0, 1.0, 1.0, 0.0) if transparent else "white"
     fig = Figure(figsize=(size_px[0] / DPI, size_px[1] / DPI), dpi=DPI, facecolor=face)
-    canvas = FigureCanvasAgg(fig)
+    canvas = caching_canvas()(fig)  # an Agg canvas that rasterises each string once per process
     return fig, canvas
 
 
@@ -1426,7 +1427,11 @@ def render_all(analysis: Analysis, out_dir: str | Path) -> dict[str, str]:
     out.mkdir(parents=True, exist_ok=True)
     # matplotlib holds the GIL while it draws, so threads cannot share the drawing; a forked child on
     # the second core draws part of the figures (the parent draws them itself if the child fails).
-    child = _fork_drawer(analysis, out, _FORKED_DRAWERS)
+    mark = cache_mark()
+    fd, name = tempfile.mkstemp(prefix="eigenscope-text-cache-")  # the child's additions to the cache
+    os.close(fd)
+    learned = Path(name)
+    child = _fork_drawer(analysis, out, _FORKED_DRAWERS, text_cache=(mark, learned))
     here = [key for key in _DRAWERS if child is None or key not in _FORKED_DRAWERS]
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="eigenscope-png") as pool:
         pending: list[Future[Path]] = [
@@ -1440,7 +1445,10 @@ def render_all(analysis: Analysis, out_dir: str | Path) -> dict[str, str]:
                 for key in _FORKED_DRAWERS:
                     image = _DRAWERS[key](analysis)
                     pending.append(pool.submit(_write_image, out / ARTIFACT_FILES[key], image))
+            elif child is not None:
+                load_added(learned)  # the strings the child rendered: cached here for the next time
         finally:
+            learned.unlink(missing_ok=True)
             # Surface the first write error (after letting every submitted write finish).
             errors = [e for e in (f.exception() for f in pending) if e is not None]
         if errors:
@@ -1454,9 +1462,16 @@ _FORKED_DRAWERS = ("displacement", "ringdown")
 _CHILD_TIMEOUT_S = 30.0
 
 
-def _fork_drawer(analysis: Analysis, out: Path, keys: Sequence[str]) -> int | None:
+def _fork_drawer(
+    analysis: Analysis,
+    out: Path,
+    keys: Sequence[str],
+    *,
+    text_cache: tuple[tuple[int, int], Path] | None = None,
+) -> int | None:
     """Fork a child that draws and writes the figures ``keys``; its pid, or None where forking is not
-    possible or not worth it (one core, no ``os.fork``)."""
+    possible or not worth it (one core, no ``os.fork``). With ``text_cache`` = (mark, path), the child
+    also saves the strings it rendered since ``mark`` to ``path`` (see :mod:`workers.pipeline._agg`)."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if not hasattr(os, "fork") or cores < 2:
         return None
@@ -1477,6 +1492,8 @@ def _fork_drawer(analysis: Analysis, out: Path, keys: Sequence[str]) -> int | No
         try:  # the child: never returns, never raises into the caller's stack
             for key in keys:
                 _write_image(out / ARTIFACT_FILES[key], _DRAWERS[key](analysis))
+            if text_cache is not None:
+                save_added(*text_cache)
             code = 0
         finally:
             os._exit(code)
@@ -1536,14 +1553,14 @@ def warm_up() -> threading.Thread:
     """
 
     def load() -> None:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
 
+        _unhinted_text()
         fig = Figure(figsize=(1, 1), dpi=50)
         ax = fig.add_subplot()
         ax.plot([0, 1], [0, 1])
         ax.set_title("warm-up")
-        FigureCanvasAgg(fig).draw()
+        caching_canvas()(fig).draw()
 
     thread = threading.Thread(target=load, name="render-warm-up", daemon=True)
     thread.start()

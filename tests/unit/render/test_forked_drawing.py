@@ -18,7 +18,7 @@ def _images(folder: Path) -> dict[str, np.ndarray]:
     return {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted(folder.glob("*.png"))}
 
 
-def _failing_child(*_args: object) -> int:
+def _failing_child(*_args: object, **_kwargs: object) -> int:
     pid = os.fork()
     if pid == 0:
         os._exit(3)  # a child that dies before drawing anything
@@ -28,13 +28,13 @@ def _failing_child(*_args: object) -> int:
 @pytest.mark.parametrize("child", ["forked", "fails", "none"])
 def test_every_image_is_written_whatever_the_child_does(child, one_object: Analysed, tmp_path, monkeypatch):
     reference = tmp_path / "parent-only"
-    monkeypatch.setattr(render, "_fork_drawer", lambda *a: None)
+    monkeypatch.setattr(render, "_fork_drawer", lambda *a, **kw: None)
     render.render_all(one_object.analysis, reference)
     monkeypatch.undo()
     if child == "fails":
         monkeypatch.setattr(render, "_fork_drawer", _failing_child)
     elif child == "none":
-        monkeypatch.setattr(render, "_fork_drawer", lambda *a: None)
+        monkeypatch.setattr(render, "_fork_drawer", lambda *a, **kw: None)
     out = tmp_path / child
     names = render.render_all(one_object.analysis, out)
     assert set(names) == {"mask", "overlay", "frequency_map", "spectrum", "displacement", "ringdown"}
@@ -81,3 +81,22 @@ def test_a_drawing_thread_elsewhere_does_not_stall_the_child(one_object: Analyse
     other.join()
     assert results == [True], "the forked child failed or was killed"
     assert elapsed < 5.0, f"rendering took {elapsed:.1f} s"
+
+
+def test_strings_the_child_rendered_are_cached_in_the_parent(one_object: Analysed, tmp_path, monkeypatch):
+    """The child's copy of the text cache dies with it; what it rendered (the displacement figure's
+    release label, say) is handed back, so the next render's child starts warm. No file is left over."""
+    import tempfile
+    from collections import OrderedDict
+
+    from workers.pipeline import _agg
+
+    for cache in (_agg._BITMAPS, _agg._METRICS):  # start cold: earlier tests drew the same strings
+        monkeypatch.setattr(cache, "_items", OrderedDict())
+    before = set(Path(tempfile.gettempdir()).glob("eigenscope-text-cache-*"))
+    mark = _agg.cache_mark()
+    render.render_all(one_object.analysis, tmp_path / "first")
+    added = [key[0] for key, _ in _agg._BITMAPS.added_since(mark[1])]
+    assert any(s.startswith("release ") for s in added), added  # drawn only in the displacement figure
+    assert set(Path(tempfile.gettempdir()).glob("eigenscope-text-cache-*")) == before
+    assert _agg.load_added(tmp_path / "missing") == 0

@@ -72,7 +72,7 @@ def texts(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     same pixels)."""
     from workers.pipeline import render
 
-    monkeypatch.setattr(render, "_fork_drawer", lambda *args: None)
+    monkeypatch.setattr(render, "_fork_drawer", lambda *args, **kwargs: None)
     seen: list[str] = []
     original = matplotlib.text.Text.set_text
 

@@ -1,0 +1,82 @@
+"""Text drawn from the per-process cache of rendered strings looks like matplotlib's own, and the cache is
+what makes it cheaper: a string is rasterised once, whatever the figure."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg
+from matplotlib.figure import Figure
+
+from workers.pipeline._agg import caching_canvas
+
+
+def _figure() -> Figure:
+    fig = Figure(figsize=(4, 3), dpi=100)
+    ax = fig.add_axes((0.15, 0.15, 0.8, 0.7))
+    ax.plot([0, 1, 2], [3, 1, 2], color="tab:orange", label="measured ± 0.1 N/m")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("displacement (mm)")  # rotated: matplotlib's own path
+    ax.set_title("Ring-down of object #1")
+    ax.text(0.5, 2.5, "k = 495.2 ± 3.0 N/m\nm = 0.50 kg", color="navy", fontsize=9)
+    ax.text(1.5, 1.2, r"$10^{3}$", fontsize=9)  # mathtext: matplotlib's own path
+    ax.legend(loc="lower right")
+    return fig
+
+
+def _pixels(canvas_class: type) -> np.ndarray:
+    canvas = canvas_class(_figure())
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].astype(int)
+
+
+def _ink_bounds(image: np.ndarray) -> tuple[int, int, int, int]:
+    dark = np.argwhere(image.min(axis=2) < 128)
+    return (*dark.min(axis=0), *dark.max(axis=0))
+
+
+def test_cached_text_matches_matplotlibs_within_a_pixel():
+    ours, theirs = _pixels(caching_canvas()), _pixels(FigureCanvasAgg)
+    assert ours.shape == theirs.shape
+    # Strings land on whole pixels instead of 1/64 pixel: edges of glyphs may differ, nothing else.
+    differs = np.abs(ours - theirs).max(axis=2) > 64
+    ink = (ours.min(axis=2) < 200) | (theirs.min(axis=2) < 200)
+    assert not (differs & ~_grown(ink)).any(), "a difference away from any text or line"
+    assert differs.mean() < 0.4 * ink.mean()
+    assert np.abs(np.subtract(_ink_bounds(ours), _ink_bounds(theirs))).max() <= 1
+    # Every dark (text or line) pixel of matplotlib's image has a dark pixel within one pixel in ours.
+    dark_theirs = theirs.min(axis=2) < 100
+    dark_ours = ours.min(axis=2) < 160
+    assert np.mean(dark_theirs & ~_grown(dark_ours)) < 0.002
+
+
+def _grown(mask: np.ndarray) -> np.ndarray:
+    """``mask`` dilated by one pixel."""
+    grown = mask.copy()
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            grown |= np.roll(np.roll(mask, dy, axis=0), dx, axis=1)
+    return grown
+
+
+def test_each_string_is_rasterised_once(monkeypatch: pytest.MonkeyPatch):
+    drawn: list[str] = []
+    original = RendererAgg.draw_text
+
+    def spy(self, gc, x, y, s, prop, angle, ismath=False, mtext=None):
+        drawn.append(s)
+        return original(self, gc, x, y, s, prop, angle, ismath=ismath, mtext=mtext)
+
+    monkeypatch.setattr(RendererAgg, "draw_text", spy)
+    canvas_class = caching_canvas()
+    fig = Figure(figsize=(2, 1), dpi=100)
+    fig.text(0.1, 0.5, "a string only this test draws")
+    canvas_class(fig).draw()
+    assert drawn.count("a string only this test draws") == 1
+    drawn.clear()
+    fig2 = Figure(figsize=(2, 1), dpi=100)
+    fig2.text(0.3, 0.2, "a string only this test draws")
+    canvas = canvas_class(fig2)
+    canvas.draw()
+    assert "a string only this test draws" not in drawn, "the second figure reused the rendered string"
+    assert np.asarray(canvas.buffer_rgba())[..., 3].any()

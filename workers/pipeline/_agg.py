@@ -1,0 +1,193 @@
+"""An Agg canvas whose text is drawn from a process-wide cache of rendered strings.
+
+matplotlib (3.11) lays out and rasterises every string glyph by glyph at each draw, and measures it
+again for each new renderer: text was about half the drawing time of a plot. The figures here repeat the
+same tick labels, legends and titles from analysis to analysis, so each (string, font, size) is
+measured and rasterised once per process and then composited as one bitmap. Strings are placed at whole
+pixels (matplotlib places glyphs at 1/64 pixel), which is invisible at these sizes. Rotated text and
+mathtext are cached the same way; TeX and text with font features or a language set take matplotlib's
+own path.
+
+matplotlib is imported only when :func:`caching_canvas` is first called.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import pickle
+import threading
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: Rendered strings kept per process (least recently used dropped first).
+MAX_CACHED_STRINGS = 4096
+
+
+class _LRU:
+    def __init__(self, size: int) -> None:
+        self._items: OrderedDict[tuple[Any, ...], tuple[int, Any]] = OrderedDict()
+        self._size = size
+        self._lock = threading.Lock()
+        self.generation = 0  # counts insertions, so a forked drawer can hand back what it added
+
+    def get(self, key: tuple[Any, ...]) -> Any:
+        with self._lock:
+            found = self._items.get(key)
+            if found is None:
+                return None
+            self._items.move_to_end(key)
+            return found[1]
+
+    def put(self, key: tuple[Any, ...], value: Any) -> None:
+        with self._lock:
+            self.generation += 1
+            self._items[key] = (self.generation, value)
+            self._items.move_to_end(key)
+            while len(self._items) > self._size:
+                self._items.popitem(last=False)
+
+    def added_since(self, generation: int) -> list[tuple[tuple[Any, ...], Any]]:
+        with self._lock:
+            return [(k, v) for k, (g, v) in self._items.items() if g > generation]
+
+
+_METRICS = _LRU(MAX_CACHED_STRINGS)
+_BITMAPS = _LRU(MAX_CACHED_STRINGS)
+
+
+def cache_mark() -> tuple[int, int]:
+    """Where the caches stand now (see :func:`save_added`)."""
+    return _METRICS.generation, _BITMAPS.generation
+
+
+def save_added(mark: tuple[int, int], path: str | os.PathLike[str]) -> None:
+    """Write the strings measured or rendered since ``mark`` to ``path``: a forked drawer's additions,
+    which its parent then loads with :func:`load_added` (its own copy of the caches never sees them)."""
+    added = (_METRICS.added_since(mark[0]), _BITMAPS.added_since(mark[1]))
+    with open(path, "wb") as fh:
+        pickle.dump(added, fh, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def load_added(path: str | os.PathLike[str]) -> int:
+    """Add what :func:`save_added` wrote to this process's caches; how many strings. A missing or
+    unreadable file adds nothing (the caches only make drawing faster)."""
+    try:
+        with open(path, "rb") as fh:
+            metrics, bitmaps = pickle.load(fh)
+    except (OSError, EOFError, pickle.UnpicklingError, ValueError):
+        return 0
+    for key, value in metrics:
+        _METRICS.put(key, value)
+    for key, value in bitmaps:
+        _BITMAPS.put(key, value)
+    return len(metrics) + len(bitmaps)
+
+
+@functools.cache
+def caching_canvas() -> type[Any]:
+    """The ``FigureCanvasAgg`` subclass whose renderer caches text; use it as ``canvas_class(figure)``."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg, get_hinting_flag
+    from matplotlib.font_manager import fontManager
+
+    metrics, bitmaps = _METRICS, _BITMAPS
+
+    fonts: dict[tuple[Any, ...], tuple[str, ...]] = {}
+
+    def font_key(prop: Any, dpi: float) -> tuple[Any, ...]:
+        # What FontProperties hashes (family, slant, variant, weight, stretch, size, file, math family)
+        # decides the font files; looking those up costs more than drawing a cached string.
+        props = (
+            tuple(prop.get_family()),
+            prop.get_slant(),
+            prop.get_variant(),
+            prop.get_weight(),
+            prop.get_stretch(),
+            prop.get_size(),
+            prop.get_file(),
+            prop.get_math_fontfamily(),
+        )
+        paths = fonts.get(props)
+        if paths is None:
+            paths = tuple(str(p) for p in fontManager._find_fonts_by_props(prop))
+            fonts[props] = paths
+        return (props, paths, float(dpi), get_hinting_flag())
+
+    class CachingRenderer(RendererAgg):  # type: ignore[misc]
+        def get_text_width_height_descent(self, s: str, prop: Any, ismath: Any) -> tuple[float, float, float]:
+            if ismath == "TeX":
+                w, h, d = super().get_text_width_height_descent(s, prop, ismath)
+                return w, h, d
+            key = (s, bool(ismath), *font_key(prop, self.dpi))
+            found = metrics.get(key)
+            if found is None:
+                found = tuple(super().get_text_width_height_descent(s, prop, ismath))
+                metrics.put(key, found)
+            return found  # type: ignore[no-any-return]
+
+        def draw_text(
+            self,
+            gc: Any,
+            x: float,
+            y: float,
+            s: str,
+            prop: Any,
+            angle: float,
+            ismath: Any = False,
+            mtext: Any = None,
+        ) -> None:
+            plain = ismath != "TeX" and (
+                mtext is None or (mtext.get_fontfeatures() is None and mtext.get_language() is None)
+            )
+            if not plain or not s:
+                super().draw_text(gc, x, y, s, prop, angle, ismath=ismath, mtext=mtext)
+                return
+            antialiased = bool(gc.get_antialiased())
+            key = (s, bool(ismath), float(angle), antialiased, *font_key(prop, self.dpi))
+            found = bitmaps.get(key)
+            if found is None:
+                found = self._rasterise(s, prop, angle, bool(ismath), antialiased)
+                bitmaps.put(key, found)
+            coverage, dx, dy = found
+            if coverage.size == 0:
+                return
+            left = round(x) + dx
+            top = round(y) + dy
+            # draw_text_image takes the bitmap's left column and the row below its bottom (y downwards).
+            self._renderer.draw_text_image(coverage, left, top + coverage.shape[0], 0, gc)
+
+        def _rasterise(
+            self, s: str, prop: Any, angle: float, ismath: bool, antialiased: bool
+        ) -> tuple[NDArray[np.uint8], int, int]:
+            """Coverage bitmap of ``s`` and its top-left corner relative to the text's origin (the
+            left end of its baseline, y downwards), drawn once by matplotlib around a known origin."""
+            width, height, _ = self.get_text_width_height_descent(s, prop, ismath)
+            reach = int(width + height) + 4 + int(prop.get_size_in_points() * self.dpi / 72)
+            scratch = RendererAgg(2 * reach, 2 * reach, self.dpi)
+            gc = scratch.new_gc()
+            gc.set_foreground((0.0, 0.0, 0.0, 1.0))
+            gc.set_antialiased(antialiased)
+            RendererAgg.draw_text(scratch, gc, reach, reach, s, prop, angle, ismath=ismath)
+            gc.restore()
+            alpha = np.asarray(scratch.buffer_rgba())[..., 3]
+            rows = np.flatnonzero(alpha.any(axis=1))
+            cols = np.flatnonzero(alpha.any(axis=0))
+            if len(rows) == 0:
+                return np.zeros((0, 0), np.uint8), 0, 0
+            r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+            coverage = np.ascontiguousarray(alpha[r0:r1, c0:c1])
+            return coverage, int(c0 - reach), int(r0 - reach)
+
+    class CachingCanvas(FigureCanvasAgg):  # type: ignore[misc]
+        def get_renderer(self) -> Any:
+            w, h = self.get_width_height(physical=True)
+            key = w, h, self.figure.dpi
+            if getattr(self, "_lastKey", None) != key:
+                self.renderer = CachingRenderer(w, h, self.figure.dpi)
+                self._lastKey = key
+            return self.renderer
+
+    return CachingCanvas
