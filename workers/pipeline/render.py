@@ -1458,8 +1458,11 @@ def render_all(analysis: Analysis, out_dir: str | Path) -> dict[str, str]:
 
 #: Figures drawn in a forked child while the parent draws the others (about half of the drawing time).
 _FORKED_DRAWERS = ("displacement", "ringdown")
-#: A child that has not finished by then is killed and its figures are drawn by the parent.
-_CHILD_TIMEOUT_S = 30.0
+#: A child that has not finished by then is killed and its figures are drawn by the parent (it normally
+#: takes a twentieth of a second).
+_CHILD_TIMEOUT_S = 10.0
+#: Background threads that import libraries end their names with this; a fork waits for them.
+WARM_UP_SUFFIX = "warm-up"
 
 
 def _fork_drawer(
@@ -1475,6 +1478,14 @@ def _fork_drawer(
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if not hasattr(os, "fork") or cores < 2:
         return None
+    # A thread still importing (this module's or the spectra's warm-up) would leave the child a module
+    # lock held by a thread that does not exist in it: the child would wait on its first import of that
+    # module until killed. Let such threads finish first.
+    for thread in threading.enumerate():
+        if thread.name.endswith(WARM_UP_SUFFIX) and thread is not threading.current_thread():
+            thread.join(timeout=_CHILD_TIMEOUT_S)
+            if thread.is_alive():  # pragma: no cover - an import that hangs: draw everything here
+                return None
     from matplotlib.figure import Figure
 
     # Another thread may be drawing (a concurrent render, the warm-up): the child would inherit

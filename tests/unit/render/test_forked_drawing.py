@@ -100,3 +100,37 @@ def test_strings_the_child_rendered_are_cached_in_the_parent(one_object: Analyse
     assert any(s.startswith("release ") for s in added), added  # drawn only in the displacement figure
     assert set(Path(tempfile.gettempdir()).glob("eigenscope-text-cache-*")) == before
     assert _agg.load_added(tmp_path / "missing") == 0
+
+
+def test_the_fork_waits_for_a_warm_up_thread_still_importing(one_object: Analysed, tmp_path, monkeypatch):
+    """A warm-up thread in the middle of an import holds that module's lock; a child forked then would
+    wait on its own import of the module forever (the paper method hit the child's timeout this way,
+    because its images follow the matplotlib warm-up at once)."""
+    import sys
+    import threading
+    import time
+
+    (tmp_path / "slow_to_import_for_the_fork_test.py").write_text("import time\ntime.sleep(1.0)\nVALUE = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    sys.modules.pop("slow_to_import_for_the_fork_test", None)
+    draw_displacement = render._DRAWERS["displacement"]
+
+    def drawing_that_imports(analysis):
+        import slow_to_import_for_the_fork_test  # noqa: F401 - the module the warm-up is importing
+
+        return draw_displacement(analysis)
+
+    monkeypatch.setitem(render._DRAWERS, "displacement", drawing_that_imports)
+    results: list[bool] = []
+    original = render._child_succeeded
+    monkeypatch.setattr(render, "_child_succeeded", lambda pid: results.append(original(pid)) or results[-1])
+    importing = threading.Thread(
+        target=lambda: __import__("slow_to_import_for_the_fork_test"), name="test-warm-up", daemon=True
+    )
+    importing.start()
+    time.sleep(0.2)  # the thread is inside the import now
+    started = time.perf_counter()
+    render.render_all(one_object.analysis, tmp_path / "out")
+    elapsed = time.perf_counter() - started
+    assert results == [True], "the forked child failed or was killed"
+    assert elapsed < 5.0, f"rendering took {elapsed:.1f} s"
