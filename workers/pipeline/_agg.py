@@ -3,10 +3,10 @@
 matplotlib (3.11) lays out and rasterises every string glyph by glyph at each draw, and measures it
 again for each new renderer: text was about half the drawing time of a plot. The figures here repeat the
 same tick labels, legends and titles from analysis to analysis, so each (string, font, size) is
-measured and rasterised once per process and then composited as one bitmap. Strings are placed at whole
-pixels (matplotlib places glyphs at 1/64 pixel), which is invisible at these sizes. Rotated text and
-mathtext are cached the same way; TeX and text with font features or a language set take matplotlib's
-own path.
+measured once per process and, from its second use on, composited as one bitmap rasterised once.
+Strings are placed at whole pixels (matplotlib places glyphs at 1/64 pixel), which is invisible at these
+sizes. Rotated text and mathtext are cached the same way; TeX and text with font features or a language
+set take matplotlib's own path.
 
 matplotlib is imported only when :func:`caching_canvas` is first called.
 """
@@ -54,6 +54,9 @@ class _LRU:
         with self._lock:
             return [(k, v) for k, (g, v) in self._items.items() if g > generation]
 
+
+#: What the bitmap cache holds for a string drawn once so far (rasterised for the cache at its second use).
+_SEEN_ONCE: tuple[()] = ()
 
 _METRICS = _LRU(MAX_CACHED_STRINGS)
 _BITMAPS = _LRU(MAX_CACHED_STRINGS)
@@ -149,6 +152,12 @@ def caching_canvas() -> type[Any]:
             key = (s, bool(ismath), float(angle), antialiased, *font_key(prop, self.dpi))
             found = bitmaps.get(key)
             if found is None:
+                # First sight: draw it directly (rasterising for the cache costs more than drawing once,
+                # and a one-shot process draws most strings once); cache it when it comes back.
+                bitmaps.put(key, _SEEN_ONCE)
+                super().draw_text(gc, x, y, s, prop, angle, ismath=ismath, mtext=mtext)
+                return
+            if found == _SEEN_ONCE:
                 found = self._rasterise(s, prop, angle, bool(ismath), antialiased)
                 bitmaps.put(key, found)
             coverage, dx, dy = found
