@@ -736,39 +736,31 @@ def _analyze_default(
     watch = _Stopwatch()
     info = reader.info
     plan = _plan(info, config, reader=reader, progress=progress, survey=survey)
-    fps, start, stop, flow_cfg, grid, pixel_scale = (
-        plan.fps,
-        plan.start,
-        plan.stop,
-        plan.flow,
-        plan.grid,
-        plan.pixel_scale,
-    )
     if progress:
         progress("flow", 0.05)
     watch.lap("survey" if plan.survey is not None else "setup")
     source, first, last = plan.source(reader)
-    buffers = _stream(source, first, last, grid, flow_cfg, progress, keep_gray=True)
+    buffers = _stream(source, first, last, plan.grid, plan.flow, progress, keep_gray=True)
     watch.lap("flow")
     n = buffers.count
-    band = _band(config, fps, n)
+    band = _band(config, plan.fps, n)
     quality: list[QualityNote] = []
 
     if progress:
         progress("spectrum", 0.82)
     uniform_flow = buffers.flow
-    if needs_resampling(buffers.times_s, fps):
-        uniform_flow, _ = resample_uniform(buffers.flow, buffers.times_s, fps)
+    if needs_resampling(buffers.times_s, plan.fps):
+        uniform_flow, _ = resample_uniform(buffers.flow, buffers.times_s, plan.fps)
         quality.append(
             QualityNote(
                 "uneven_timing",
-                f"frame times deviate from a uniform {fps:g} fps grid "
+                f"frame times deviate from a uniform {plan.fps:g} fps grid "
                 f"({info.dropped_frames} dropped frames): spectra were resampled and the ring-down "
                 "was fitted at the true frame times",
                 "info",
             )
         )
-    spectra = pixel_spectra(uniform_flow, fps=fps, band_hz=band)
+    spectra = pixel_spectra(uniform_flow, fps=plan.fps, band_hz=band)
     del uniform_flow
     summed = spectra.power.sum(axis=1, dtype=np.float64)
     noise = background_spectrum(spectra)
@@ -795,7 +787,7 @@ def _analyze_default(
 
     if progress:
         progress("segmentation", 0.88)
-    seg = segment(spectra, peaks, grid_shape=grid, band_hz=band, config=config.segmentation)
+    seg = segment(spectra, peaks, grid_shape=plan.grid, band_hz=band, config=config.segmentation)
     seg, rejected = reject_artefacts(seg, spectra, band_hz=band)
     for item in rejected:
         quality.append(QualityNote("artefact_peak", item.reason, "info"))
@@ -803,7 +795,7 @@ def _analyze_default(
     exclusions: list[Exclusion] = []
     if buffers.depth is not None and seg.peaks:
         labels_grid, exclusions = exclude_background_surfaces(labels_grid, buffers.depth)
-    fmap, fvalid = frequency_map(spectra, grid_shape=grid, band_hz=band)
+    fmap, fvalid = frequency_map(spectra, grid_shape=plan.grid, band_hz=band)
     labels_full = upsample_labels(labels_grid, (info.height, info.width))
     watch.lap("segmentation")
 
@@ -822,17 +814,16 @@ def _analyze_default(
                 mask=mask,
                 full_mask=full_mask,
                 buffers=buffers,
-                fps=fps,
-                pixel_scale=pixel_scale,
+                fps=plan.fps,
+                pixel_scale=plan.pixel_scale,
                 intrinsics=intrinsics,
                 depth_override=config.depth_m,
                 excitation=by_label.get(label),
                 excluded=[e.reason for e in exclusions if e.label == label],
             )
         )
-    measured = list(objects)
-    objects, labels_full = _drop_incoherent(objects, labels_full, quality, by_label)
-    incoherent = [o.snr_db or 0.0 for o in measured if not any(o is kept for kept in objects)]
+    objects, labels_full, dropped = _drop_incoherent(objects, labels_full, quality, by_label)
+    incoherent = [o.snr_db or 0.0 for o in dropped]
     if not objects:
         quality.append(
             QualityNote(
@@ -849,7 +840,7 @@ def _analyze_default(
                 "the clip has no depth: amplitudes in metres, stiffness and mass need depth or depth_m",
             )
         )
-    quality.extend(_quality_notes(objects, fps=fps, band=band, bin_hz=fps / n))
+    quality.extend(_quality_notes(objects, fps=plan.fps, band=band, bin_hz=plan.fps / n))
     quality.extend(_survey_notes(plan, objects))
     watch.lap("mechanics")
     return Analysis(
@@ -862,17 +853,17 @@ def _analyze_default(
         frame_rgb=buffers.first_rgb,
         fps=plan.clip_fps,
         fps_source=info.fps_source or "unknown",
-        frames_used=(start, stop),
+        frames_used=(plan.start, plan.stop),
         band_hz=band,
         quality=quality,
         timings_s=watch.times,
         parameters=config.describe()
         | {
-            "frames": stop - start,
-            "start_frame": start,
+            "frames": plan.stop - plan.start,
+            "start_frame": plan.start,
             "frame_step": plan.step,
             "band_hz": list(band),
-            "flow_scale": flow_cfg.effective_scale(info.width),
+            "flow_scale": plan.flow.effective_scale(info.width),
         },
         method="default",
         peaks=seg.peaks,
@@ -889,27 +880,28 @@ def _drop_incoherent(
     labels: NDArray[np.uint16],
     quality: list[QualityNote],
     excited: dict[int, Excitation],
-) -> tuple[list[ObjectMeasurement], NDArray[np.uint16]]:
+) -> tuple[list[ObjectMeasurement], NDArray[np.uint16], list[ObjectMeasurement]]:
     """Remove regions whose motion does not ring down coherently (fit SNR below ``MIN_RINGDOWN_SNR_DB``)
-    unless the user named them in an excitation; renumber the rest 1, 2, ... in objects and labels."""
+    unless the user named them in an excitation; renumber the rest 1, 2, ... in objects and labels.
+    Returns the kept objects, their labels and the removed objects."""
     kept = [o for o in objects if (o.snr_db or 0.0) >= MIN_RINGDOWN_SNR_DB or o.id in excited]
-    for o in objects:
-        if o not in kept:
-            quality.append(
-                QualityNote(
-                    "artefact_peak",
-                    f"{o.eigenfrequency_hz:.4g} Hz: the region's motion does not ring down coherently "
-                    f"({(o.snr_db or 0.0):.1f} dB); not reported as an object",
-                    "info",
-                )
+    dropped = [o for o in objects if o not in kept]
+    for o in dropped:
+        quality.append(
+            QualityNote(
+                "artefact_peak",
+                f"{o.eigenfrequency_hz:.4g} Hz: the region's motion does not ring down coherently "
+                f"({(o.snr_db or 0.0):.1f} dB); not reported as an object",
+                "info",
             )
-    if len(kept) == len(objects):
-        return objects, labels
+        )
+    if not dropped:
+        return objects, labels, dropped
     relabelled = np.zeros_like(labels)
     for new_id, o in enumerate(kept, start=1):
         relabelled[labels == o.id] = new_id
         o.id = new_id
-    return kept, relabelled
+    return kept, relabelled, dropped
 
 
 def _quality_notes(

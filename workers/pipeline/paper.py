@@ -50,21 +50,13 @@ def analyze_paper(
     watch = _Stopwatch()
     info = reader.info
     plan = _plan(info, config)  # the paper's recipe: the given (or first) window, every frame
-    fps, start, stop, flow_cfg, grid, pixel_scale = (
-        plan.fps,
-        plan.start,
-        plan.stop,
-        plan.flow,
-        plan.grid,
-        plan.pixel_scale,
-    )
-    buffers = _stream(reader, start, stop, grid, flow_cfg, progress, magnitude=True)
+    buffers = _stream(reader, plan.start, plan.stop, plan.grid, plan.flow, progress, magnitude=True)
     watch.lap("flow")
     n = buffers.count
-    band = _band(config, fps, n)
+    band = _band(config, plan.fps, n)
     mags = buffers.flow[..., 0].reshape(n, -1)
     spectra = np.abs(np.fft.rfft(mags, axis=0)) ** 2
-    freqs = np.fft.rfftfreq(n, d=1.0 / fps).astype(np.float64)
+    freqs = np.fft.rfftfreq(n, d=1.0 / plan.fps).astype(np.float64)
     summed = spectra.sum(axis=1)
     usable = np.flatnonzero(freqs > 0)
     k = int(usable[np.argmax(summed[usable])])
@@ -74,7 +66,7 @@ def analyze_paper(
     pixel_peak = np.argmax(spectra[1:], axis=0) + 1
     level = spectra[k]
     mask = (pixel_peak == k) & (level > 8.0 * np.median(level))
-    mask_img = mask.reshape(grid).astype(np.uint8)
+    mask_img = mask.reshape(plan.grid).astype(np.uint8)
     mask_img = cv2.morphologyEx(mask_img, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     mask = mask_img.astype(bool)
     labels = upsample_labels(mask.astype(np.int32), (info.height, info.width))
@@ -90,8 +82,8 @@ def analyze_paper(
     ]
     objects = []
     if mask.any():
-        speed = mags[:, mask.ravel()].mean(axis=1) * pixel_scale  # px/frame, input pixels
-        v_max = float(speed.max()) * fps  # px/s
+        speed = mags[:, mask.ravel()].mean(axis=1) * plan.pixel_scale  # px/frame, input pixels
+        v_max = float(speed.max()) * plan.fps  # px/s
         x_px = v_max / (4 * f) if f > 0 else 0.0
         depth = _object_depth(buffers.depth, mask) or config.depth_m
         omega = 2 * math.pi * f
@@ -114,7 +106,7 @@ def analyze_paper(
             ObjectMeasurement(
                 id=1,
                 eigenfrequency_hz=f,
-                eigenfrequency_sd_hz=fps / n / math.sqrt(12),
+                eigenfrequency_sd_hz=plan.fps / n / math.sqrt(12),
                 natural_frequency_hz=f,
                 damping_ratio=None,
                 damping_ratio_sd=None,
@@ -136,8 +128,8 @@ def analyze_paper(
             )
         )
     watch.lap("mechanics")
-    valid = np.zeros(grid, bool)
-    fmap = freqs[pixel_peak].astype(np.float32).reshape(grid)
+    valid = np.zeros(plan.grid, bool)
+    fmap = freqs[pixel_peak].astype(np.float32).reshape(plan.grid)
     return Analysis(
         objects=objects,
         labels=labels,
@@ -146,12 +138,12 @@ def analyze_paper(
         frequency_map_hz=fmap,
         frequency_map_valid=valid | mask,
         frame_rgb=buffers.first_rgb,
-        fps=fps,
+        fps=plan.fps,
         fps_source=info.fps_source or "unknown",
-        frames_used=(start, stop),
+        frames_used=(plan.start, plan.stop),
         band_hz=band,
         quality=quality,
         timings_s=watch.times,
-        parameters=config.describe() | {"frames": stop - start},
+        parameters=config.describe() | {"frames": plan.stop - plan.start},
         method="paper",
     )

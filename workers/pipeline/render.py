@@ -470,13 +470,12 @@ def _times_s(analysis: Analysis, n_samples: int) -> NDArray[np.float64]:
         if t.shape == (n_samples,):
             return t
     start = analysis.frames_used[0] if analysis.frames_used else 0
-    step = getattr(analysis, "frame_step", 1)
-    return (start + step * np.arange(n_samples, dtype=np.float64)) / analysis.fps
+    return (start + analysis.frame_step * np.arange(n_samples, dtype=np.float64)) / analysis.fps
 
 
 def _sample_rate(analysis: Analysis) -> float:
     """Rate of the analysed samples: the clip's frame rate over the frame step (every k-th frame)."""
-    return float(analysis.fps) / getattr(analysis, "frame_step", 1)
+    return analysis.sample_rate_hz
 
 
 def _note(
@@ -716,8 +715,7 @@ def _no_object_message(analysis: Analysis, *, width: int = 70) -> str:
 def _window_span_s(analysis: Analysis) -> tuple[float, float]:
     """(start, end) capture time of the analysed window, seconds from the clip's first frame."""
     first, last = analysis.frames_used
-    step = getattr(analysis, "frame_step", 1)
-    samples = max((last - first - 1) // step + 1, 1)
+    samples = max((last - first - 1) // analysis.frame_step + 1, 1)
     t = _times_s(analysis, samples)
     end = float(t[-1]) if samples > 1 else float(t[0]) + 1.0 / analysis.fps
     return float(t[0]), end

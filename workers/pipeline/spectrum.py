@@ -69,7 +69,7 @@ class RfftPlans:
         *,
         nfft: int,
         pairs: int = 2,
-        medians: BandSummary | None = None,
+        summary: BandSummary | None = None,
     ) -> NDArray[np.float32]:
         """Mean-removed power spectra of every column, summed over groups of ``pairs`` adjacent columns.
 
@@ -81,7 +81,7 @@ class RfftPlans:
             Transform length (>= N; zero-padded).
         pairs : int
             Columns summed into one spectrum (2 for the two flow components of a pixel).
-        medians : BandSummary, optional
+        summary : BandSummary, optional
             Also write each spectrum's median, maximum and the maximum's position over the summary's
             bins into its arrays, taken per block while the block's spectra lie contiguous in cache (a
             separate pass would first transpose all of them).
@@ -99,8 +99,8 @@ class RfftPlans:
             centred = data - data.mean(axis=0)
             spec = np.abs(np.fft.rfft(centred, n=nfft, axis=0)) ** 2
             summed: NDArray[np.float32] = spec.reshape(n_freq, -1, pairs).sum(axis=2).astype(np.float32)
-            if medians is not None:
-                medians.fill(np.ascontiguousarray(summed[medians.bins].T), 0)
+            if summary is not None:
+                summary.fill(np.ascontiguousarray(summed[summary.bins].T), 0)
             return summed
         block = self.block - self.block % pairs
         starts = list(range(0, cols, block))
@@ -117,8 +117,8 @@ class RfftPlans:
                 pw = spec.real[:w] ** 2 + spec.imag[:w] ** 2
                 per_pixel = pw.reshape(w // pairs, pairs, n_freq).sum(axis=1)
                 out[:, c // pairs : (c + w) // pairs] = per_pixel.T
-                if medians is not None:
-                    medians.fill(np.ascontiguousarray(per_pixel[:, medians.bins]), c // pairs)
+                if summary is not None:
+                    summary.fill(np.ascontiguousarray(per_pixel[:, summary.bins]), c // pairs)
 
         if len(workers) == 1 or len(starts) == 1:
             run(0)
@@ -328,7 +328,7 @@ def pixel_spectra(
     summary = None
     if band_hz is not None:
         summary = BandSummary.empty(median_bins(freqs, band_hz), flat.shape[1] // 2)
-    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, medians=summary)
+    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, summary=summary)
     spectra = PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
     if band_hz is not None and summary is not None:
         spectra.__dict__.setdefault("_summaries", {})[band_hz] = summary
