@@ -84,6 +84,9 @@ DEPTH_OVERRIDE_REL_SD = 0.02
 #: Systematic floors on the ring-down fit's statistical uncertainties (model mismatch: projection
 #: nonlinearity, registration errors correlated with the motion), measured on randomised ground truth.
 FREQUENCY_REL_FLOOR = 3e-4
+#: ... and, for a strongly damped object, this fraction of its resonance's half-power width (2 zeta f):
+#: model mismatch shifts a broad resonance further (a clear 8-10 Hz object at zeta 0.09 is 8e-4 off).
+FREQUENCY_LINEWIDTH_FLOOR = 0.005
 DAMPING_REL_FLOOR = 0.015
 DAMPING_ABS_FLOOR = 3e-4
 #: A region whose motion fits a damped oscillation this poorly (dB) is not an object.
@@ -1072,7 +1075,8 @@ def _measure_object(
                 grid_outline = _outline_grid(outline, mask.shape)
                 if grid_outline.sum() >= 16:
                     region = grid_outline
-    f_sd = math.hypot(fit.frequency_sd_hz, FREQUENCY_REL_FLOOR * fit.frequency_hz)
+    f_floor = max(FREQUENCY_REL_FLOOR, FREQUENCY_LINEWIDTH_FLOOR * 2 * abs(fit.damping_ratio))
+    f_sd = math.hypot(fit.frequency_sd_hz, f_floor * fit.frequency_hz)
     zeta_sd = math.sqrt(
         fit.damping_sd**2 + (DAMPING_REL_FLOOR * fit.damping_ratio) ** 2 + DAMPING_ABS_FLOOR**2
     )

@@ -140,6 +140,161 @@ def silhouette(
     return np.asarray(up.astype(bool))
 
 
+class _MaskedFit:
+    """The warp of a frame onto a masked reference that maximises their correlation coefficient (the ECC
+    criterion), by inverse-compositional Gauss-Newton: a translation, or an affine map.
+
+    The reference's gradients, and so the normal equations, are computed once; each iteration samples the
+    frame at the current warp and solves a 2x2 (6x6) system. OpenCV's ``findTransformECC`` recomputes and
+    warps the frame's gradients at every iteration (several times the cost) and quantises a translation to
+    1/32 px; here a translation is sampled in floating point.
+
+    Parameters
+    ----------
+    reference : ndarray of uint8, shape (H, W)
+        The reference frame.
+    mask : ndarray of bool, shape (H, W)
+        The reference's pixels to match.
+    affine : bool
+        Fit an affine map instead of a translation.
+    max_iterations : int
+    blur : int
+        Gaussian kernel size applied to both images (3 as in OpenCV's ECC); 0 for none.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        The masked reference has too little texture (singular normal equations).
+    """
+
+    #: Convergence: the last update moved no masked pixel (to first order) further than this (px).
+    TOLERANCE_PX = 1e-3
+
+    def __init__(
+        self,
+        reference: NDArray[np.uint8],
+        mask: NDArray[np.bool_],
+        *,
+        affine: bool = False,
+        max_iterations: int = 60,
+        blur: int = 3,
+    ) -> None:
+        import cv2
+
+        ys, xs = np.nonzero(mask)
+        height, width = reference.shape
+        # Two pixels of context around the mask for the blur and the central differences.
+        x0, x1 = max(0, int(xs.min()) - 2), min(width, int(xs.max()) + 3)
+        y0, y1 = max(0, int(ys.min()) - 2), min(height, int(ys.max()) + 3)
+        self._box = (x0, y0, x1 - x0, y1 - y0)
+        self._affine = affine
+        self._max_iterations = max_iterations
+        self._blur = blur
+        ref = self._smooth(reference[y0:y1, x0:x1].astype(np.float32))
+        kernel = np.array([[-0.5, 0.0, 0.5]], np.float32)
+        self._idx = np.flatnonzero(mask[y0:y1, x0:x1])
+        gx = cv2.filter2D(ref, -1, kernel).ravel()[self._idx].astype(np.float64)
+        gy = cv2.filter2D(ref, -1, kernel.T).ravel()[self._idx].astype(np.float64)
+        template = ref.ravel()[self._idx].astype(np.float64)
+        self._template = template - template.mean()
+        self._template_norm = float(np.sqrt(self._template @ self._template))
+        # Affine parameters act about the mask's centroid (full-frame coordinates), which keeps the
+        # normal equations well conditioned.
+        self.centre = np.array([xs.mean(), ys.mean()], np.float64)
+        if affine:
+            bx, by = np.divmod(self._idx, x1 - x0)[::-1]
+            u = bx + x0 - self.centre[0]
+            v = by + y0 - self.centre[1]
+            self._radius = float(np.sqrt(np.mean(u * u + v * v)))
+            grad = np.stack([gx * u, gx * v, gy * u, gy * v, gx, gy])
+        else:
+            self._radius = 0.0
+            grad = np.stack([gx, gy])
+        self._grad = grad - grad.mean(axis=1, keepdims=True)  # zero-mean, as the template is
+        self._inverse_hessian = np.linalg.inv(self._grad @ self._grad.T)
+
+    def _smooth(self, image: NDArray[np.float32]) -> NDArray[np.float32]:
+        import cv2
+
+        if not self._blur:
+            return image
+        return np.asarray(cv2.GaussianBlur(image, (self._blur, self._blur), 0), np.float32)
+
+    def _sample(self, frame: NDArray[np.uint8], warp: NDArray[np.float64]) -> NDArray[np.float32]:
+        """The frame at ``warp`` (2x3, reference pixel -> frame pixel) of the box's pixels."""
+        import cv2
+
+        x0, y0, w, h = self._box
+        if not self._affine:
+            centre = (x0 + warp[0, 2] + (w - 1) / 2, y0 + warp[1, 2] + (h - 1) / 2)
+            return np.asarray(cv2.getRectSubPix(frame, (w, h), centre, patchType=cv2.CV_32F))
+        box = warp.copy()
+        box[:, 2] += warp[:, :2] @ np.array([x0, y0], np.float64)
+        return np.asarray(
+            cv2.warpAffine(
+                frame,
+                box,
+                (w, h),
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_REPLICATE,
+            ),
+            np.float32,
+        )
+
+    def __call__(
+        self, frame: NDArray[np.uint8], start: NDArray[np.float64]
+    ) -> tuple[float, NDArray[np.float64]] | None:
+        """``(correlation, warp)``: the reference's masked pixel p is the frame's ``warp @ (p, 1)``;
+        None when the fit diverges or the frame is flat there.
+
+        Parameters
+        ----------
+        frame : ndarray of uint8, shape (H, W)
+        start : ndarray of float64, shape (2,) or (2, 3)
+            Initial shift (dx, dy), or initial warp.
+
+        Returns
+        -------
+        (float, ndarray of float64, shape (2, 3)) or None
+            A translation's warp is ``[[1, 0, dx], [0, 1, dy]]``.
+        """
+        warp = np.eye(2, 3)
+        if np.shape(start) == (2,):
+            warp[:, 2] = start
+        else:
+            warp[:] = start
+        rho = -1.0
+        for _ in range(self._max_iterations):
+            values = self._smooth(self._sample(frame, warp)).ravel()[self._idx].astype(np.float64)
+            values -= values.mean()
+            power = float(values @ values)
+            if power <= 0.0:
+                return None
+            overlap = float(self._template @ values)
+            rho = overlap / (self._template_norm * math.sqrt(power))
+            # The frame, scaled to the template by least squares, against the reference moved by the
+            # update: frame(W(p)) ~ reference(D(p)), so the new warp is W composed with D's inverse.
+            residual = (overlap / power) * values - self._template
+            delta = self._inverse_hessian @ (self._grad @ residual)
+            if self._affine:
+                step = np.eye(3)
+                step[:2, :2] += delta[:4].reshape(2, 2)
+                step[:2, 2] = delta[4:] + self.centre - step[:2, :2] @ self.centre
+                try:
+                    warp = (np.vstack([warp, [0.0, 0.0, 1.0]]) @ np.linalg.inv(step))[:2]
+                except np.linalg.LinAlgError:
+                    return None
+                moved = math.hypot(*delta[4:]) + self._radius * float(np.linalg.norm(delta[:4]))
+            else:
+                warp[:, 2] -= delta
+                moved = math.hypot(*delta)
+            if not np.all(np.isfinite(warp)):
+                return None
+            if moved < self.TOLERANCE_PX:
+                break
+        return rho, warp
+
+
 #: Frames (the most displaced) on which the outline is checked against the object's motion.
 OUTLINE_PROBE_FRAMES = 4
 #: Outline size (input pixels) from which the affine refinement is used.
@@ -155,13 +310,14 @@ def register_translation(
     max_iterations: int = 60,
     affine: bool = True,
 ) -> tuple[NDArray[np.float64], float]:
-    """Sub-pixel displacement of a rigid object in every frame, relative to a reference frame, by ECC
+    """Sub-pixel displacement of a rigid object in every frame, relative to a reference frame, by
     registration of the object's texture.
 
     Dense flow is smoothed at object boundaries and biased low for small and for very large motions;
-    registering the object's texture (an enhanced-correlation-coefficient fit of a translation, started
-    from the flow's estimate, then from the last registered position, then from phase correlation)
-    measures the displacement to a few hundredths of a pixel.
+    registering the object's texture (a translation that maximises the masked correlation coefficient with
+    the reference, the ECC criterion, fitted by :class:`_TranslationFit` and started from the flow's
+    estimate, then from the last registered position, then from phase correlation) measures the
+    displacement to a few hundredths of a pixel.
 
     Parameters
     ----------
@@ -202,29 +358,31 @@ def register_translation(
     y0, y1 = max(0, ys.min() - pad), min(height, ys.max() + pad + 1)
     ref = grays[ref_index, y0:y1, x0:x1].astype(np.float32)
     ref_mask_crop = core[y0:y1, x0:x1]
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iterations, 1e-5)
-    # The affine refinement starts from the converged translation: a few iterations suffice.
-    affine_criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 25, 1e-4)
     hann = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
     out = initial_px.astype(np.float64).copy()
-    warps: dict[int, NDArray[np.float32]] = {}  # converged translation warps, by frame
+    found_at: dict[int, NDArray[np.float64]] = {}  # converged translations, by frame
 
     def crop(k: int) -> NDArray[np.float32]:
         return grays[k, y0:y1, x0:x1].astype(np.float32)
 
-    def ecc(
-        cur: NDArray[np.float32], start: NDArray[np.float64]
-    ) -> tuple[float, NDArray[np.float64], NDArray[np.float32]] | None:
-        warp = np.eye(2, 3, dtype=np.float32)
-        warp[0, 2], warp[1, 2] = -start[0], -start[1]
+    def fitter(mask_crop: NDArray[np.uint8], *, affine: bool = False) -> _MaskedFit | None:
+        full = np.zeros((height, width), bool)
+        full[y0:y1, x0:x1] = mask_crop > 0
         try:
-            cc, warp = cv2.findTransformECC(
-                cur, ref, warp, cv2.MOTION_TRANSLATION, criteria, ref_mask_crop, 3
-            )
-        except cv2.error:
+            if affine:
+                return _MaskedFit(grays[ref_index], full, affine=True, max_iterations=25)
+            return _MaskedFit(grays[ref_index], full, max_iterations=max_iterations)
+        except np.linalg.LinAlgError:  # a textureless outline: nothing to register on
             return None
-        d = np.array([-warp[0, 2], -warp[1, 2]], np.float64)
-        return (float(cc), d, warp) if np.all(np.isfinite(d)) else None
+
+    translation = fitter(ref_mask_crop)
+    if translation is None:
+        return initial_px.copy(), 1.0
+
+    def fit(k: int, start: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]] | None:
+        assert translation is not None
+        found = translation(grays[k], start)
+        return None if found is None else (found[0], found[1][:, 2])
 
     def consistent_outline() -> NDArray[np.uint8]:
         """The outline without the pixels that stay put while the object moves.
@@ -240,10 +398,10 @@ def register_translation(
         for k in np.argsort(distance)[::-1][:OUTLINE_PROBE_FRAMES]:
             if distance[k] < 1.0:
                 break
-            cur = crop(int(k))
-            found = ecc(cur, initial_px[k])
+            found = fit(int(k), initial_px[k])
             if found is None or found[0] < 0.5:
                 continue
+            cur = crop(int(k))
             shift = np.array([[1, 0, found[1][0]], [0, 1, found[1][1]]], np.float32)
             aligned = cv2.warpAffine(
                 cur,
@@ -263,31 +421,28 @@ def register_translation(
             return ref_mask_crop
         return refined.astype(np.uint8)
 
-    ref_mask_crop = consistent_outline()
+    outline = consistent_outline()
+    if outline is not ref_mask_crop:
+        ref_mask_crop = outline
+        translation = fitter(outline) or translation
     yy, xx = np.nonzero(ref_mask_crop)
     centroid = np.array([xx.mean(), yy.mean()], np.float64)
+    affine_fit = fitter(ref_mask_crop, affine=True) if affine and len(xx) >= AFFINE_MIN_PIXELS else None
 
     def refine_affine(k: int) -> tuple[NDArray[np.float64], float] | None:
         """Displacement of the outline's centroid in frame k from an affine fit, and the fit's scale
-        (square root of its determinant), or None."""
-        try:
-            _, full = cv2.findTransformECC(
-                crop(k), ref, warps[k].copy(), cv2.MOTION_AFFINE, affine_criteria, ref_mask_crop, 3
-            )
-        except cv2.error:
+        (square root of the determinant of the map from the frame to the reference), or None."""
+        assert affine_fit is not None
+        found = affine_fit(grays[k], found_at[k])
+        if found is None:
             return None
-        if not np.all(np.isfinite(full)):
+        warp = found[1]
+        det = 1.0 / float(np.linalg.det(warp[:, :2]))
+        if not math.isfinite(det) or abs(det - 1) >= 0.3:
             return None
-        a = full[:, :2].astype(np.float64)
-        t = full[:, 2].astype(np.float64)
-        det = float(np.linalg.det(a))
-        if abs(det - 1) >= 0.3:
-            return None
-        # ref(A x + t) = cur(x): the reference's centroid p sits at A^-1 (p - t) in frame k.
-        try:
-            return np.asarray(np.linalg.solve(a, centroid - t) - centroid, np.float64), math.sqrt(det)
-        except np.linalg.LinAlgError:
-            return None
+        # The reference's centroid p sits at W p in frame k.
+        p = centroid + np.array([x0, y0], np.float64)
+        return warp[:, :2] @ p + warp[:, 2] - p, math.sqrt(det)
 
     def track(segments: list[tuple[range, int]]) -> int:
         return sum(track_segment(order, last) for order, last in segments)
@@ -298,16 +453,15 @@ def register_translation(
         failures = 0
         previous = np.zeros(2) if last == ref_index else initial_px[last].astype(np.float64)
         for k in order:
-            cur = crop(k)
             # Starts, cheapest first: the flow's estimate; the last registered position moved by the
             # flow's step; phase correlation (wide basin, for motions the flow underestimates).
             starts = [initial_px[k], previous + (initial_px[k] - initial_px[last])]
-            best: tuple[float, NDArray[np.float64], NDArray[np.float32]] | None = None
+            best: tuple[float, NDArray[np.float64]] | None = None
             for attempt in range(3):
                 if attempt == 2:
-                    (sx, sy), _ = cv2.phaseCorrelate(ref, cur, hann)
+                    (sx, sy), _ = cv2.phaseCorrelate(ref, crop(k), hann)
                     starts.append(np.array([sx, sy]))
-                found = ecc(cur, starts[attempt])
+                found = fit(k, starts[attempt])
                 if found is not None and (best is None or found[0] > best[0]):
                     best = found
                 if best is not None and best[0] > 0.9:
@@ -318,7 +472,7 @@ def register_translation(
                 previous = previous + (initial_px[k] - initial_px[k - 1 if k > ref_index else k + 1])
                 continue
             out[k] = best[1]
-            warps[k] = best[2]
+            found_at[k] = best[1]
             previous = best[1]
         return failures
 
@@ -328,9 +482,9 @@ def register_translation(
         jobs = [pool.submit(track, share) for share in _tracking_shares(ref_index, t_count)]
         failures = sum(job.result() for job in jobs)
         # Six affine parameters need many textured pixels; on a small outline they only add noise.
-        if affine and len(xx) >= AFFINE_MIN_PIXELS and warps:
+        if affine_fit is not None and found_at:
             radius = math.sqrt(float(np.mean((xx - centroid[0]) ** 2 + (yy - centroid[1]) ** 2)))
-            _refine_where_scale_matters(out, sorted(warps), refine_affine, pool, radius_px=radius)
+            _refine_where_scale_matters(out, sorted(found_at), refine_affine, pool, radius_px=radius)
     return out, failures / max(t_count - 1, 1)
 
 

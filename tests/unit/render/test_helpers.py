@@ -92,3 +92,23 @@ def test_spectrogram_of_a_short_or_bad_series_is_refused():
         ringdown_spectrogram(np.zeros(4), fps=30.0)
     with pytest.raises(ValueError, match="fps"):
         ringdown_spectrogram(np.zeros(40), fps=0.0)
+
+
+def test_drawing_leaves_out_the_3d_toolkit_and_keeps_it_importable():
+    """matplotlib's import loads its 3-D toolkit (a sixth of the import) for a projection never drawn
+    here: a fresh process that renders an image loads matplotlib without it, warns nothing, and can still
+    import the toolkit afterwards."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, warnings\n"
+        "warnings.simplefilter('error')\n"
+        "from workers.pipeline.render import warm_up\n"
+        "warm_up().join()\n"
+        "assert 'matplotlib.figure' in sys.modules\n"
+        "assert not any(m.startswith('mpl_toolkits.mplot3d') for m in sys.modules)\n"
+        "from mpl_toolkits.mplot3d import Axes3D\n"
+        "assert Axes3D is not None\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

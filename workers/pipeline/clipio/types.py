@@ -277,12 +277,17 @@ def depth_to_metres(raw: NDArray[np.generic], depth_scale: float) -> NDArray[np.
     ndarray of float32, shape (H, W)
         Depth in metres, NaN where invalid.
     """
-    if np.issubdtype(raw.dtype, np.floating):
+    if np.issubdtype(raw.dtype, np.floating) or not depth_scale > 0:
         out = raw.astype(np.float32, copy=True)
-    else:
-        out = raw.astype(np.float32) * np.float32(depth_scale)
-    out[~(out > 0)] = np.nan
-    return out
+        if not np.issubdtype(raw.dtype, np.floating):
+            out *= np.float32(depth_scale)
+        out[~(out > 0)] = np.nan
+        return out
+    # Integer units (every frame of a clip comes through here): one pass to metres, and the invalid
+    # readings found on the integers.
+    metres: NDArray[np.float32] = np.multiply(raw, np.float32(depth_scale), dtype=np.float32)
+    metres[np.less_equal(raw, 0)] = np.nan
+    return metres
 
 
 def uniform_fps_from_timestamps(timestamps_s: NDArray[np.float64]) -> tuple[float, int]:
