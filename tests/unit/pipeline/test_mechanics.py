@@ -125,3 +125,55 @@ def test_registration_work_is_shared_evenly_in_chains_running_outward(ref: int, 
             steps = set(np.diff(chain).tolist())
             assert steps in ({1}, {-1}, set()), chain
             assert (chain[1] - ref) * (chain[1] - seed) > 0 if len(chain) > 1 else True
+
+
+def test_masked_fit_measures_translation_and_scale_to_hundredths_of_a_pixel():
+    """The registration's fitter on a textured object rendered at known sub-pixel shifts and scales
+    (4x supersampled, area-averaged, 1 grey level of noise): translations within 0.04 px from a start
+    10 % off, and an affine fit that recovers a 2 % scale change and the centroid's shift."""
+    import cv2
+
+    from workers.pipeline.mechanics import _MaskedFit
+
+    rng = np.random.default_rng(3)
+    h, w, s = 200, 240, 4
+    background = _textured(rng, (h * s, w * s), 2.0 * s)
+    obj = _textured(rng, (h * s, w * s), 1.5 * s)
+    inside = np.zeros((h * s, w * s), np.float32)
+    inside[60 * s : 150 * s, 70 * s : 180 * s] = 1.0
+    centre = np.array([125.0, 105.0]) * s
+
+    def frame(dx: float, dy: float, scale: float = 1.0) -> np.ndarray:
+        move = cv2.getRotationMatrix2D((float(centre[0]), float(centre[1])), 0.0, scale)
+        move[:, 2] += (dx * s, dy * s)
+        alpha = cv2.warpAffine(inside, move, (w * s, h * s), flags=cv2.INTER_LINEAR)
+        moved = cv2.warpAffine(obj, move, (w * s, h * s), flags=cv2.INTER_LINEAR)
+        big = alpha * moved + (1 - alpha) * background
+        small = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA) + rng.normal(0, 1.0, (h, w))
+        return np.clip(small + 0.5, 0, 255).astype(np.uint8)
+
+    mask = np.zeros((h, w), bool)
+    mask[64:146, 74:176] = True
+    reference = frame(0.0, 0.0)
+    translation = _MaskedFit(reference, mask)
+    for dx, dy in [(0.37, -0.21), (3.6, 1.15), (-7.25, 0.5), (0.0, 0.0)]:
+        found = translation(frame(dx, dy), np.array([0.9 * dx, 0.9 * dy]))
+        assert found is not None
+        rho, warp = found
+        assert rho > 0.95
+        assert np.allclose(warp[:, :2], np.eye(2))
+        assert np.abs(warp[:, 2] - (dx, dy)).max() < 0.04, (dx, dy, warp[:, 2])
+
+    affine = _MaskedFit(reference, mask, affine=True, max_iterations=25)
+    found = affine(frame(2.0, -1.0, scale=1.02), np.array([2.0, -1.0]))
+    assert found is not None
+    _, warp = found
+    assert math.sqrt(np.linalg.det(warp[:, :2])) == pytest.approx(1.02, abs=0.003)
+    c = centre / s - 0.5 * (s - 1) / s  # the centre in the small frame's pixel coordinates
+    moved = warp[:, :2] @ c + warp[:, 2]
+    assert np.abs(moved - c - (2.0, -1.0)).max() < 0.05
+
+    flat = _MaskedFit(reference, mask)
+    assert flat(np.full((h, w), 128, np.uint8), np.zeros(2)) is None
+    with pytest.raises(np.linalg.LinAlgError):
+        _MaskedFit(np.full((h, w), 128, np.uint8), mask)
