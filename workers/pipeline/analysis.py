@@ -588,7 +588,9 @@ def _stream(
     ring = np.ones(grid, bool)
     mh, mw = max(1, round(0.12 * h)), max(1, round(0.12 * w))
     ring[mh:-mh, mw:-mw] = False
-    ring_idx = np.flatnonzero(ring.ravel())[::3]
+    # Every 7th ring pixel (7 shares no factor with common grid widths, so the samples do not line up
+    # in columns): thousands of samples, whose median is as steady as all of theirs, at a third of the cost.
+    ring_idx = np.flatnonzero(ring.ravel())[::7]
     # (u, v) of the ring's pixels in the flattened map: u indices first, then v.
     ring_uv = (ring_idx[None, :] * 2 + np.arange(2)[:, None]).ravel()
     camera = np.zeros((n, 2), np.float32)
