@@ -90,6 +90,26 @@ def load_added(path: str | os.PathLike[str]) -> int:
     return len(metrics) + len(bitmaps)
 
 
+def _font_height_metrics(
+    paths: tuple[str, ...], size_pt: float, dpi: float
+) -> tuple[float | None, float | None, float | None]:
+    """What ``matplotlib.text.Text._get_layout`` reads from a font: (ascent, descent, line gap) in pixels
+    from its OS/2 or hhea table, or Nones (matplotlib then measures the text)."""
+    from matplotlib.font_manager import get_font
+
+    font: Any = get_font(list(paths))  # its table lookups are typed per literal table name
+    for table_name, gap, ascent, descent in (
+        ("OS/2", "sTypoLineGap", "sTypoAscender", "sTypoDescender"),
+        ("hhea", "lineGap", "ascent", "descent"),
+    ):
+        table = font.get_sfnt_table(table_name)
+        if table is None:
+            continue
+        scale = size_pt * dpi / 72 / font.get_sfnt_table("head")["unitsPerEm"]
+        return table[ascent] * scale, -table[descent] * scale, table[gap] * scale
+    return None, None, None
+
+
 @functools.cache
 def caching_canvas() -> type[Any]:
     """The ``FigureCanvasAgg`` subclass whose renderer caches text; use it as ``canvas_class(figure)``."""
@@ -119,7 +139,20 @@ def caching_canvas() -> type[Any]:
             fonts[props] = paths
         return (props, paths, float(dpi), get_hinting_flag())
 
+    heights: dict[tuple[Any, ...], tuple[float | None, float | None, float | None]] = {}
+
     class CachingRenderer(RendererAgg):  # type: ignore[misc]
+        def _get_font_height_metrics(self, prop: Any) -> tuple[float | None, float | None, float | None]:
+            """(ascent, descent, line gap) of the font, in pixels, which matplotlib's text layout
+            otherwise reads from the font's tables for every string it lays out (it asks a renderer
+            first, and falls back to measuring when this gives None)."""
+            key = font_key(prop, self.dpi)
+            found = heights.get(key)
+            if found is None:
+                found = _font_height_metrics(key[1], prop.get_size_in_points(), self.dpi)
+                heights[key] = found
+            return found
+
         def get_text_width_height_descent(self, s: str, prop: Any, ismath: Any) -> tuple[float, float, float]:
             if ismath == "TeX":
                 w, h, d = super().get_text_width_height_descent(s, prop, ismath)

@@ -239,19 +239,23 @@ def _finish(canvas: Any, size_px: tuple[int, int], *, underlays: Sequence[Underl
     page; the figure (created transparent) is composited over the page. Much cheaper than ``figimage``,
     ``imshow`` or colour-bar axes, which resample and lay out in Python.
     """
+    import cv2
+
     canvas.draw()
     rgba = np.asarray(canvas.buffer_rgba())
     if rgba.shape[:2] != (size_px[1], size_px[0]):  # pragma: no cover - guards the stated sizes
         raise RuntimeError(f"rendered {rgba.shape[1]}x{rgba.shape[0]} pixels, expected {size_px}")
-    if not underlays and bool((rgba[..., 3] == 255).all()):
-        return _Image(np.ascontiguousarray(rgba[..., :3]), photo=False)
+    # OpenCV drops and tests the alpha channel ten times faster than numpy's strided copies.
+    alpha = cv2.extractChannel(rgba, 3)
+    if not underlays and cv2.minMaxLoc(alpha)[0] == 255:
+        return _Image(np.asarray(cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB), np.uint8), photo=False)
     page = np.full((size_px[1], size_px[0], 3), 255, np.uint8)
     for image, x, y in underlays:
         page[y : y + image.shape[0], x : x + image.shape[1]] = image[: size_px[1] - y, : size_px[0] - x]
     # Agg's buffer holds straight (not premultiplied) alpha; only the drawn pixels need blending.
     flat_page = page.reshape(-1, 3)
     flat_rgba = rgba.reshape(-1, 4)
-    drawn = np.flatnonzero(flat_rgba[:, 3])
+    drawn = np.flatnonzero(alpha)
     src = flat_rgba[drawn].astype(np.uint16)
     a = src[:, 3:4]
     blended = (src[:, :3] * a + flat_page[drawn].astype(np.uint16) * (255 - a) + 127) // 255

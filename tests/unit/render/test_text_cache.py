@@ -83,3 +83,27 @@ def test_each_string_is_rasterised_once(monkeypatch: pytest.MonkeyPatch):
         assert np.asarray(canvas.buffer_rgba())[..., 3].any(), "the string was drawn"
     # First use: drawn by matplotlib; second: rasterised once for the cache; then composited from it.
     assert counts == [1, 1, 0, 0]
+
+
+@pytest.mark.parametrize("dpi", [72, 100, 150])
+def test_text_layout_from_cached_font_heights_is_matplotlibs(dpi):
+    """The caching renderer hands matplotlib's text layout each font's ascent, descent and line gap
+    from a cache instead of the font's tables: every text's box (one line and several, sizes, weights)
+    is exactly where matplotlib's own layout puts it."""
+    from matplotlib.text import Text
+
+    fig = Figure(figsize=(4, 3), dpi=dpi)
+    texts = [
+        fig.text(0.1, 0.2, "displacement (mm)", fontsize=8),
+        fig.text(0.1, 0.5, "k = 495.2 ± 3.0 N/m\nm = 0.50 kg", fontsize=11, fontweight="bold"),
+        fig.text(0.5, 0.8, "Ring-down", fontsize=14, family="monospace", rotation=90),
+    ]
+    plain = RendererAgg(400, 300, dpi)
+    cached = caching_canvas()(fig).get_renderer()
+    assert hasattr(cached, "_get_font_height_metrics")
+    assert not hasattr(plain, "_get_font_height_metrics")
+    for text in texts:
+        expected = Text._get_layout(text, plain)
+        got = Text._get_layout(text, cached)
+        assert got[0].bounds == pytest.approx(expected[0].bounds, abs=1e-9)
+        assert [line[:2] for line in got[1]] == [line[:2] for line in expected[1]]
