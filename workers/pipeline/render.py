@@ -185,7 +185,8 @@ def _write_rgb_png(path: Path, rgb: NDArray[np.uint8], *, photo: bool) -> None:
 def _matplotlib() -> None:
     """Import matplotlib for drawing, once per process.
 
-    - Without its 3-D toolkit: ``matplotlib.figure`` registers every projection, and importing
+    - Without writing ``set`` signatures for help() (see below), and without its 3-D toolkit:
+      ``matplotlib.figure`` registers every projection, and importing
       ``mpl_toolkits.mplot3d`` is a sixth of matplotlib's import, for a projection never drawn here. The
       toolkit is marked absent for the length of the import (matplotlib then leaves "3d" out, with a
       warning that is silenced) unless something has loaded it already; it stays importable after.
@@ -194,19 +195,41 @@ def _matplotlib() -> None:
       setting from its global rcParams at draw time, so it is set once (the process draws nothing else)
       rather than toggled around each draw, which threads would race on.
     """
+    with _MATPLOTLIB_IMPORT:  # the warm-up thread and a render may both get here first
+        _import_matplotlib()
+
+
+#: Held while :func:`_matplotlib` imports, so that one thread's temporary changes are not taken by another
+#: for the originals.
+_MATPLOTLIB_IMPORT = threading.Lock()
+
+
+def _import_matplotlib() -> None:
     import sys
     import warnings
 
+    import matplotlib.artist
+
     hide = "mpl_toolkits.mplot3d" not in sys.modules and "matplotlib.projections" not in sys.modules
+    artist = matplotlib.artist.Artist
+    hook = "_update_set_signature_and_docstring"
+    signatures = artist.__dict__.get(hook)
     if hide:
         warnings.filterwarnings("ignore", message="Unable to import Axes3D", category=UserWarning)
         sys.modules["mpl_toolkits.mplot3d"] = None  # type: ignore[assignment]
+        if isinstance(signatures, classmethod):
+            # Every Artist subclass defined during the import inspects all its setters to write the
+            # signature and docstring of its ``set`` method, for help() only: a third of the import's
+            # time. ``set`` itself is defined as before and accepts the same keywords.
+            setattr(artist, hook, classmethod(lambda cls: None))
     try:
         import matplotlib
         import matplotlib.figure
     finally:
         if hide and sys.modules.get("mpl_toolkits.mplot3d", False) is None:
             del sys.modules["mpl_toolkits.mplot3d"]
+        if hide and isinstance(signatures, classmethod):
+            setattr(artist, hook, signatures)
     matplotlib.rcParams["text.hinting"] = "no_hinting"
 
 

@@ -96,8 +96,9 @@ def test_spectrogram_of_a_short_or_bad_series_is_refused():
 
 def test_drawing_leaves_out_the_3d_toolkit_and_keeps_it_importable():
     """matplotlib's import loads its 3-D toolkit (a sixth of the import) for a projection never drawn
-    here: a fresh process that renders an image loads matplotlib without it, warns nothing, and can still
-    import the toolkit afterwards."""
+    here, and writes every artist's set() signature for help() (a third): a fresh process that renders
+    an image loads matplotlib without either, warns nothing, can still import the toolkit afterwards, and
+    sets artist properties as before."""
     import subprocess
     import sys
 
@@ -110,5 +111,16 @@ def test_drawing_leaves_out_the_3d_toolkit_and_keeps_it_importable():
         "assert not any(m.startswith('mpl_toolkits.mplot3d') for m in sys.modules)\n"
         "from mpl_toolkits.mplot3d import Axes3D\n"
         "assert Axes3D is not None\n"
+        # Artists' set() is unchanged (aliases included), only its help() signature is not written.
+        "from matplotlib.lines import Line2D\n"
+        "line = Line2D([0, 1], [0, 1])\n"
+        "line.set(lw=3, color='red', label='x')\n"
+        "assert (line.get_linewidth(), line.get_color(), line.get_label()) == (3, 'red', 'x')\n"
+        "import matplotlib.artist as a\n"
+        "assert isinstance(a.Artist.__dict__['_update_set_signature_and_docstring'], classmethod)\n"
+        "class Mine(a.Artist):\n"
+        "    def set_size(self, value): self.size = value\n"
+        "m = Mine(); m.set(size=2, alpha=0.5)\n"
+        "assert (m.size, m.get_alpha()) == (2, 0.5)\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
