@@ -161,6 +161,13 @@ class _MaskedFit:
     blur : int
         Gaussian kernel size applied to both images (3 as in OpenCV's ECC); 0 for none.
 
+    Attributes
+    ----------
+    centre : ndarray of float64, shape (2,)
+        The mask's centroid (x, y), frame pixels; affine parameters act about it.
+    radius : float
+        The mask's RMS distance from ``centre``, pixels.
+
     Raises
     ------
     numpy.linalg.LinAlgError
@@ -201,15 +208,11 @@ class _MaskedFit:
         # Affine parameters act about the mask's centroid (full-frame coordinates), which keeps the
         # normal equations well conditioned.
         self.centre = np.array([xs.mean(), ys.mean()], np.float64)
-        if affine:
-            bx, by = np.divmod(self._idx, x1 - x0)[::-1]
-            u = bx + x0 - self.centre[0]
-            v = by + y0 - self.centre[1]
-            self._radius = float(np.sqrt(np.mean(u * u + v * v)))
-            grad = np.stack([gx * u, gx * v, gy * u, gy * v, gx, gy])
-        else:
-            self._radius = 0.0
-            grad = np.stack([gx, gy])
+        by, bx = np.divmod(self._idx, x1 - x0)
+        u = bx + x0 - self.centre[0]
+        v = by + y0 - self.centre[1]
+        self.radius = float(np.sqrt(np.mean(u * u + v * v)))
+        grad = np.stack([gx * u, gx * v, gy * u, gy * v, gx, gy] if affine else [gx, gy])
         self._grad = grad - grad.mean(axis=1, keepdims=True)  # zero-mean, as the template is
         self._inverse_hessian = np.linalg.inv(self._grad @ self._grad.T)
 
@@ -284,7 +287,7 @@ class _MaskedFit:
                     warp = (np.vstack([warp, [0.0, 0.0, 1.0]]) @ np.linalg.inv(step))[:2]
                 except np.linalg.LinAlgError:
                     return None
-                moved = math.hypot(*delta[4:]) + self._radius * float(np.linalg.norm(delta[:4]))
+                moved = math.hypot(*delta[4:]) + self.radius * float(np.linalg.norm(delta[:4]))
             else:
                 warp[:, 2] -= delta
                 moved = math.hypot(*delta)
@@ -315,7 +318,7 @@ def register_translation(
 
     Dense flow is smoothed at object boundaries and biased low for small and for very large motions;
     registering the object's texture (a translation that maximises the masked correlation coefficient with
-    the reference, the ECC criterion, fitted by :class:`_TranslationFit` and started from the flow's
+    the reference, the ECC criterion, fitted by :class:`_MaskedFit` and started from the flow's
     estimate, then from the last registered position, then from phase correlation) measures the
     displacement to a few hundredths of a pixel.
 
@@ -360,7 +363,7 @@ def register_translation(
     ref_mask_crop = core[y0:y1, x0:x1]
     hann = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
     out = initial_px.astype(np.float64).copy()
-    found_at: dict[int, NDArray[np.float64]] = {}  # converged translations, by frame
+    converged: set[int] = set()  # frames whose translation in ``out`` is registered, not the flow's
 
     def crop(k: int) -> NDArray[np.float32]:
         return grays[k, y0:y1, x0:x1].astype(np.float32)
@@ -425,15 +428,14 @@ def register_translation(
     if outline is not ref_mask_crop:
         ref_mask_crop = outline
         translation = fitter(outline) or translation
-    yy, xx = np.nonzero(ref_mask_crop)
-    centroid = np.array([xx.mean(), yy.mean()], np.float64)
-    affine_fit = fitter(ref_mask_crop, affine=True) if affine and len(xx) >= AFFINE_MIN_PIXELS else None
+    large = np.count_nonzero(ref_mask_crop) >= AFFINE_MIN_PIXELS
+    affine_fit = fitter(ref_mask_crop, affine=True) if affine and large else None
 
     def refine_affine(k: int) -> tuple[NDArray[np.float64], float] | None:
         """Displacement of the outline's centroid in frame k from an affine fit, and the fit's scale
         (square root of the determinant of the map from the frame to the reference), or None."""
         assert affine_fit is not None
-        found = affine_fit(grays[k], found_at[k])
+        found = affine_fit(grays[k], out[k])
         if found is None:
             return None
         warp = found[1]
@@ -441,7 +443,7 @@ def register_translation(
         if not math.isfinite(det) or abs(det - 1) >= 0.3:
             return None
         # The reference's centroid p sits at W p in frame k.
-        p = centroid + np.array([x0, y0], np.float64)
+        p = affine_fit.centre
         return warp[:, :2] @ p + warp[:, 2] - p, math.sqrt(det)
 
     def track(segments: list[tuple[range, int]]) -> int:
@@ -472,7 +474,7 @@ def register_translation(
                 previous = previous + (initial_px[k] - initial_px[k - 1 if k > ref_index else k + 1])
                 continue
             out[k] = best[1]
-            found_at[k] = best[1]
+            converged.add(k)
             previous = best[1]
         return failures
 
@@ -482,9 +484,10 @@ def register_translation(
         jobs = [pool.submit(track, share) for share in _tracking_shares(ref_index, t_count)]
         failures = sum(job.result() for job in jobs)
         # Six affine parameters need many textured pixels; on a small outline they only add noise.
-        if affine_fit is not None and found_at:
-            radius = math.sqrt(float(np.mean((xx - centroid[0]) ** 2 + (yy - centroid[1]) ** 2)))
-            _refine_where_scale_matters(out, sorted(found_at), refine_affine, pool, radius_px=radius)
+        if affine_fit is not None and converged:
+            _refine_where_scale_matters(
+                out, sorted(converged), refine_affine, pool, radius_px=affine_fit.radius
+            )
     return out, failures / max(t_count - 1, 1)
 
 
