@@ -118,13 +118,16 @@ def run_analysis(
     depth_path: str | Path | None = None,
     scratch_dir: str | Path | None = None,
     flow_threads: int | None = None,
+    drawing_process: bool = True,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
 
     Files are written to a temporary name and renamed, so a reader never sees half a result.
     ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``scratch_dir`` is where a
     zipped ROS 2 bag may be unpacked (default: the system temporary folder). ``flow_threads`` bounds the
-    frame pairs whose flow is computed at once (default two).
+    frame pairs whose flow is computed at once (default two). ``drawing_process``: draw part of the
+    images in this process's long-lived drawing process (see :func:`workers.pipeline.render.render_all`);
+    a process that analyses one clip and exits passes False.
 
     Raises
     ------
@@ -181,7 +184,8 @@ def run_analysis(
     from time import perf_counter
 
     started = perf_counter()
-    artifacts = Artifacts(**render_all(analysis, out))  # mask.png (MASK_FILE) and every other image
+    # mask.png (MASK_FILE) and every other image
+    artifacts = Artifacts(**render_all(analysis, out, drawing_process=drawing_process))
     analysis.timings_s["render"] = perf_counter() - started
 
     objects = [

@@ -110,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         parameters=params,
         depth_path=args.depth,
         flow_threads=args.flow_threads,
+        drawing_process=False,  # one analysis, then exit: a drawing process would not pay for its start
     )
     if args.json:
         json.dump(result.model_dump(mode="json"), sys.stdout, indent=2)

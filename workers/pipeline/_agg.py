@@ -67,12 +67,31 @@ def cache_mark() -> tuple[int, int]:
     return _METRICS.generation, _BITMAPS.generation
 
 
+#: Strings added since a mark: (metrics, bitmaps), each a list of (key, value).
+Added = tuple[list[tuple[tuple[Any, ...], Any]], list[tuple[tuple[Any, ...], Any]]]
+
+
+def strings_added_since(mark: tuple[int, int]) -> Added:
+    """The strings measured or rendered since ``mark``: what a drawer in another process hands back to
+    the process that asked it to draw (its own copy of the caches never sees them)."""
+    return _METRICS.added_since(mark[0]), _BITMAPS.added_since(mark[1])
+
+
+def add_strings(added: Added) -> int:
+    """Add another process's :func:`strings_added_since` to this process's caches; how many strings."""
+    metrics, bitmaps = added
+    for key, value in metrics:
+        _METRICS.put(key, value)
+    for key, value in bitmaps:
+        _BITMAPS.put(key, value)
+    return len(metrics) + len(bitmaps)
+
+
 def save_added(mark: tuple[int, int], path: str | os.PathLike[str]) -> None:
-    """Write the strings measured or rendered since ``mark`` to ``path``: a forked drawer's additions,
-    which its parent then loads with :func:`load_added` (its own copy of the caches never sees them)."""
-    added = (_METRICS.added_since(mark[0]), _BITMAPS.added_since(mark[1]))
+    """Write :func:`strings_added_since` ``mark`` to ``path``: a forked drawer's additions, which its
+    parent then loads with :func:`load_added`."""
     with open(path, "wb") as fh:
-        pickle.dump(added, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        pickle.dump(strings_added_since(mark), fh, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def load_added(path: str | os.PathLike[str]) -> int:
@@ -80,14 +99,20 @@ def load_added(path: str | os.PathLike[str]) -> int:
     unreadable file adds nothing (the caches only make drawing faster)."""
     try:
         with open(path, "rb") as fh:
-            metrics, bitmaps = pickle.load(fh)
+            added = pickle.load(fh)
     except (OSError, EOFError, pickle.UnpicklingError, ValueError):
         return 0
-    for key, value in metrics:
-        _METRICS.put(key, value)
-    for key, value in bitmaps:
-        _BITMAPS.put(key, value)
-    return len(metrics) + len(bitmaps)
+    return add_strings(added)
+
+
+_EAGER = False
+
+
+def cache_at_first_use() -> None:
+    """Rasterise each string for the cache at its first use instead of its second, for the rest of this
+    process: for a drawing process, whose figures then have the pixels its caller's warm cache gives."""
+    global _EAGER
+    _EAGER = True
 
 
 def _font_height_metrics(
@@ -184,13 +209,13 @@ def caching_canvas() -> type[Any]:
             antialiased = bool(gc.get_antialiased())
             key = (s, bool(ismath), float(angle), antialiased, *font_key(prop, self.dpi))
             found = bitmaps.get(key)
-            if found is None:
+            if found is None and not _EAGER:
                 # First sight: draw it directly (rasterising for the cache costs more than drawing once,
                 # and a one-shot process draws most strings once); cache it when it comes back.
                 bitmaps.put(key, _SEEN_ONCE)
                 super().draw_text(gc, x, y, s, prop, angle, ismath=ismath, mtext=mtext)
                 return
-            if found == _SEEN_ONCE:
+            if found is None or found == _SEEN_ONCE:
                 found = self._rasterise(s, prop, angle, bool(ismath), antialiased)
                 bitmaps.put(key, found)
             coverage, dx, dy = found

@@ -34,7 +34,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline._agg import cache_mark, caching_canvas, load_added, save_added
+from workers.pipeline import _drawing_process
+from workers.pipeline._agg import add_strings, cache_mark, caching_canvas, load_added, save_added
 
 if TYPE_CHECKING:
     from workers.pipeline.analysis import Analysis, ObjectMeasurement
@@ -1438,19 +1439,25 @@ _DRAWERS: dict[str, Callable[[Analysis], _Image]] = {
 }
 
 
-def render_all(analysis: Analysis, out_dir: str | Path) -> dict[str, str]:
+def render_all(analysis: Analysis, out_dir: str | Path, *, drawing_process: bool = True) -> dict[str, str]:
     """Write every image of an analysis into ``out_dir``.
 
-    The displacement and ring-down figures are drawn in a forked child on the second core while the
-    calling thread draws the others (matplotlib holds the GIL, so threads would not help); if the child
-    fails or overruns, the parent draws them too. PNG encoding and writing (which release the GIL) run
-    on one helper thread meanwhile. Each file is written atomically.
+    The displacement and ring-down figures are drawn in another process on the second core while the
+    calling thread draws the others (matplotlib holds the GIL, so threads would not help): this
+    process's drawing process when ``drawing_process`` (the first call starts it, in the background, and later
+    calls use it; see :mod:`workers.pipeline._drawing_process`), else, or while it starts or serves
+    another thread, a child forked for this call. If that process fails or overruns, the caller draws
+    those figures too. PNG encoding and writing (which release the GIL) run on one helper thread
+    meanwhile. Each file is written atomically.
 
     Parameters
     ----------
     analysis : Analysis
     out_dir : path-like
         Existing or new directory; files get the names of :data:`ARTIFACT_FILES`.
+    drawing_process : bool, keyword-only
+        Use (and start) the long-lived drawing process. A process that renders once and exits (the
+        command line) passes False: starting an interpreter would cost more than it saves.
 
     Returns
     -------
@@ -1467,35 +1474,90 @@ def render_all(analysis: Analysis, out_dir: str | Path) -> dict[str, str]:
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    # matplotlib holds the GIL while it draws, so threads cannot share the drawing; a forked child on
-    # the second core draws part of the figures (the parent draws them itself if the child fails).
-    mark = cache_mark()
-    fd, name = tempfile.mkstemp(prefix="eigenscope-text-cache-")  # the child's additions to the cache
-    os.close(fd)
-    learned = Path(name)
-    child = _fork_drawer(analysis, out, _FORKED_DRAWERS, text_cache=(mark, learned))
-    here = [key for key in _DRAWERS if child is None or key not in _FORKED_DRAWERS]
+    remote = _draw_elsewhere(analysis, out, _FORKED_DRAWERS, long_lived=drawing_process)
+    here = [key for key in _DRAWERS if remote is None or key not in _FORKED_DRAWERS]
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="eigenscope-png") as pool:
         pending: list[Future[Path]] = [
             pool.submit(write_label_png, out / ARTIFACT_FILES["mask"], analysis.labels)
         ]
         try:
-            for key in here:
-                image = _DRAWERS[key](analysis)
-                pending.append(pool.submit(_write_image, out / ARTIFACT_FILES[key], image))
-            if child is not None and not _child_succeeded(child):
+            try:
+                for key in here:
+                    image = _DRAWERS[key](analysis)
+                    pending.append(pool.submit(_write_image, out / ARTIFACT_FILES[key], image))
+            finally:  # the other process is waited for (and given back) whatever happened here
+                written = remote is None or remote()
+            if not written:
                 for key in _FORKED_DRAWERS:
                     image = _DRAWERS[key](analysis)
                     pending.append(pool.submit(_write_image, out / ARTIFACT_FILES[key], image))
-            elif child is not None:
-                load_added(learned)  # the strings the child rendered: cached here for the next time
         finally:
-            learned.unlink(missing_ok=True)
             # Surface the first write error (after letting every submitted write finish).
             errors = [e for e in (f.exception() for f in pending) if e is not None]
         if errors:
             raise errors[0]
     return {key: ARTIFACT_FILES[key] for key in ("mask", *_DRAWERS)}
+
+
+def start_drawing_process(*, wait_s: float = 0.0) -> bool:
+    """Start this process's drawing process (see :func:`render_all`) unless it runs already.
+
+    :func:`render_all` starts it at its first call and uses it from when it is ready; a process that
+    will render many times can start it earlier.
+
+    Parameters
+    ----------
+    wait_s : float, keyword-only
+        How long to wait for it to be ready (it imports matplotlib: about a second).
+
+    Returns
+    -------
+    bool
+        Whether it is ready to draw.
+    """
+    return _drawing_process.start_shared(wait_s)
+
+
+def _draw_elsewhere(
+    analysis: Analysis, out: Path, keys: tuple[str, ...], *, long_lived: bool
+) -> Callable[[], bool] | None:
+    """Start drawing the figures ``keys`` in another process: a function that waits for them (True when
+    all were written, after adding the strings that process rendered to this process's text cache), or
+    None when no other process can draw them (the caller draws them itself)."""
+    drawing = _drawing_process.claim_shared() if long_lived else None
+    if drawing is not None and drawing.submit(analysis, out, keys):
+
+        def collect() -> bool:
+            ok, added = drawing.collect()
+            if ok:
+                add_strings(added)
+            return ok
+
+        return collect
+    mark = cache_mark()
+    fd, name = tempfile.mkstemp(prefix="eigenscope-text-cache-")  # the child's additions to the cache
+    os.close(fd)
+    learned = Path(name)
+    child = _fork_drawer(analysis, out, keys, text_cache=(mark, learned))
+    if child is None:
+        learned.unlink(missing_ok=True)
+        return None
+
+    def wait() -> bool:
+        try:
+            ok = _child_succeeded(child)
+            if ok:
+                load_added(learned)  # the strings the child rendered: cached here for the next time
+            return ok
+        finally:
+            learned.unlink(missing_ok=True)
+
+    return wait
+
+
+def _draw_and_write(analysis: Analysis, out: Path, key: str) -> Path:
+    """Draw the figure ``key`` and write it into ``out`` (in a process drawing for another)."""
+    return _write_image(out / ARTIFACT_FILES[key], _DRAWERS[key](analysis))
 
 
 #: Figures drawn in a forked child while the parent draws the others (about half of the drawing time).
@@ -1544,7 +1606,7 @@ def _fork_drawer(
         code = 1
         try:  # the child: never returns, never raises into the caller's stack
             for key in keys:
-                _write_image(out / ARTIFACT_FILES[key], _DRAWERS[key](analysis))
+                _draw_and_write(analysis, out, key)
             if text_cache is not None:
                 save_added(*text_cache)
             code = 0
@@ -1583,6 +1645,7 @@ __all__ = [
     "panel_figure_size",
     "render_all",
     "ringdown_spectrogram",
+    "start_drawing_process",
     "write_displacement_png",
     "write_frequency_map_png",
     "write_label_png",

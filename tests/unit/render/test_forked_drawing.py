@@ -1,5 +1,6 @@
-"""Part of the figures is drawn in a forked child on the second core; whatever happens to the child, every
-image is written, with the same pixels as when the parent draws them all."""
+"""Part of the figures is drawn in a forked child on the second core when no drawing process serves the
+render (``drawing_process=False`` here; see test_drawing_process.py for that process); whatever happens
+to the child, every image is written, with the same pixels as when the parent draws them all."""
 
 from __future__ import annotations
 
@@ -33,15 +34,15 @@ def test_every_image_is_written_whatever_the_child_does(child, one_object: Analy
     # differs from it on glyph edges (see test_text_cache.py): both renders compared here draw their
     # text from the cache, whichever tests ran before in this process.
     for warm_up in range(2):
-        render.render_all(one_object.analysis, tmp_path / f"warm-up-{warm_up}")
-    render.render_all(one_object.analysis, reference)
+        render.render_all(one_object.analysis, tmp_path / f"warm-up-{warm_up}", drawing_process=False)
+    render.render_all(one_object.analysis, reference, drawing_process=False)
     monkeypatch.undo()
     if child == "fails":
         monkeypatch.setattr(render, "_fork_drawer", _failing_child)
     elif child == "none":
         monkeypatch.setattr(render, "_fork_drawer", lambda *a, **kw: None)
     out = tmp_path / child
-    names = render.render_all(one_object.analysis, out)
+    names = render.render_all(one_object.analysis, out, drawing_process=False)
     assert set(names) == {"mask", "overlay", "frequency_map", "spectrum", "displacement", "ringdown"}
     got, expected = _images(out), _images(reference)
     assert got.keys() == expected.keys()
@@ -81,7 +82,7 @@ def test_a_drawing_thread_elsewhere_does_not_stall_the_child(one_object: Analyse
     other.start()
     holding.wait()
     started = time.perf_counter()
-    render.render_all(one_object.analysis, tmp_path / "out")
+    render.render_all(one_object.analysis, tmp_path / "out", drawing_process=False)
     elapsed = time.perf_counter() - started
     other.join()
     assert results == [True], "the forked child failed or was killed"
@@ -100,7 +101,7 @@ def test_strings_the_child_rendered_are_cached_in_the_parent(one_object: Analyse
         monkeypatch.setattr(cache, "_items", OrderedDict())
     before = set(Path(tempfile.gettempdir()).glob("eigenscope-text-cache-*"))
     mark = _agg.cache_mark()
-    render.render_all(one_object.analysis, tmp_path / "first")
+    render.render_all(one_object.analysis, tmp_path / "first", drawing_process=False)
     added = [key[0] for key, _ in _agg._BITMAPS.added_since(mark[1])]
     assert any(s.startswith("release ") for s in added), added  # drawn only in the displacement figure
     assert set(Path(tempfile.gettempdir()).glob("eigenscope-text-cache-*")) == before
@@ -135,7 +136,7 @@ def test_the_fork_waits_for_a_warm_up_thread_still_importing(one_object: Analyse
     importing.start()
     time.sleep(0.2)  # the thread is inside the import now
     started = time.perf_counter()
-    render.render_all(one_object.analysis, tmp_path / "out")
+    render.render_all(one_object.analysis, tmp_path / "out", drawing_process=False)
     elapsed = time.perf_counter() - started
     assert results == [True], "the forked child failed or was killed"
     assert elapsed < 5.0, f"rendering took {elapsed:.1f} s"

@@ -68,11 +68,11 @@ def check_all(analysis: Analysis, out: Path) -> dict[str, np.ndarray]:
 @pytest.fixture
 def texts(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """Every string matplotlib lays out while the test runs (in this process: figures are drawn here,
-    not in the forked child that shares the drawing otherwise; test_forked_drawing checks both give the
-    same pixels)."""
+    not in the other process that shares the drawing otherwise; test_forked_drawing and
+    test_drawing_process check both give the same pixels)."""
     from workers.pipeline import render
 
-    monkeypatch.setattr(render, "_fork_drawer", lambda *args, **kwargs: None)
+    monkeypatch.setattr(render, "_draw_elsewhere", lambda *args, **kwargs: None)
     seen: list[str] = []
     original = matplotlib.text.Text.set_text
 

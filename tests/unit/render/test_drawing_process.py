@@ -1,0 +1,196 @@
+"""The long-lived drawing process draws the displacement and ring-down figures with the pixels this
+process would give them; whatever happens to it (it dies, hangs, or its parent dies), every image is
+written and nothing is left running."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import OrderedDict
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.unit.render.conftest import Analysed
+from workers.pipeline import _agg, _drawing_process, render
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _images(folder: Path) -> dict[str, np.ndarray]:
+    return {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted(folder.glob("*.png"))}
+
+
+def _assert_same_images(got: Path, expected: Path) -> None:
+    a, b = _images(got), _images(expected)
+    assert sorted(a) == sorted(b)
+    assert len(a) == 6
+    for name, image in b.items():
+        assert np.array_equal(a[name], image), name
+    assert not list(got.glob(".*")), "no temporary files left behind"
+
+
+def _gone(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/status").read_text().split("State:")[1].split("\n")[0]
+    except (OSError, IndexError):
+        return True
+    return "zombie" in state
+
+
+@pytest.fixture
+def fresh(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """A drawing process of the test's own (this process's shared one is put back afterwards)."""
+    monkeypatch.setattr(_drawing_process, "_SHARED", None)
+    monkeypatch.setattr(_drawing_process, "_STARTS", 0)
+    yield
+    made = _drawing_process._SHARED
+    if made is not None:
+        made.close(kill=True)
+
+
+@pytest.fixture
+def reference(one_object: Analysed, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Every image drawn in this process alone, from a warm text cache."""
+    out = tmp_path_factory.mktemp("reference")
+    for i in range(2):  # strings are drawn from the cache from their second use on
+        render.render_all(one_object.analysis, out / f"warm-up-{i}", drawing_process=False)
+    original = render._draw_elsewhere
+    render._draw_elsewhere = lambda *args, **kwargs: None  # type: ignore[assignment]
+    try:
+        render.render_all(one_object.analysis, out / "here")
+    finally:
+        render._draw_elsewhere = original
+    return out / "here"
+
+
+def _spy_collect(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
+    results: list[bool] = []
+    original = _drawing_process.DrawingProcess.collect
+
+    def spy(self: _drawing_process.DrawingProcess) -> tuple[bool, object]:
+        ok, added = original(self)
+        results.append(ok)
+        return ok, added
+
+    monkeypatch.setattr(_drawing_process.DrawingProcess, "collect", spy)
+    return results
+
+
+def test_it_draws_the_pixels_this_process_draws(
+    one_object: Analysed, reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    assert render.start_drawing_process(wait_s=60.0)
+    served = _spy_collect(monkeypatch)
+    for i in range(2):  # its first figures (strings it rasterises anew) and later ones
+        render.render_all(one_object.analysis, tmp_path / f"there-{i}")
+        _assert_same_images(tmp_path / f"there-{i}", reference)
+    assert served == [True, True], "the drawing process did not draw the figures"
+
+
+def test_the_first_render_starts_it_and_a_later_one_uses_it(
+    fresh: None, one_object: Analysed, reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    served = _spy_collect(monkeypatch)
+    render.render_all(one_object.analysis, tmp_path / "first")
+    assert served == [], "the process cannot be ready at the first render"
+    assert _drawing_process._SHARED is not None
+    _assert_same_images(tmp_path / "first", reference)
+    assert render.start_drawing_process(wait_s=60.0)
+    render.render_all(one_object.analysis, tmp_path / "second")
+    assert served == [True]
+    _assert_same_images(tmp_path / "second", reference)
+
+
+def test_strings_it_rendered_are_cached_here(
+    fresh: None, one_object: Analysed, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    for cache in (_agg._BITMAPS, _agg._METRICS):  # start cold: earlier tests drew the same strings
+        monkeypatch.setattr(cache, "_items", OrderedDict())
+    assert render.start_drawing_process(wait_s=60.0)
+    mark = _agg.cache_mark()
+    render.render_all(one_object.analysis, tmp_path / "out")
+    added = {key[0]: value for key, value in _agg._BITMAPS.added_since(mark[1])}
+    releases = [s for s in added if s.startswith("release ")]
+    assert releases, sorted(added)  # drawn only in the displacement figure, by the drawing process
+    assert all(added[s] != _agg._SEEN_ONCE for s in releases), "it hands back rasterised strings"
+
+
+@pytest.mark.parametrize("fault", ["killed", "stopped"])
+def test_a_process_that_dies_or_hangs_costs_no_image(
+    fault: str,
+    fresh: None,
+    one_object: Analysed,
+    reference: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+):
+    monkeypatch.setattr(_drawing_process, "REPLY_TIMEOUT_S", 1.0)
+    assert render.start_drawing_process(wait_s=60.0)
+    victim = _drawing_process._SHARED
+    assert victim is not None
+    if fault == "killed":
+        os.kill(victim.pid, signal.SIGKILL)
+        victim._proc.wait()
+    else:
+        os.kill(victim.pid, signal.SIGSTOP)  # a process that no longer reads or answers
+    started = time.perf_counter()
+    names = render.render_all(one_object.analysis, tmp_path / "out")
+    elapsed = time.perf_counter() - started
+    assert set(names) == {"mask", "overlay", "frequency_map", "spectrum", "displacement", "ringdown"}
+    _assert_same_images(tmp_path / "out", reference)
+    assert victim.failed
+    assert _gone(victim.pid), "the broken process is ended"
+    assert elapsed < 5.0, f"rendering took {elapsed:.1f} s"
+    # The next render starts a new one, which then draws.
+    render.render_all(one_object.analysis, tmp_path / "next")
+    assert render.start_drawing_process(wait_s=60.0)
+    assert _drawing_process._SHARED is not victim
+    served = _spy_collect(monkeypatch)
+    render.render_all(one_object.analysis, tmp_path / "again")
+    assert served == [True]
+    _assert_same_images(tmp_path / "again", reference)
+
+
+def test_a_process_that_keeps_failing_is_not_started_again(fresh: None, monkeypatch: pytest.MonkeyPatch):
+    for _ in range(_drawing_process.MAX_STARTS):
+        assert _drawing_process.claim_shared() is None  # starts one
+        made = _drawing_process._SHARED
+        assert made is not None
+        made._fail()
+    assert _drawing_process.claim_shared() is None
+    assert _drawing_process._SHARED is None, "no process is started past MAX_STARTS"
+
+
+@pytest.mark.parametrize("when", ["starting", "ready"])
+def test_it_ends_with_its_parent(when: str):
+    """A parent killed without a word (SIGKILL) leaves no drawing process behind, even one that was
+    still importing matplotlib and so not yet reading its pipe."""
+    wait = "60.0" if when == "ready" else "0.0"
+    script = (
+        "import eigenscope, time\n"
+        "from workers.pipeline import _drawing_process, render\n"
+        f"ready = render.start_drawing_process(wait_s={wait})\n"
+        "print(_drawing_process._SHARED.pid, ready, flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert parent.stdout is not None
+        pid_text, ready = parent.stdout.readline().split()
+        assert ready == ("True" if when == "ready" else "False")
+        pid = int(pid_text)
+        assert not _gone(pid)
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 3.0  # it checks for its parent ten times a second
+    while not _gone(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert _gone(pid), "the drawing process outlived its parent"

@@ -1,0 +1,307 @@
+"""A long-lived Python process that draws part of the figures while the caller draws the others.
+
+matplotlib holds the GIL while it draws, so only a second process can use the second core. A child forked
+for every render (:func:`workers.pipeline.render._fork_drawer`) costs little to start but makes both
+processes pay copy-on-write faults on every page they touch afterwards, which on an analysing process
+(hundreds of megabytes of freed buffers kept for reuse) cost as much as the drawing they share. A process
+that lives as long as its parent and shares none of its memory pays that once: it starts (a fresh
+interpreter, matplotlib imported) in the background at the first render, and every later render sends
+it the analysis through a pipe (a couple of megabytes of pickled arrays) and has it draw and write its
+figures while the caller draws the rest.
+
+The process draws every string of text from the text cache, from the first use on, and hands the strings
+it rendered back with each reply (:mod:`workers.pipeline._agg`): its figures have the same pixels as the
+caller's own once the caller's cache is warm, and the caller's cache learns its strings.
+
+It exits when its parent closes the pipe or dies (the pipe's end of file), and ignores the terminal's
+interrupts (its own session). Whatever goes wrong with it (it dies, hangs, cannot start) the caller draws
+the figures itself and a new process is started later, at most :data:`MAX_STARTS` times per process.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import os
+import pickle
+import select
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from workers.pipeline.analysis import Analysis
+
+#: A reply that has not come by then counts as a failure (the process is killed and replaced).
+REPLY_TIMEOUT_S = 10.0
+#: Processes started per calling process at the most (a process that keeps failing is not restarted).
+MAX_STARTS = 3
+
+_HEADER = struct.Struct("<Q")
+_PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])  # the folder holding the ``workers`` package
+
+
+class _BrokenError(Exception):
+    """The pipe closed, timed out or carried something unexpected."""
+
+
+def _wait_for(fd: int, events: int, deadline: float) -> bool:
+    """Whether ``fd`` is ready for ``events`` by ``deadline`` (a deadline passed still looks once).
+    poll, not select: any descriptor number."""
+    poller = select.poll()
+    poller.register(fd, events)
+    return bool(poller.poll(max(0.0, deadline - time.monotonic()) * 1000))
+
+
+def _write_all(fd: int, data: bytes, deadline: float) -> None:
+    view = memoryview(data)
+    while view:
+        if not _wait_for(fd, select.POLLOUT, deadline):
+            if time.monotonic() >= deadline:
+                raise _BrokenError("timed out writing")
+            continue
+        try:
+            view = view[os.write(fd, view) :]
+        except BlockingIOError:
+            continue
+        except OSError as exc:  # the process died (broken pipe)
+            raise _BrokenError(str(exc)) from exc
+
+
+def _read_exactly(fd: int, n: int, deadline: float | None) -> bytes:
+    chunks: list[bytes] = []
+    while n:
+        if deadline is not None and not _wait_for(fd, select.POLLIN, deadline):
+            raise _BrokenError("timed out reading")
+        try:
+            chunk = os.read(fd, min(n, 1 << 20))
+        except BlockingIOError:
+            continue
+        except OSError as exc:
+            raise _BrokenError(str(exc)) from exc
+        if not chunk:
+            raise _BrokenError("end of file")
+        chunks.append(chunk)
+        n -= len(chunk)
+    return b"".join(chunks)
+
+
+def _send(fd: int, message: object, deadline: float) -> None:
+    payload = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    _write_all(fd, _HEADER.pack(len(payload)) + payload, deadline)
+
+
+def _receive(fd: int, deadline: float | None) -> Any:
+    (size,) = _HEADER.unpack(_read_exactly(fd, _HEADER.size, deadline))
+    return pickle.loads(_read_exactly(fd, size, deadline))
+
+
+class DrawingProcess:
+    """One drawing process and the pipes to it; used by one render at a time (:meth:`claim`)."""
+
+    def __init__(self) -> None:
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (_PACKAGE_ROOT, env.get("PYTHONPATH")) if p)
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "workers.pipeline._drawing_process"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+            close_fds=True,
+            start_new_session=True,  # Ctrl-C in a terminal is the parent's to handle; EOF ends this one
+        )
+        assert self._proc.stdin is not None
+        assert self._proc.stdout is not None
+        self._to = self._proc.stdin.fileno()
+        self._from = self._proc.stdout.fileno()
+        os.set_blocking(self._to, False)
+        self._owner = os.getpid()
+        self._ready = False
+        self._busy = threading.Lock()
+        self.failed = False
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def claim(self) -> bool:
+        """Take the process for one render: False while it is starting, drawing for another thread, or
+        broken. A True must be followed by :meth:`draw` (which gives it back)."""
+        if self.failed or not self._busy.acquire(blocking=False):
+            return False
+        try:
+            if not self._ready:
+                if not _wait_for(self._from, select.POLLIN, 0.0):
+                    self._busy.release()  # still starting
+                    return False
+                if _receive(self._from, time.monotonic() + REPLY_TIMEOUT_S) != ("ready",):
+                    raise _BrokenError("no ready message")
+                self._ready = True
+        except (_BrokenError, pickle.UnpicklingError, ValueError, EOFError):
+            self._fail()
+            self._busy.release()
+            return False
+        return True
+
+    def submit(self, analysis: Analysis, out: Path, keys: tuple[str, ...]) -> bool:
+        """Send the process the figures ``keys`` of ``analysis`` to draw into ``out`` (after :meth:`claim`);
+        False (and the claim given back) when it could not be sent."""
+        try:
+            _send(self._to, ("draw", analysis, str(out), keys), time.monotonic() + REPLY_TIMEOUT_S)
+        except (_BrokenError, pickle.PicklingError, TypeError, AttributeError):
+            self._fail()
+            self._busy.release()
+            return False
+        return True
+
+    def collect(self) -> tuple[bool, Any]:
+        """Wait for the submitted figures: (whether they were all written, the text cache's additions for
+        :func:`workers.pipeline._agg.add_strings`). Gives the claim back."""
+        try:
+            reply = _receive(self._from, time.monotonic() + REPLY_TIMEOUT_S)
+            if not (isinstance(reply, tuple) and len(reply) == 3 and reply[0] == "done"):
+                raise _BrokenError(f"unexpected reply {type(reply).__name__}")
+            _, error, added = reply
+            return error is None, added
+        except (_BrokenError, pickle.UnpicklingError, ValueError, EOFError):
+            self._fail()
+            return False, None
+        finally:
+            self._busy.release()
+
+    def release(self) -> None:
+        """Give back a claim that will not be used."""
+        self._busy.release()
+
+    def _fail(self) -> None:
+        self.failed = True
+        self.close(kill=True)
+
+    def close(self, *, kill: bool = False) -> None:
+        """End the process: closing its pipe ends it; ``kill`` does not wait for that."""
+        if os.getpid() != self._owner:
+            return
+        for stream in (self._proc.stdin, self._proc.stdout):
+            if stream is not None:
+                with contextlib.suppress(OSError):
+                    stream.close()
+        if kill and self._proc.poll() is None:
+            self._proc.kill()
+        try:
+            self._proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:  # pragma: no cover - it ignores the closed pipe
+            self._proc.kill()
+            self._proc.wait()
+
+    def forget(self) -> None:
+        """In a forked child: drop the parent's pipes without touching the parent's process."""
+        for stream in (self._proc.stdin, self._proc.stdout):
+            if stream is not None:
+                with contextlib.suppress(OSError):
+                    stream.close()
+
+
+_SHARED: DrawingProcess | None = None
+_STARTS = 0
+_SHARED_LOCK = threading.Lock()
+
+
+def claim_shared() -> DrawingProcess | None:
+    """This process's drawing process, claimed for one render; None while it starts (the first call
+    starts it), while another thread's render uses it, or when it cannot be had."""
+    global _SHARED, _STARTS
+    with _SHARED_LOCK:
+        if _SHARED is not None and _SHARED.failed:
+            _SHARED = None
+        if _SHARED is None:
+            if _STARTS >= MAX_STARTS:
+                return None
+            _STARTS += 1
+            try:
+                _SHARED = DrawingProcess()
+            except OSError:
+                return None
+            return None  # it is starting: this render draws everything itself
+        helper = _SHARED
+    return helper if helper.claim() else None
+
+
+def start_shared(wait_s: float = 0.0) -> bool:
+    """Start this process's drawing process unless it runs; whether it is ready to draw (waiting up to
+    ``wait_s`` seconds for it to start)."""
+    deadline = time.monotonic() + wait_s
+    claimed = claim_shared()
+    while claimed is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+        claimed = claim_shared()
+    if claimed is None:
+        return False
+    claimed.release()
+    return True
+
+
+def _close_shared() -> None:
+    if _SHARED is not None:
+        _SHARED.close()
+
+
+def _after_fork_in_child() -> None:
+    global _SHARED, _STARTS
+    if _SHARED is not None:
+        _SHARED.forget()
+    _SHARED, _STARTS = None, 0
+
+
+atexit.register(_close_shared)
+os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+def _serve() -> None:
+    """The drawing process: draw what each message asks until the pipe closes or the parent dies."""
+    parent = os.getppid()
+
+    def watch_parent() -> None:  # a parent killed while this process starts cannot close the pipe yet
+        while os.getppid() == parent:
+            time.sleep(0.1)
+        os._exit(0)
+
+    threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
+    # The protocol has stdout to itself: anything printed goes to stderr.
+    reply_fd = os.dup(1)
+    os.dup2(2, 1)
+    request_fd = 0
+    from workers.pipeline import _agg, render
+
+    _agg.cache_at_first_use()
+    render.warm_up().join()
+    mark = _agg.cache_mark()
+    try:
+        _send(reply_fd, ("ready",), time.monotonic() + REPLY_TIMEOUT_S)
+    except _BrokenError:
+        return  # the parent gave up on this process while it started
+    while True:
+        try:
+            message = _receive(request_fd, None)
+        except _BrokenError:
+            return  # the parent closed the pipe or died
+        _, analysis, out, keys = message
+        error = None
+        try:
+            for key in keys:
+                render._draw_and_write(analysis, Path(out), key)
+        except Exception as exc:  # reported to the parent, which draws the figures itself
+            error = f"{type(exc).__name__}: {exc}"
+        added = _agg.strings_added_since(mark)
+        mark = _agg.cache_mark()
+        try:
+            _send(reply_fd, ("done", error, added), time.monotonic() + REPLY_TIMEOUT_S)
+        except _BrokenError:
+            return
+
+
+if __name__ == "__main__":
+    _serve()
