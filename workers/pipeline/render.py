@@ -1525,7 +1525,7 @@ def _draw_elsewhere(
     all were written, after adding the strings that process rendered to this process's text cache), or
     None when no other process can draw them (the caller draws them itself)."""
     drawing = _drawing_process.claim_shared() if long_lived else None
-    if drawing is not None and drawing.submit(analysis, out, keys):
+    if drawing is not None and drawing.submit(_without_images(analysis), out, keys):
 
         def collect() -> bool:
             ok, added = drawing.collect()
@@ -1553,6 +1553,21 @@ def _draw_elsewhere(
             learned.unlink(missing_ok=True)
 
     return wait
+
+
+def _without_images(analysis: Analysis) -> Analysis:
+    """``analysis`` without the frame-sized arrays, which the figures drawn elsewhere
+    (:data:`_FORKED_DRAWERS`) do not read: less to send through the pipe."""
+    from dataclasses import replace
+
+    nothing = np.zeros((0, 0), np.uint8)
+    return replace(
+        analysis,
+        labels=nothing.astype(np.uint16),
+        frame_rgb=np.zeros((0, 0, 3), np.uint8),
+        frequency_map_hz=nothing.astype(np.float32),
+        frequency_map_valid=nothing.astype(bool),
+    )
 
 
 def _draw_and_write(analysis: Analysis, out: Path, key: str) -> Path:
