@@ -30,6 +30,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -90,9 +91,13 @@ def _read_exactly(fd: int, n: int, deadline: float | None) -> bytes:
     return b"".join(chunks)
 
 
-def _send(fd: int, message: object, deadline: float) -> None:
+def _frame(message: object) -> bytes:
     payload = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
-    _write_all(fd, _HEADER.pack(len(payload)) + payload, deadline)
+    return _HEADER.pack(len(payload)) + payload
+
+
+def _send(fd: int, message: object, deadline: float) -> None:
+    _write_all(fd, _frame(message), deadline)
 
 
 def _receive(fd: int, deadline: float | None) -> Any:
@@ -130,10 +135,10 @@ class DrawingProcess:
 
     def claim(self) -> bool:
         """Take the process for one render: False while it is starting, drawing for another thread, or
-        broken. A True must be followed by :meth:`draw` (which gives it back)."""
+        broken. A True is followed by :meth:`submit` and :meth:`collect`, or :meth:`release`."""
         if self.failed or not self._busy.acquire(blocking=False):
             return False
-        try:
+        with self._failing_on_error(release=True):
             if not self._ready:
                 if not _wait_for(self._from, select.POLLIN, 0.0):
                     self._busy.release()  # still starting
@@ -141,37 +146,53 @@ class DrawingProcess:
                 if _receive(self._from, time.monotonic() + REPLY_TIMEOUT_S) != ("ready",):
                     raise _BrokenError("no ready message")
                 self._ready = True
-        except (_BrokenError, pickle.UnpicklingError, ValueError, EOFError):
-            self._fail()
-            self._busy.release()
-            return False
-        return True
+            return True
+        return False
 
     def submit(self, analysis: Analysis, out: Path, keys: tuple[str, ...]) -> bool:
         """Send the process the figures ``keys`` of ``analysis`` to draw into ``out`` (after :meth:`claim`);
         False (and the claim given back) when it could not be sent."""
         try:
-            _send(self._to, ("draw", analysis, str(out), keys), time.monotonic() + REPLY_TIMEOUT_S)
-        except (_BrokenError, pickle.PicklingError, TypeError, AttributeError):
-            self._fail()
-            self._busy.release()
+            payload = _frame(("draw", analysis, str(out), keys))
+        except (pickle.PicklingError, TypeError, AttributeError):
+            self._busy.release()  # nothing was sent: the process is still in step
             return False
-        return True
+        with self._failing_on_error(release=True):
+            _write_all(self._to, payload, time.monotonic() + REPLY_TIMEOUT_S)
+            return True
+        return False
 
     def collect(self) -> tuple[bool, Any]:
         """Wait for the submitted figures: (whether they were all written, the text cache's additions for
         :func:`workers.pipeline._agg.add_strings`). Gives the claim back."""
-        try:
-            reply = _receive(self._from, time.monotonic() + REPLY_TIMEOUT_S)
+        with self._failing_on_error(release=False):
+            try:
+                reply = _receive(self._from, time.monotonic() + REPLY_TIMEOUT_S)
+            finally:
+                self._busy.release()
             if not (isinstance(reply, tuple) and len(reply) == 3 and reply[0] == "done"):
                 raise _BrokenError(f"unexpected reply {type(reply).__name__}")
             _, error, added = reply
             return error is None, added
+        return False, None
+
+    @contextlib.contextmanager
+    def _failing_on_error(self, *, release: bool) -> Iterator[None]:
+        """End the process on any error inside (it may be out of step with this side of the pipe: an
+        exception raised into the caller, a time limit say, still propagates), giving back the claim
+        when ``release``; a broken pipe or a garbled message is swallowed (the caller then sees the
+        method's failure value)."""
+        try:
+            yield
         except (_BrokenError, pickle.UnpicklingError, ValueError, EOFError):
             self._fail()
-            return False, None
-        finally:
-            self._busy.release()
+            if release:
+                self._busy.release()
+        except BaseException:
+            self._fail()
+            if release:
+                self._busy.release()
+            raise
 
     def release(self) -> None:
         """Give back a claim that will not be used."""

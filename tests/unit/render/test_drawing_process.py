@@ -158,6 +158,61 @@ def test_a_process_that_dies_or_hangs_costs_no_image(
     _assert_same_images(tmp_path / "again", reference)
 
 
+def test_an_error_raised_while_it_draws_ends_it(
+    fresh: None, one_object: Analysed, reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """An exception raised into the caller while it waits for the reply (a task's time limit, say) ends
+    the process: its late reply must never be taken for the next render's."""
+
+    class TimeLimitError(Exception):
+        pass
+
+    assert render.start_drawing_process(wait_s=60.0)
+    victim = _drawing_process._SHARED
+    assert victim is not None
+    original = _drawing_process._receive
+
+    def interrupted(fd: int, deadline: float | None) -> object:
+        raise TimeLimitError
+
+    monkeypatch.setattr(_drawing_process, "_receive", interrupted)
+    with pytest.raises(TimeLimitError):
+        render.render_all(one_object.analysis, tmp_path / "cut")
+    monkeypatch.setattr(_drawing_process, "_receive", original)
+    assert victim.failed
+    assert _gone(victim.pid)
+    render.render_all(one_object.analysis, tmp_path / "next")  # starts another
+    assert render.start_drawing_process(wait_s=60.0)
+    served = _spy_collect(monkeypatch)
+    render.render_all(one_object.analysis, tmp_path / "again")
+    assert served == [True]
+    _assert_same_images(tmp_path / "again", reference)
+
+
+def test_an_analysis_that_cannot_be_sent_is_drawn_here_and_the_process_kept(
+    fresh: None, one_object: Analysed, reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    import pickle
+
+    assert render.start_drawing_process(wait_s=60.0)
+    kept = _drawing_process._SHARED
+    assert kept is not None
+
+    def unpicklable(message: object) -> bytes:
+        raise pickle.PicklingError("a field that does not pickle")
+
+    original = _drawing_process._frame
+    monkeypatch.setattr(_drawing_process, "_frame", unpicklable)
+    render.render_all(one_object.analysis, tmp_path / "here")
+    _assert_same_images(tmp_path / "here", reference)
+    monkeypatch.setattr(_drawing_process, "_frame", original)
+    assert not kept.failed, "nothing was sent: the process is still in step"
+    served = _spy_collect(monkeypatch)
+    render.render_all(one_object.analysis, tmp_path / "there")
+    assert served == [True]
+    assert _drawing_process._SHARED is kept
+
+
 def test_a_process_that_keeps_failing_is_not_started_again(fresh: None, monkeypatch: pytest.MonkeyPatch):
     for _ in range(_drawing_process.MAX_STARTS):
         assert _drawing_process.claim_shared() is None  # starts one
