@@ -83,6 +83,23 @@ def _spy_collect(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
     return results
 
 
+def _assert_replaced(
+    victim: _drawing_process.DrawingProcess,
+    one_object: Analysed,
+    reference: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The render after a broken process starts a new one, which then draws the right pixels."""
+    render.render_all(one_object.analysis, tmp_path / "next")
+    assert render.start_drawing_process(wait_s=60.0)
+    assert _drawing_process._SHARED is not victim
+    served = _spy_collect(monkeypatch)
+    render.render_all(one_object.analysis, tmp_path / "again")
+    assert served == [True]
+    _assert_same_images(tmp_path / "again", reference)
+
+
 def test_it_draws_the_pixels_this_process_draws(
     one_object: Analysed, reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ):
@@ -148,14 +165,7 @@ def test_a_process_that_dies_or_hangs_costs_no_image(
     assert victim.failed
     assert _gone(victim.pid), "the broken process is ended"
     assert elapsed < 5.0, f"rendering took {elapsed:.1f} s"
-    # The next render starts a new one, which then draws.
-    render.render_all(one_object.analysis, tmp_path / "next")
-    assert render.start_drawing_process(wait_s=60.0)
-    assert _drawing_process._SHARED is not victim
-    served = _spy_collect(monkeypatch)
-    render.render_all(one_object.analysis, tmp_path / "again")
-    assert served == [True]
-    _assert_same_images(tmp_path / "again", reference)
+    _assert_replaced(victim, one_object, reference, tmp_path, monkeypatch)
 
 
 def test_an_error_raised_while_it_draws_ends_it(
@@ -181,12 +191,7 @@ def test_an_error_raised_while_it_draws_ends_it(
     monkeypatch.setattr(_drawing_process, "_receive", original)
     assert victim.failed
     assert _gone(victim.pid)
-    render.render_all(one_object.analysis, tmp_path / "next")  # starts another
-    assert render.start_drawing_process(wait_s=60.0)
-    served = _spy_collect(monkeypatch)
-    render.render_all(one_object.analysis, tmp_path / "again")
-    assert served == [True]
-    _assert_same_images(tmp_path / "again", reference)
+    _assert_replaced(victim, one_object, reference, tmp_path, monkeypatch)
 
 
 def test_an_analysis_that_cannot_be_sent_is_drawn_here_and_the_process_kept(
