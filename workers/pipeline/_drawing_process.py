@@ -299,6 +299,15 @@ def _serve() -> None:
 
     _agg.cache_at_first_use()
     render.warm_up().join()
+    # What every request needs, loaded before this process says it is ready rather than at its first
+    # request: the classes the analysis unpickles into (the whole pipeline, OpenCV included) and the PNG
+    # encoder.
+    import cv2
+    import numpy as np
+
+    import workers.pipeline.analysis  # noqa: F401
+
+    cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))
     mark = _agg.cache_mark()
     try:
         _send(reply_fd, ("ready",), time.monotonic() + REPLY_TIMEOUT_S)
