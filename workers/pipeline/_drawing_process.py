@@ -206,10 +206,7 @@ class DrawingProcess:
         """End the process: closing its pipe ends it; ``kill`` does not wait for that."""
         if os.getpid() != self._owner:
             return
-        for stream in (self._proc.stdin, self._proc.stdout):
-            if stream is not None:
-                with contextlib.suppress(OSError):
-                    stream.close()
+        self.forget()
         if kill and self._proc.poll() is None:
             self._proc.kill()
         try:
@@ -219,7 +216,8 @@ class DrawingProcess:
             self._proc.wait()
 
     def forget(self) -> None:
-        """In a forked child: drop the parent's pipes without touching the parent's process."""
+        """Close this side's ends of the pipes (which ends the process once no other copy is open); alone,
+        in a forked child: drop the parent's pipes without touching the parent's process."""
         for stream in (self._proc.stdin, self._proc.stdout):
             if stream is not None:
                 with contextlib.suppress(OSError):
