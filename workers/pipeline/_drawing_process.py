@@ -61,10 +61,8 @@ def _wait_for(fd: int, events: int, deadline: float) -> bool:
 def _write_all(fd: int, data: bytes, deadline: float) -> None:
     view = memoryview(data)
     while view:
-        if not _wait_for(fd, select.POLLOUT, deadline):
-            if time.monotonic() >= deadline:
-                raise _BrokenError("timed out writing")
-            continue
+        if not _wait_for(fd, select.POLLOUT, deadline):  # poll waited until the deadline
+            raise _BrokenError("timed out writing")
         try:
             view = view[os.write(fd, view) :]
         except BlockingIOError:
@@ -184,15 +182,12 @@ class DrawingProcess:
         method's failure value)."""
         try:
             yield
-        except (_BrokenError, pickle.UnpicklingError, ValueError, EOFError):
+        except BaseException as exc:
             self._fail()
             if release:
                 self._busy.release()
-        except BaseException:
-            self._fail()
-            if release:
-                self._busy.release()
-            raise
+            if not isinstance(exc, _BrokenError | pickle.UnpicklingError | ValueError | EOFError):
+                raise
 
     def release(self) -> None:
         """Give back a claim that will not be used."""
