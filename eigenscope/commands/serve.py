@@ -16,7 +16,6 @@ import signal
 import subprocess
 import sys
 import time
-import urllib.request
 from typing import TYPE_CHECKING, Any
 
 from eigenscope.cli import UsageError
@@ -134,6 +133,8 @@ class Supervisor:
 
 def wait_until_up(url: str, proc: subprocess.Popen[bytes], timeout_s: float = 60.0) -> bool:
     """Poll ``url`` until it answers 200, the process dies, or the time runs out."""
+    import urllib.request  # here, not at the top: every command imports this module to build its parser
+
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:

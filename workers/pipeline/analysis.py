@@ -561,7 +561,11 @@ def _stream(
     def grays() -> Iterator[NDArray[np.uint8]]:
         nonlocal depth_buf, first_rgb
         frame: Frame
-        for i, frame in enumerate(reader.frames(start, stop)):
+        # A reader that can sample depth onto the grid before converting it to metres saves the
+        # conversion of pixels the grid drops (same values: nearest-neighbour either way).
+        on_grid = getattr(reader, "frames_with_depth_on", None)
+        frames = on_grid(grid, start, stop) if callable(on_grid) else reader.frames(start, stop)
+        for i, frame in enumerate(frames):
             times[i] = frame.timestamp_s
             if first_rgb is None:
                 first_rgb = np.array(frame.rgb, copy=True)

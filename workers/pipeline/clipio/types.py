@@ -262,6 +262,50 @@ class ClosingReader:
         self.close()
 
 
+def nearest_indices(source: int, target: int) -> NDArray[np.intp]:
+    """Source indices of nearest-neighbour resampling from ``source`` to ``target`` samples.
+
+    The same samples as OpenCV's ``cv2.resize(..., interpolation=cv2.INTER_NEAREST)`` (index
+    ``floor(i / (target / source))``, clipped to the last), so a map sampled with these before a
+    per-pixel conversion is bit for bit the converted map resized afterwards.
+
+    Parameters
+    ----------
+    source, target : int
+        Samples along the axis before and after resampling, both at least 1.
+
+    Returns
+    -------
+    ndarray of intp, shape (target,)
+    """
+    if source < 1 or target < 1:
+        raise ParameterError(f"cannot resample {source} samples to {target}; both must be at least 1")
+    inverse = 1.0 / (target / source)
+    index = np.floor(np.arange(target, dtype=np.float64) * inverse).astype(np.intp)
+    return np.minimum(index, source - 1)
+
+
+def sample_nearest(image: NDArray[Any], shape: tuple[int, int]) -> NDArray[Any]:
+    """``image`` resampled to ``shape`` (rows, columns) by nearest neighbour, as OpenCV's INTER_NEAREST.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, C), any dtype
+    shape : (rows, columns)
+
+    Returns
+    -------
+    ndarray, shape (rows, columns) or (rows, columns, C), dtype of ``image``
+        A new array (``image`` itself when it already has ``shape``).
+    """
+    height, width = image.shape[:2]
+    if (height, width) == tuple(shape):
+        return image
+    rows = nearest_indices(height, shape[0])
+    cols = nearest_indices(width, shape[1])
+    return np.ascontiguousarray(image[rows[:, None], cols[None, :]])
+
+
 def depth_to_metres(raw: NDArray[np.generic], depth_scale: float) -> NDArray[np.float32]:
     """Convert a stored depth map to metres.
 
