@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+from collections.abc import Iterator
 from pathlib import Path
 
 # isort: off
@@ -21,6 +22,15 @@ def _seeded() -> None:
     """Every test starts from the same random state."""
     random.seed(1234)
     np.random.seed(1234)  # noqa: NPY002 - legacy global state, for third-party code that uses it
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _own_cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """The command line's cache (rendered strings of figures) in a folder of the test session's, for
+    every command the tests run: never the user's ``~/.cache``."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("EIGENSCOPE_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+        yield
 
 
 @pytest.fixture(scope="session")

@@ -119,6 +119,7 @@ def run_analysis(
     scratch_dir: str | Path | None = None,
     flow_threads: int | None = None,
     drawing_process: bool = True,
+    draw_elsewhere: bool = False,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
 
@@ -127,7 +128,9 @@ def run_analysis(
     zipped ROS 2 bag may be unpacked (default: the system temporary folder). ``flow_threads`` bounds the
     frame pairs whose flow is computed at once (default two). ``drawing_process``: draw part of the
     images in this process's long-lived drawing process (see :func:`workers.pipeline.render.render_all`);
-    a process that analyses one clip and exits passes False.
+    a process that analyses one clip and exits passes False, or starts that process in the background
+    as it starts (:func:`workers.pipeline.render.start_drawing_process`) and passes ``draw_elsewhere``:
+    every figure is then drawn there, and matplotlib is never imported here.
 
     Raises
     ------
@@ -142,7 +145,7 @@ def run_analysis(
     from workers.pipeline.render import render_all, warm_up
 
     tune_malloc()  # once per process: freed buffers are reused instead of faulted in afresh
-    report = _warming_up_for_images(progress, warm_up)
+    report = _warming_up_for_images(progress, (lambda: None) if draw_elsewhere else warm_up)
 
     params = parameters or AnalysisParameters()
     overrides = ClipOverrides(
@@ -185,7 +188,14 @@ def run_analysis(
 
     started = perf_counter()
     # mask.png (MASK_FILE) and every other image
-    artifacts = Artifacts(**render_all(analysis, out, drawing_process=drawing_process))
+    artifacts = Artifacts(
+        **render_all(
+            analysis,
+            out,
+            drawing_process=drawing_process or draw_elsewhere,
+            everything_elsewhere=draw_elsewhere,
+        )
+    )
     analysis.timings_s["render"] = perf_counter() - started
 
     objects = [

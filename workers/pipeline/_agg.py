@@ -105,6 +105,86 @@ def load_added(path: str | os.PathLike[str]) -> int:
     return add_strings(added)
 
 
+#: Format of the file :func:`save_cache` writes (one of another format, or matplotlib, is not read).
+_CACHE_FORMAT = 1
+
+
+class _BuiltinsOnly(pickle.Unpickler):
+    """Unpickles str, numbers, bytes, tuples, lists and dicts only: a cache file cannot name a class."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        raise pickle.UnpicklingError(f"a text cache holds no {module}.{name}")
+
+
+def _matplotlib_version() -> str:
+    from importlib.metadata import version
+
+    return version("matplotlib")
+
+
+def save_cache(path: str | os.PathLike[str]) -> bool:
+    """Write every string in this process's caches to ``path``, atomically, so that a later process can
+    start with them (:func:`load_cache`): the figures' strings repeat from run to run, and rasterising
+    them is half of a first drawing's time. Whether the file was written (a cache that cannot be
+    saved, such as one in a read-only folder, only makes a later start slower)."""
+    import tempfile
+    from pathlib import Path
+
+    # Builtins only (a measurement may be a numpy scalar): the file is read without naming any class.
+    metrics = [(k, tuple(float(x) for x in v)) for k, v in _METRICS.added_since(0) if _plain(k)]
+    bitmaps = [
+        (k, (v[0].tobytes(), *(int(n) for n in v[0].shape), int(v[1]), int(v[2])))
+        for k, v in _BITMAPS.added_since(0)
+        if v != _SEEN_ONCE and _plain(k)
+    ]
+    payload = {
+        "format": _CACHE_FORMAT,
+        "matplotlib": _matplotlib_version(),
+        "metrics": metrics,
+        "bitmaps": bitmaps,
+    }
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                pickle.dump(payload, fh, protocol=pickle.HIGHEST_PROTOCOL)
+            os.replace(tmp, target)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    except OSError:
+        return False
+    return True
+
+
+def _plain(key: tuple[Any, ...]) -> bool:
+    """Whether a key holds builtins only (a cache file holds nothing else)."""
+    return all(
+        _plain(item) if isinstance(item, tuple) else item is None or type(item) in (str, int, float, bool)
+        for item in key
+    )
+
+
+def load_cache(path: str | os.PathLike[str]) -> int:
+    """Add the strings :func:`save_cache` wrote to ``path`` to this process's caches; how many. A missing,
+    unreadable or foreign file (another format or matplotlib) adds nothing."""
+    try:
+        with open(path, "rb") as fh:
+            payload = _BuiltinsOnly(fh).load()
+        if payload["format"] != _CACHE_FORMAT or payload["matplotlib"] != _matplotlib_version():
+            return 0
+        metrics = [(tuple(k), tuple(float(x) for x in v)) for k, v in payload["metrics"]]
+        bitmaps = []
+        for key, (data, height, width, dx, dy) in payload["bitmaps"]:
+            coverage = np.frombuffer(data, np.uint8).reshape(height, width).copy()
+            bitmaps.append((tuple(key), (coverage, int(dx), int(dy))))
+    except (OSError, EOFError, pickle.UnpicklingError, ValueError, TypeError, KeyError, IndexError):
+        return 0
+    return add_strings((metrics, bitmaps))
+
+
 _EAGER = False
 
 
@@ -162,7 +242,8 @@ def caching_canvas() -> type[Any]:
         if paths is None:
             paths = tuple(str(p) for p in fontManager._find_fonts_by_props(prop))
             fonts[props] = paths
-        return (props, paths, float(dpi), get_hinting_flag())
+        flag = get_hinting_flag()  # an enum member: its value keeps keys to builtins (see save_cache)
+        return (props, paths, float(dpi), getattr(flag, "value", flag))
 
     heights: dict[tuple[Any, ...], tuple[float | None, float | None, float | None]] = {}
 

@@ -13,9 +13,16 @@ The process draws every string of text from the text cache, from the first use o
 it rendered back with each reply (:mod:`workers.pipeline._agg`): its figures have the same pixels as the
 caller's own once the caller's cache is warm, and the caller's cache learns its strings.
 
+A process that analyses one clip and exits (the command line) starts it *in the background* as it starts:
+at the lowest CPU priority, so that it imports matplotlib on whatever core time the analysis leaves idle
+(start-up, segmentation, registration) without slowing it, and then has it draw every figure, the
+figures split between it and a child it forks (two warm processes on two cores) while the caller writes
+its other files.
+
 It exits when its parent closes the pipe or dies (the pipe's end of file), and ignores the terminal's
-interrupts (its own session). Whatever goes wrong with it (it dies, hangs, cannot start) the caller draws
-the figures itself and a new process is started later, at most :data:`MAX_STARTS` times per process.
+interrupts (its own session, or in the background its own process group). Whatever goes wrong with it
+(it dies, hangs, cannot start) the caller draws the figures itself and a new process is started later, at
+most :data:`MAX_STARTS` times per process.
 """
 
 from __future__ import annotations
@@ -106,17 +113,11 @@ def _receive(fd: int, deadline: float | None) -> Any:
 class DrawingProcess:
     """One drawing process and the pipes to it; used by one render at a time (:meth:`claim`)."""
 
-    def __init__(self) -> None:
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (_PACKAGE_ROOT, env.get("PYTHONPATH")) if p)
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "workers.pipeline._drawing_process"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            env=env,
-            close_fds=True,
-            start_new_session=True,  # Ctrl-C in a terminal is the parent's to handle; EOF ends this one
-        )
+    def __init__(self, *, background: bool = False, text_cache: str | os.PathLike[str] | None = None) -> None:
+        """``background``: the process runs only on core time nothing else wants (Linux's ``SCHED_IDLE``),
+        for its whole life. ``text_cache``: a file of rendered strings it starts with and keeps up to
+        date (see :func:`workers.pipeline._agg.save_cache`)."""
+        self._proc = self._spawn(background, None if text_cache is None else os.fspath(text_cache))
         assert self._proc.stdin is not None
         assert self._proc.stdout is not None
         self._to = self._proc.stdin.fileno()
@@ -126,6 +127,29 @@ class DrawingProcess:
         self._ready = False
         self._busy = threading.Lock()
         self.failed = False
+
+    @staticmethod
+    def _spawn(background: bool, text_cache: str | None) -> subprocess.Popen[bytes]:
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (_PACKAGE_ROOT, env.get("PYTHONPATH")) if p)
+        args = [sys.executable, "-m", "workers.pipeline._drawing_process"]
+        if background:
+            args.append(_BACKGROUND)
+        if text_cache is not None:
+            args += [_TEXT_CACHE, text_cache]
+        return subprocess.Popen(
+            args,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+            close_fds=True,
+            # Ctrl-C in a terminal is the parent's to handle (EOF ends this one): the process leads a
+            # session of its own, or, in the background, a process group of its own in the parent's
+            # session, since a session is also a scheduling group (Linux's autogroups): in one of its own
+            # the process would take half the CPU from the parent whatever its priority.
+            start_new_session=not background,
+            process_group=0 if background else None,
+        )
 
     @property
     def pid(self) -> int:
@@ -147,11 +171,14 @@ class DrawingProcess:
             return True
         return False
 
-    def submit(self, analysis: Analysis, out: Path, keys: tuple[str, ...]) -> bool:
-        """Send the process the figures ``keys`` of ``analysis`` to draw into ``out`` (after :meth:`claim`);
-        False (and the claim given back) when it could not be sent."""
+    def submit(
+        self, analysis: Analysis, out: Path, keys: tuple[str, ...], *, forked: tuple[str, ...] = ()
+    ) -> bool:
+        """Send the process the figures ``keys`` of ``analysis`` to draw into ``out`` (after :meth:`claim`),
+        and ``forked``, figures that a child it forks for them draws meanwhile (it draws them itself where
+        it cannot fork); False (and the claim given back) when it could not be sent."""
         try:
-            payload = _frame(("draw", analysis, str(out), keys))
+            payload = _frame(("draw", analysis, str(out), keys, forked))
         except (pickle.PicklingError, TypeError, AttributeError):
             self._busy.release()  # nothing was sent: the process is still in step
             return False
@@ -222,6 +249,11 @@ class DrawingProcess:
 _SHARED: DrawingProcess | None = None
 _STARTS = 0
 _SHARED_LOCK = threading.Lock()
+#: How this process's drawing process is started (and started again after a failure): see start_shared.
+_OPTIONS: dict[str, Any] = {}
+#: Command-line arguments of the process (see :class:`DrawingProcess`).
+_BACKGROUND = "--background"
+_TEXT_CACHE = "--text-cache"
 
 
 def claim_shared() -> DrawingProcess | None:
@@ -236,7 +268,7 @@ def claim_shared() -> DrawingProcess | None:
                 return None
             _STARTS += 1
             try:
-                _SHARED = DrawingProcess()
+                _SHARED = DrawingProcess(**_OPTIONS)
             except OSError:
                 return None
             return None  # it is starting: this render draws everything itself
@@ -244,14 +276,29 @@ def claim_shared() -> DrawingProcess | None:
     return helper if helper.claim() else None
 
 
-def start_shared(wait_s: float = 0.0) -> bool:
-    """Start this process's drawing process unless it runs; whether it is ready to draw (waiting up to
-    ``wait_s`` seconds for it to start)."""
+def claim_shared_waiting(wait_s: float) -> DrawingProcess | None:
+    """:func:`claim_shared`, waiting up to ``wait_s`` seconds for the process to be ready (or free)."""
     deadline = time.monotonic() + wait_s
     claimed = claim_shared()
     while claimed is None and time.monotonic() < deadline:
-        time.sleep(0.02)
+        if _SHARED is None and _STARTS >= MAX_STARTS:
+            return None  # none runs, and none will be started again
+        time.sleep(0.005)
         claimed = claim_shared()
+    return claimed
+
+
+def start_shared(
+    wait_s: float = 0.0,
+    *,
+    background: bool = False,
+    text_cache: str | os.PathLike[str] | None = None,
+) -> bool:
+    """Start this process's drawing process unless it runs; whether it is ready to draw (waiting up to
+    ``wait_s`` seconds for it to start). ``background`` and ``text_cache`` (see :class:`DrawingProcess`)
+    apply to this process's drawing processes from the next one started."""
+    _OPTIONS.update(background=background, text_cache=text_cache)
+    claimed = claim_shared_waiting(wait_s)
     if claimed is None:
         return False
     claimed.release()
@@ -274,9 +321,12 @@ atexit.register(_close_shared)
 os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
-def _serve() -> None:
+def _serve(request_fd: int, reply_fd: int, background: bool, text_cache: str | None) -> None:
     """The drawing process: draw what each message asks until the pipe closes or the parent dies."""
     parent = os.getppid()
+    if background:
+        with contextlib.suppress(OSError, AttributeError):
+            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
 
     def watch_parent() -> None:  # a parent killed while this process starts cannot close the pipe yet
         while os.getppid() == parent:
@@ -284,10 +334,6 @@ def _serve() -> None:
         os._exit(0)
 
     threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
-    # The protocol has stdout to itself: anything printed goes to stderr.
-    reply_fd = os.dup(1)
-    os.dup2(2, 1)
-    request_fd = 0
     from workers.pipeline import _agg, render
 
     _agg.cache_at_first_use()
@@ -301,7 +347,9 @@ def _serve() -> None:
     import workers.pipeline.analysis  # noqa: F401
 
     cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))
-    mark = _agg.cache_mark()
+    if text_cache is not None:
+        _agg.load_cache(text_cache)
+    mark = saved = _agg.cache_mark()
     try:
         _send(reply_fd, ("ready",), time.monotonic() + REPLY_TIMEOUT_S)
     except _BrokenError:
@@ -311,11 +359,10 @@ def _serve() -> None:
             message = _receive(request_fd, None)
         except _BrokenError:
             return  # the parent closed the pipe or died
-        _, analysis, out, keys = message
+        _, analysis, out, keys, forked = message
         error = None
         try:
-            for key in keys:
-                render._draw_and_write(analysis, Path(out), key)
+            error = _draw(analysis, Path(out), keys, forked)
         except Exception as exc:  # reported to the parent, which draws the figures itself
             error = f"{type(exc).__name__}: {exc}"
         added = _agg.strings_added_since(mark)
@@ -324,7 +371,33 @@ def _serve() -> None:
             _send(reply_fd, ("done", error, added), time.monotonic() + REPLY_TIMEOUT_S)
         except _BrokenError:
             return
+        finally:  # after the reply, which the parent may be waiting for (and then exit)
+            if text_cache is not None and mark != saved:
+                _agg.save_cache(text_cache)
+                saved = mark
+
+
+def _draw(analysis: Analysis, out: Path, keys: tuple[str, ...], forked: tuple[str, ...]) -> str | None:
+    """Draw and write ``keys`` here and ``forked`` in a forked child (here too where none can be forked),
+    whose rendered strings join this process's text cache; an error message when the child failed."""
+    from workers.pipeline import render
+
+    child = render._draw_elsewhere(analysis, out, forked, long_lived=False) if forked else None
+    for key in keys if child is not None else (*keys, *forked):
+        render._draw_and_write(analysis, out, key)
+    if child is not None and not child():
+        return f"the child drawing {', '.join(forked)} failed"
+    return None
+
+
+def _main(argv: list[str]) -> None:
+    """A drawing process started afresh: requests on stdin, replies on stdout (which the protocol has to
+    itself: anything printed goes to stderr)."""
+    text_cache = argv[argv.index(_TEXT_CACHE) + 1] if _TEXT_CACHE in argv else None
+    reply_fd = os.dup(1)
+    os.dup2(2, 1)
+    _serve(0, reply_fd, _BACKGROUND in argv, text_cache)
 
 
 if __name__ == "__main__":
-    _serve()
+    _main(sys.argv[1:])

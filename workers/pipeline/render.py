@@ -1439,7 +1439,13 @@ _DRAWERS: dict[str, Callable[[Analysis], _Image]] = {
 }
 
 
-def render_all(analysis: Analysis, out_dir: str | Path, *, drawing_process: bool = True) -> dict[str, str]:
+def render_all(
+    analysis: Analysis,
+    out_dir: str | Path,
+    *,
+    drawing_process: bool = True,
+    everything_elsewhere: bool = False,
+) -> dict[str, str]:
     """Write every image of an analysis into ``out_dir``.
 
     The displacement and ring-down figures are drawn in another process on the second core while the
@@ -1456,8 +1462,14 @@ def render_all(analysis: Analysis, out_dir: str | Path, *, drawing_process: bool
     out_dir : path-like
         Existing or new directory; files get the names of :data:`ARTIFACT_FILES`.
     drawing_process : bool, keyword-only
-        Use (and start) the long-lived drawing process. A process that renders once and exits (the
-        command line) passes False: starting an interpreter would cost more than it saves.
+        Use (and start) the long-lived drawing process. A process that renders once and exits passes
+        False, unless it started that process early (below): starting an interpreter now would cost more
+        than it saves.
+    everything_elsewhere : bool, keyword-only
+        Have the drawing process draw every figure (split between it and a child it forks) while this
+        process writes the mask, waiting for it to be ready: for a process that started it in the
+        background at its own start (:func:`start_drawing_process`) and draws nothing else, so that it
+        never imports matplotlib. Where that process fails, the figures are drawn here as above.
 
     Returns
     -------
@@ -1474,6 +1486,8 @@ def render_all(analysis: Analysis, out_dir: str | Path, *, drawing_process: bool
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if everything_elsewhere and _draw_everything_elsewhere(analysis, out):
+        return {key: ARTIFACT_FILES[key] for key in ("mask", *_DRAWERS)}
     remote = _draw_elsewhere(analysis, out, _FORKED_DRAWERS, long_lived=drawing_process)
     here = [key for key in _DRAWERS if remote is None or key not in _FORKED_DRAWERS]
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="eigenscope-png") as pool:
@@ -1499,7 +1513,9 @@ def render_all(analysis: Analysis, out_dir: str | Path, *, drawing_process: bool
     return {key: ARTIFACT_FILES[key] for key in ("mask", *_DRAWERS)}
 
 
-def start_drawing_process(*, wait_s: float = 0.0) -> bool:
+def start_drawing_process(
+    *, wait_s: float = 0.0, background: bool = False, text_cache: str | Path | None = None
+) -> bool:
     """Start this process's drawing process (see :func:`render_all`) unless it runs already.
 
     :func:`render_all` starts it at its first call and uses it from when it is ready; a process that
@@ -1509,13 +1525,39 @@ def start_drawing_process(*, wait_s: float = 0.0) -> bool:
     ----------
     wait_s : float, keyword-only
         How long to wait for it to be ready (it imports matplotlib: about a second).
+    background : bool, keyword-only
+        Start it at the lowest CPU priority, for its whole life: it then prepares on core time this
+        process leaves idle. For a process that analyses once and then renders with
+        ``everything_elsewhere``, started as that process starts.
+    text_cache : path-like, optional, keyword-only
+        A file of rendered strings the process starts with and keeps up to date: the figures' titles,
+        labels and ticks repeat from run to run, and rasterising them is half of a first drawing's time.
+        A missing or unreadable file is ignored (and written anew where it can be).
 
     Returns
     -------
     bool
         Whether it is ready to draw.
     """
-    return _drawing_process.start_shared(wait_s)
+    return _drawing_process.start_shared(wait_s, background=background, text_cache=text_cache)
+
+
+def _draw_everything_elsewhere(analysis: Analysis, out: Path) -> bool:
+    """Have this process's drawing process draw and write every figure but the mask, which is written
+    here meanwhile; False (with the mask written) when it could not, and the figures are to be drawn here."""
+    drawing = _drawing_process.claim_shared_waiting(_drawing_process.REPLY_TIMEOUT_S)
+    mine = tuple(key for key in _DRAWERS if key not in _FORKED_DRAWERS)
+    sent = drawing is not None and drawing.submit(analysis, out, mine, forked=_FORKED_DRAWERS)
+    ok, added = False, None
+    try:
+        write_label_png(out / ARTIFACT_FILES["mask"], analysis.labels)
+    finally:  # the process is waited for (and given back) whatever happened here
+        if sent:
+            assert drawing is not None
+            ok, added = drawing.collect()
+    if ok and added is not None:
+        add_strings(added)
+    return ok
 
 
 def _draw_elsewhere(

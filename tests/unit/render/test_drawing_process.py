@@ -1,10 +1,11 @@
-"""The long-lived drawing process draws the displacement and ring-down figures with the pixels this
-process would give them; whatever happens to it (it dies, hangs, or its parent dies), every image is
-written and nothing is left running."""
+"""The long-lived drawing process draws the displacement and ring-down figures (or, started in the
+background for the command line, every figure) with the pixels this process would give them; whatever
+happens to it (it dies, hangs, or its parent dies), every image is written and nothing is left running."""
 
 from __future__ import annotations
 
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -197,8 +198,6 @@ def test_an_error_raised_while_it_draws_ends_it(
 def test_an_analysis_that_cannot_be_sent_is_drawn_here_and_the_process_kept(
     fresh: None, one_object: Analysed, reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ):
-    import pickle
-
     assert render.start_drawing_process(wait_s=60.0)
     kept = _drawing_process._SHARED
     assert kept is not None
@@ -254,3 +253,95 @@ def test_it_ends_with_its_parent(when: str):
     while not _gone(pid) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert _gone(pid), "the drawing process outlived its parent"
+
+
+def test_in_the_background_it_runs_on_idle_time_in_the_callers_session(fresh: None):
+    """SCHED_IDLE, and in this session (a session is a scheduling group: in one of its own, it would
+    take half the CPU from this process whatever its priority) but its own process group (Ctrl-C in a
+    terminal is the caller's)."""
+    assert render.start_drawing_process(wait_s=60.0, background=True)
+    made = _drawing_process._SHARED
+    assert made is not None
+    assert os.sched_getscheduler(made.pid) == os.SCHED_IDLE
+    assert os.getsid(made.pid) == os.getsid(0)
+    assert os.getpgid(made.pid) == made.pid != os.getpgid(0)
+
+
+def test_everything_elsewhere_draws_every_figure_with_this_processs_pixels(
+    fresh: None, one_object: Analysed, reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    cache = tmp_path / "cache" / "text.pickle"
+    assert render.start_drawing_process(wait_s=60.0, background=True, text_cache=cache)
+    served = _spy_collect(monkeypatch)
+    drawn_here: list[str] = []
+    original = dict(render._DRAWERS)
+    for key, draw in original.items():
+        monkeypatch.setitem(
+            render._DRAWERS, key, lambda a, key=key, draw=draw: drawn_here.append(key) or draw(a)
+        )
+    for i in range(2):
+        names = render.render_all(one_object.analysis, tmp_path / f"out-{i}", everything_elsewhere=True)
+        assert set(names) == {"mask", "overlay", "frequency_map", "spectrum", "displacement", "ringdown"}
+        _assert_same_images(tmp_path / f"out-{i}", reference)
+    assert served == [True, True]
+    assert drawn_here == [], "no figure is drawn in this process"
+    # The strings of all figures (the forked child's too) were saved for the next process.
+    deadline = time.monotonic() + 10.0
+    while not cache.is_file() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    saved = {key[0] for key, _ in pickle.loads(cache.read_bytes())["bitmaps"]}
+    assert any(s.startswith("release ") for s in saved), "the displacement figure's (forked) strings"
+    assert any("Hz" in s for s in saved), "the spectrum's strings"
+
+
+@pytest.mark.parametrize("fault", ["killed", "stopped"])
+def test_everything_elsewhere_without_a_working_process_draws_here(
+    fault: str,
+    fresh: None,
+    one_object: Analysed,
+    reference: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+):
+    monkeypatch.setattr(_drawing_process, "REPLY_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(_drawing_process, "MAX_STARTS", 1)  # no second process to fall back on
+    assert render.start_drawing_process(wait_s=60.0, background=True)
+    victim = _drawing_process._SHARED
+    assert victim is not None
+    if fault == "killed":
+        os.kill(victim.pid, signal.SIGKILL)
+        victim._proc.wait()
+    else:
+        os.kill(victim.pid, signal.SIGSTOP)
+    started = time.perf_counter()
+    render.render_all(one_object.analysis, tmp_path / "out", everything_elsewhere=True)
+    elapsed = time.perf_counter() - started
+    _assert_same_images(tmp_path / "out", reference)
+    assert victim.failed
+    assert _gone(victim.pid), "the broken process is ended"
+    assert elapsed < 5.0, f"rendering took {elapsed:.1f} s"
+
+
+def test_a_command_line_analysis_never_imports_matplotlib(one_object: Analysed, tmp_path: Path):
+    """What ``eigenscope analyze`` does: the drawing process started in the background first, every
+    figure drawn there."""
+    script = (
+        "import eigenscope, sys\n"
+        "from workers.pipeline.render import start_drawing_process\n"
+        "from workers.runner import run_analysis\n"
+        "start_drawing_process(background=True, text_cache=sys.argv[3])\n"
+        "run_analysis(sys.argv[1], sys.argv[2], draw_elsewhere=True)\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))\n"
+    )
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(one_object.clip_path), str(out), str(tmp_path / "text.pickle")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+    assert len(list(out.glob("*.png"))) == 6

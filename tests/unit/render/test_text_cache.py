@@ -1,14 +1,20 @@
 """Text drawn from the per-process cache of rendered strings looks like matplotlib's own, and the cache is
 what makes it cheaper: a string is drawn by matplotlib at its first use, rasterised once at its second,
-and composited from the cache after that, whatever the figure."""
+and composited from the cache after that, whatever the figure; saved to a file, the cache gives a later
+process the same pixels without rasterising again, and a bad file only costs that."""
 
 from __future__ import annotations
+
+import pickle
+from collections import OrderedDict
+from pathlib import Path
 
 import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg
 from matplotlib.figure import Figure
 
+from workers.pipeline import _agg
 from workers.pipeline._agg import caching_canvas
 
 
@@ -107,3 +113,100 @@ def test_text_layout_from_cached_font_heights_is_matplotlibs(dpi):
         got = Text._get_layout(text, cached)
         assert got[0].bounds == pytest.approx(expected[0].bounds, abs=1e-9)
         assert [line[:2] for line in got[1]] == [line[:2] for line in expected[1]]
+
+
+@pytest.fixture
+def cold(monkeypatch: pytest.MonkeyPatch) -> None:
+    """This process's caches emptied for the test (and put back afterwards)."""
+    for cache in (_agg._BITMAPS, _agg._METRICS):
+        monkeypatch.setattr(cache, "_items", OrderedDict())
+
+
+def _count_matplotlib_text(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    drawn: list[str] = []
+    original = RendererAgg.draw_text
+
+    def spy(self, gc, x, y, s, prop, angle, ismath=False, mtext=None):
+        drawn.append(s)
+        return original(self, gc, x, y, s, prop, angle, ismath=ismath, mtext=mtext)
+
+    monkeypatch.setattr(RendererAgg, "draw_text", spy)
+    return drawn
+
+
+def test_saved_strings_give_a_later_process_the_same_pixels_without_rasterising(
+    cold: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    warm = _pixels(caching_canvas(), draws=3)
+    path = tmp_path / "cache" / "text.pickle"  # the folder is made
+    assert _agg.save_cache(path)
+    saved = len(_agg._BITMAPS.added_since(0))
+    for cache in (_agg._BITMAPS, _agg._METRICS):  # a new process: nothing cached
+        monkeypatch.setattr(cache, "_items", OrderedDict())
+    assert _agg.load_cache(path) >= saved > 5
+    drawn = _count_matplotlib_text(monkeypatch)
+    first = _pixels(caching_canvas())
+    assert drawn == [], "a loaded string is neither drawn nor rasterised by matplotlib again"
+    assert np.array_equal(first, warm)
+    assert not [p for p in path.parent.iterdir() if p != path], "no temporary file left behind"
+
+
+def test_a_cache_file_cannot_run_code(cold: None, tmp_path: Path):
+    marker = tmp_path / "ran"
+
+    class Payload:
+        def __reduce__(self):
+            return (exec, (f"open({str(marker)!r}, 'w').close()",))
+
+    path = tmp_path / "text.pickle"
+    payload = {"format": _agg._CACHE_FORMAT, "matplotlib": _agg._matplotlib_version(), "metrics": Payload()}
+    path.write_bytes(pickle.dumps(payload))
+    assert _agg.load_cache(path) == 0
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        "missing",
+        "empty",
+        "garbage",
+        "truncated",
+        "other format",
+        "other matplotlib",
+        "wrong shape",
+        "not a dict",
+    ],
+)
+def test_a_missing_or_foreign_cache_file_adds_nothing(content: str, cold: None, tmp_path: Path):
+    _pixels(caching_canvas(), draws=3)
+    good = tmp_path / "good.pickle"
+    assert _agg.save_cache(good)
+    payload = pickle.loads(good.read_bytes())
+    path = tmp_path / "text.pickle"
+    if content == "empty":
+        path.write_bytes(b"")
+    elif content == "garbage":
+        path.write_bytes(b"\x00not a pickle at all" * 10)
+    elif content == "truncated":
+        path.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    elif content == "other format":
+        path.write_bytes(pickle.dumps({**payload, "format": _agg._CACHE_FORMAT + 1}))
+    elif content == "other matplotlib":
+        path.write_bytes(pickle.dumps({**payload, "matplotlib": "0.0.1"}))
+    elif content == "wrong shape":
+        key, (data, height, width, dx, dy) = payload["bitmaps"][0]
+        bad = [(key, (data, height + 1, width, dx, dy))]
+        path.write_bytes(pickle.dumps({**payload, "bitmaps": bad}))
+    elif content == "not a dict":
+        path.write_bytes(pickle.dumps([1, 2, 3]))
+    before = (_agg._BITMAPS.generation, len(_agg._BITMAPS.added_since(0)))
+    assert _agg.load_cache(path) == 0
+    assert len(_agg._BITMAPS.added_since(0)) == before[1]
+
+
+def test_a_cache_that_cannot_be_written_is_no_error(tmp_path: Path):
+    _pixels(caching_canvas(), draws=3)
+    blocker = tmp_path / "a file"
+    blocker.write_text("")
+    assert not _agg.save_cache(blocker / "text.pickle")  # its folder would be a file
