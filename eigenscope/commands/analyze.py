@@ -75,6 +75,12 @@ TEXT_CACHE_FILE = "figure-text.pickle"
 
 
 def run(args: argparse.Namespace) -> int:
+    from workers.pipeline.render import start_drawing_process
+
+    # The images are drawn by a process started first, at the lowest priority: it imports matplotlib on
+    # the core time this process leaves idle (from its own imports on), and this process never does.
+    # Bad arguments, found below, end both.
+    start_drawing_process(background=True, text_cache=text_cache_path())
     from pydantic import ValidationError
 
     from api_schemas import AnalysisParameters, ImpulseExcitation, StepReleaseExcitation
@@ -125,11 +131,6 @@ def run(args: argparse.Namespace) -> int:
         where = ".".join(str(x) for x in err["loc"]) or "input"
         raise UsageError(f"--{where.replace('_', '-')}: {err['msg']}") from None
 
-    from workers.pipeline.render import start_drawing_process
-
-    # The images are drawn by a process started now at the lowest priority: it imports matplotlib on the
-    # core time the analysis leaves idle, and this process never does.
-    start_drawing_process(background=True, text_cache=text_cache_path())
     result = run_analysis(
         args.clip,
         args.out,

@@ -15,9 +15,8 @@ caller's own once the caller's cache is warm, and the caller's cache learns its 
 
 A process that analyses one clip and exits (the command line) starts it *in the background* as it starts:
 at the lowest CPU priority, so that it imports matplotlib on whatever core time the analysis leaves idle
-(start-up, segmentation, registration) without slowing it, and then has it draw every figure, the
-figures split between it and a child it forks (two warm processes on two cores) while the caller writes
-its other files.
+(start-up, segmentation, registration) without slowing it, and then has it draw every figure while the
+caller writes its other files.
 
 It exits when its parent closes the pipe or dies (the pipe's end of file), and ignores the terminal's
 interrupts (its own session, or in the background its own process group). Whatever goes wrong with it
@@ -171,14 +170,11 @@ class DrawingProcess:
             return True
         return False
 
-    def submit(
-        self, analysis: Analysis, out: Path, keys: tuple[str, ...], *, forked: tuple[str, ...] = ()
-    ) -> bool:
-        """Send the process the figures ``keys`` of ``analysis`` to draw into ``out`` (after :meth:`claim`),
-        and ``forked``, figures that a child it forks for them draws meanwhile (it draws them itself where
-        it cannot fork); False (and the claim given back) when it could not be sent."""
+    def submit(self, analysis: Analysis, out: Path, keys: tuple[str, ...]) -> bool:
+        """Send the process the figures ``keys`` of ``analysis`` to draw into ``out`` (after :meth:`claim`);
+        False (and the claim given back) when it could not be sent."""
         try:
-            payload = _frame(("draw", analysis, str(out), keys, forked))
+            payload = _frame(("draw", analysis, str(out), keys))
         except (pickle.PicklingError, TypeError, AttributeError):
             self._busy.release()  # nothing was sent: the process is still in step
             return False
@@ -359,10 +355,10 @@ def _serve(request_fd: int, reply_fd: int, background: bool, text_cache: str | N
             message = _receive(request_fd, None)
         except _BrokenError:
             return  # the parent closed the pipe or died
-        _, analysis, out, keys, forked = message
+        _, analysis, out, keys = message
         error = None
         try:
-            error = _draw(analysis, Path(out), keys, forked)
+            render._draw_and_write_all(analysis, Path(out), keys)
         except Exception as exc:  # reported to the parent, which draws the figures itself
             error = f"{type(exc).__name__}: {exc}"
         added = _agg.strings_added_since(mark)
@@ -375,19 +371,6 @@ def _serve(request_fd: int, reply_fd: int, background: bool, text_cache: str | N
             if text_cache is not None and mark != saved:
                 _agg.save_cache(text_cache)
                 saved = mark
-
-
-def _draw(analysis: Analysis, out: Path, keys: tuple[str, ...], forked: tuple[str, ...]) -> str | None:
-    """Draw and write ``keys`` here and ``forked`` in a forked child (here too where none can be forked),
-    whose rendered strings join this process's text cache; an error message when the child failed."""
-    from workers.pipeline import render
-
-    child = render._draw_elsewhere(analysis, out, forked, long_lived=False) if forked else None
-    for key in keys if child is not None else (*keys, *forked):
-        render._draw_and_write(analysis, out, key)
-    if child is not None and not child():
-        return f"the child drawing {', '.join(forked)} failed"
-    return None
 
 
 def _main(argv: list[str]) -> None:

@@ -1466,10 +1466,12 @@ def render_all(
         False, unless it started that process early (below): starting an interpreter now would cost more
         than it saves.
     everything_elsewhere : bool, keyword-only
-        Have the drawing process draw every figure (split between it and a child it forks) while this
-        process writes the mask, waiting for it to be ready: for a process that started it in the
-        background at its own start (:func:`start_drawing_process`) and draws nothing else, so that it
-        never imports matplotlib. Where that process fails, the figures are drawn here as above.
+        Have the drawing process draw every figure while this process writes the mask, waiting for it to
+        be ready: for a process that started it in the background at its own start
+        (:func:`start_drawing_process`) and draws nothing else, so that it never imports matplotlib.
+        (Splitting the figures between it and a child it forks was no faster: right after a fork, both
+        processes pay a copy-on-write fault for every page of objects they touch.) Where that process
+        fails, the figures are drawn here as above.
 
     Returns
     -------
@@ -1546,8 +1548,7 @@ def _draw_everything_elsewhere(analysis: Analysis, out: Path) -> bool:
     """Have this process's drawing process draw and write every figure but the mask, which is written
     here meanwhile; False (with the mask written) when it could not, and the figures are to be drawn here."""
     drawing = _drawing_process.claim_shared_waiting(_drawing_process.REPLY_TIMEOUT_S)
-    mine = tuple(key for key in _DRAWERS if key not in _FORKED_DRAWERS)
-    sent = drawing is not None and drawing.submit(analysis, out, mine, forked=_FORKED_DRAWERS)
+    sent = drawing is not None and drawing.submit(analysis, out, tuple(_DRAWERS))
     ok, added = False, None
     try:
         write_label_png(out / ARTIFACT_FILES["mask"], analysis.labels)
@@ -1615,6 +1616,23 @@ def _without_images(analysis: Analysis) -> Analysis:
 def _draw_and_write(analysis: Analysis, out: Path, key: str) -> Path:
     """Draw the figure ``key`` and write it into ``out`` (in a process drawing for another)."""
     return _write_image(out / ARTIFACT_FILES[key], _DRAWERS[key](analysis))
+
+
+def _draw_and_write_all(analysis: Analysis, out: Path, keys: Sequence[str]) -> None:
+    """Draw the figures ``keys`` and write them into ``out``, each figure's PNG encoded and written on a
+    helper thread (which releases the GIL) while the next is drawn; the first write error is raised
+    after every write has finished."""
+    from concurrent.futures import Future, ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="eigenscope-png") as pool:
+        pending: list[Future[Path]] = []
+        try:
+            for key in keys:
+                pending.append(pool.submit(_write_image, out / ARTIFACT_FILES[key], _DRAWERS[key](analysis)))
+        finally:
+            errors = [e for e in (f.exception() for f in pending) if e is not None]
+    if errors:
+        raise errors[0]
 
 
 #: Figures drawn in a forked child while the parent draws the others (about half of the drawing time).

@@ -285,12 +285,12 @@ def test_everything_elsewhere_draws_every_figure_with_this_processs_pixels(
         _assert_same_images(tmp_path / f"out-{i}", reference)
     assert served == [True, True]
     assert drawn_here == [], "no figure is drawn in this process"
-    # The strings of all figures (the forked child's too) were saved for the next process.
+    # The strings of every figure were saved for the next process.
     deadline = time.monotonic() + 10.0
     while not cache.is_file() and time.monotonic() < deadline:
         time.sleep(0.02)
     saved = {key[0] for key, _ in pickle.loads(cache.read_bytes())["bitmaps"]}
-    assert any(s.startswith("release ") for s in saved), "the displacement figure's (forked) strings"
+    assert any(s.startswith("release ") for s in saved), "the displacement figure's strings"
     assert any("Hz" in s for s in saved), "the spectrum's strings"
 
 
