@@ -100,6 +100,44 @@ def run_analyze(clip: Path, out: Path, extra: list[str], force: float) -> dict[s
     return {"wall_s": wall, "peak_mb": usage.ru_maxrss / 1024, "drawing_mb": drawing_mb, "result": result}
 
 
+def _write_clip(spec: str, path: Path) -> tuple[dict[str, float], float]:
+    """Render the ground-truth clip ``WxHxFRAMES`` into ``path`` in a child process; (its main object's
+    truth, fps). Not here: a process started by this one inherits this one's peak resident set as its
+    own starting maximum (Linux keeps the high-water mark across fork and exec), so a large clip
+    rendered here would show as every later analysis's peak memory."""
+    done = subprocess.run(
+        [sys.executable, __file__, "--write-clip", spec, str(path)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        check=False,
+    )
+    if done.returncode != 0:
+        raise SystemExit(f"bench: rendering {spec} failed: {done.stderr.strip().splitlines()[-1:]}")
+    written = json.loads(done.stdout)
+    return written["truth"], float(written["fps"])
+
+
+def _render_clip(spec: str, path: str) -> None:
+    from workers.pipeline.clipio import write_npz
+    from workers.pipeline.synth import Scene, SceneObject, render
+
+    w, h, frames = (int(v) for v in spec.lower().split("x"))
+    scale = w / 640
+    obj = SceneObject(
+        center_px=(w / 2, h / 2),
+        size_px=(140 * scale, 110 * scale),
+        frequency_hz=5.0,
+        mass_kg=0.5,
+        force_n=10.0,
+        release_frame=10,
+    )
+    scene = Scene(width=w, height=h, frames=frames, objects=(obj,), seed=1)
+    clip = render(scene)
+    write_npz(path, clip.rgb, fps=clip.fps, depth=clip.depth, intrinsics=clip.intrinsics)
+    print(json.dumps({"truth": scene.truth()["objects"][0], "fps": scene.fps}))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -116,32 +154,16 @@ def main() -> None:
     if args.repeat < 1:
         parser.error(f"--repeat={args.repeat} must be at least 1")
 
-    from workers.pipeline.clipio import write_npz
-    from workers.pipeline.synth import Scene, SceneObject, render
-
     _become_subreaper()
     rows = []
     with tempfile.TemporaryDirectory(prefix="eigenscope-bench-") as tmp:
         # The command line's cache of rendered strings starts empty: the first run of a fresh machine.
         os.environ["EIGENSCOPE_CACHE_DIR"] = str(Path(tmp) / "cache")
         for spec in args.sizes.split(","):
-            w, h, frames = (int(v) for v in spec.lower().split("x"))
-            scale = w / 640
-            obj = SceneObject(
-                center_px=(w / 2, h / 2),
-                size_px=(140 * scale, 110 * scale),
-                frequency_hz=5.0,
-                mass_kg=0.5,
-                force_n=10.0,
-                release_frame=10,
-            )
-            scene = Scene(width=w, height=h, frames=frames, objects=(obj,), seed=1)
-            clip = render(scene)
             path = Path(tmp) / f"clip-{spec}.npz"
-            write_npz(path, clip.rgb, fps=clip.fps, depth=clip.depth, intrinsics=clip.intrinsics)
-            del clip
-            truth = scene.truth()["objects"][0]
-            duration = frames / scene.fps
+            truth, fps = _write_clip(spec, path)
+            frames = int(spec.lower().split("x")[2])
+            duration = frames / fps
             measured = {}
             spread = {}
             for i, (name, extra) in enumerate(RUNS.items()):
@@ -197,4 +219,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:2] == ["--write-clip"]:
+        _render_clip(sys.argv[2], sys.argv[3])
+    else:
+        main()
