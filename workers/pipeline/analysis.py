@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import threading
 import time
@@ -305,6 +306,9 @@ class Analysis:
     band_hz : (low, high)
     quality : list of QualityNote
     timings_s : dict
+        Seconds per stage, adding up to the analysis's time: ``setup`` or ``survey``, ``decode`` and
+        ``flow`` (the stream of frames: the reader's CPU time reading and decoding them, and the rest of
+        the stream's time, the optical flow), ``spectrum``, ``segmentation``, ``mechanics``.
     parameters : dict
     method : str
     """
@@ -354,6 +358,7 @@ class _Buffers:
     times_s: NDArray[np.float64]  # (N + 1,) capture times, seconds from the window's first frame
     camera_px: NDArray[np.float32]  # (N, 2) per-frame camera motion removed from the flow, grid px
     start_s: float  # capture time of the window's first frame, seconds from the clip's first frame
+    decode_s: float = 0.0  # CPU time the reader took to read and decode the frames (beside the flow)
 
 
 class _Stopwatch:
@@ -365,6 +370,13 @@ class _Stopwatch:
         now = time.perf_counter()
         self.times[name] = self.times.get(name, 0.0) + now - self._t
         self._t = now
+
+    def stream_lap(self, buffers: _Buffers) -> None:
+        """The lap of the frame stream, as ``decode`` (the reader's share) and ``flow`` (the rest)."""
+        self.lap("flow")
+        flow = self.times.pop("flow")
+        self.times["decode"] = self.times.get("decode", 0.0) + buffers.decode_s
+        self.times["flow"] = flow - buffers.decode_s
 
 
 @dataclass(frozen=True)
@@ -557,15 +569,25 @@ def _stream(
     has_depth = reader.info.has_depth
     info = reader.info
     gray_buf = np.empty((n + 1, info.height, info.width), np.uint8) if keep_gray else None
+    decoding = [0.0]  # seconds spent in the reader
 
     def grays() -> Iterator[NDArray[np.uint8]]:
         nonlocal depth_buf, first_rgb
-        frame: Frame
         # A reader that can sample depth onto the grid before converting it to metres saves the
         # conversion of pixels the grid drops (same values: nearest-neighbour either way).
         on_grid = getattr(reader, "frames_with_depth_on", None)
-        frames = on_grid(grid, start, stop) if callable(on_grid) else reader.frames(start, stop)
-        for i, frame in enumerate(frames):
+        frames: Iterator[Frame] = iter(
+            on_grid(grid, start, stop) if callable(on_grid) else reader.frames(start, stop)
+        )
+        for i in itertools.count():
+            # The reader's own CPU time: its wall time would count the moments the flow threads,
+            # busy on both cores meanwhile, held the CPU.
+            started = time.thread_time()
+            next_frame = next(frames, None)
+            decoding[0] += time.thread_time() - started
+            if next_frame is None:
+                return
+            frame = next_frame
             times[i] = frame.timestamp_s
             if first_rgb is None:
                 first_rgb = np.array(frame.rgb, copy=True)
@@ -626,6 +648,7 @@ def _stream(
         count=count,
         times_s=times - times[0],
         start_s=float(times[0]),
+        decode_s=decoding[0],
     )
 
 
@@ -750,7 +773,7 @@ def _analyze_default(
     watch.lap("survey" if plan.survey is not None else "setup")
     source, first, last = plan.source(reader)
     buffers = _stream(source, first, last, plan.grid, plan.flow, progress, keep_gray=True)
-    watch.lap("flow")
+    watch.stream_lap(buffers)
     n = buffers.count
     band = _band(config, plan.fps, n)
     quality: list[QualityNote] = []

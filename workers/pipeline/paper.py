@@ -51,7 +51,7 @@ def analyze_paper(
     info = reader.info
     plan = _plan(info, config)  # the paper's recipe: the given (or first) window, every frame
     buffers = _stream(reader, plan.start, plan.stop, plan.grid, plan.flow, progress, magnitude=True)
-    watch.lap("flow")
+    watch.stream_lap(buffers)
     n = buffers.count
     band = _band(config, plan.fps, n)
     mags = buffers.flow[..., 0].reshape(n, -1)
