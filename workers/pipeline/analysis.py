@@ -373,10 +373,10 @@ class _Stopwatch:
 
     def stream_lap(self, buffers: _Buffers) -> None:
         """The lap of the frame stream, as ``decode`` (the reader's share) and ``flow`` (the rest)."""
-        self.lap("flow")
-        flow = self.times.pop("flow")
-        self.times["decode"] = self.times.get("decode", 0.0) + buffers.decode_s
-        self.times["flow"] = flow - buffers.decode_s
+        now = time.perf_counter()
+        self.times["decode"] = buffers.decode_s
+        self.times["flow"] = now - self._t - buffers.decode_s
+        self._t = now
 
 
 @dataclass(frozen=True)
@@ -569,10 +569,10 @@ def _stream(
     has_depth = reader.info.has_depth
     info = reader.info
     gray_buf = np.empty((n + 1, info.height, info.width), np.uint8) if keep_gray else None
-    decoding = [0.0]  # seconds spent in the reader
+    decode_s = 0.0  # CPU seconds spent in the reader
 
     def grays() -> Iterator[NDArray[np.uint8]]:
-        nonlocal depth_buf, first_rgb
+        nonlocal depth_buf, first_rgb, decode_s
         # A reader that can sample depth onto the grid before converting it to metres saves the
         # conversion of pixels the grid drops (same values: nearest-neighbour either way).
         on_grid = getattr(reader, "frames_with_depth_on", None)
@@ -584,7 +584,7 @@ def _stream(
             # busy on both cores meanwhile, held the CPU.
             started = time.thread_time()
             next_frame = next(frames, None)
-            decoding[0] += time.thread_time() - started
+            decode_s += time.thread_time() - started
             if next_frame is None:
                 return
             frame = next_frame
@@ -648,7 +648,7 @@ def _stream(
         count=count,
         times_s=times - times[0],
         start_s=float(times[0]),
-        decode_s=decoding[0],
+        decode_s=decode_s,
     )
 
 

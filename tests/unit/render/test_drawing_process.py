@@ -45,6 +45,15 @@ def _gone(pid: int) -> bool:
     return "zombie" in state
 
 
+def _break(victim: _drawing_process.DrawingProcess, fault: str) -> None:
+    """``killed``: the process dies; ``stopped``: it no longer reads or answers."""
+    if fault == "killed":
+        os.kill(victim.pid, signal.SIGKILL)
+        victim._proc.wait()
+    else:
+        os.kill(victim.pid, signal.SIGSTOP)
+
+
 @pytest.fixture
 def fresh(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """A drawing process of the test's own (this process's shared one is put back afterwards)."""
@@ -153,11 +162,7 @@ def test_a_process_that_dies_or_hangs_costs_no_image(
     assert render.start_drawing_process(wait_s=60.0)
     victim = _drawing_process._SHARED
     assert victim is not None
-    if fault == "killed":
-        os.kill(victim.pid, signal.SIGKILL)
-        victim._proc.wait()
-    else:
-        os.kill(victim.pid, signal.SIGSTOP)  # a process that no longer reads or answers
+    _break(victim, fault)
     started = time.perf_counter()
     names = render.render_all(one_object.analysis, tmp_path / "out")
     elapsed = time.perf_counter() - started
@@ -308,11 +313,7 @@ def test_everything_elsewhere_without_a_working_process_draws_here(
     assert render.start_drawing_process(wait_s=60.0, background=True)
     victim = _drawing_process._SHARED
     assert victim is not None
-    if fault == "killed":
-        os.kill(victim.pid, signal.SIGKILL)
-        victim._proc.wait()
-    else:
-        os.kill(victim.pid, signal.SIGSTOP)
+    _break(victim, fault)
     started = time.perf_counter()
     render.render_all(one_object.analysis, tmp_path / "out", everything_elsewhere=True)
     elapsed = time.perf_counter() - started

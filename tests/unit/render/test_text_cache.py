@@ -67,7 +67,8 @@ def _grown(mask: np.ndarray) -> np.ndarray:
     return grown
 
 
-def test_each_string_is_rasterised_once(monkeypatch: pytest.MonkeyPatch):
+def _count_matplotlib_text(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The strings matplotlib's own renderer draws from now on (directly, or to rasterise for the cache)."""
     drawn: list[str] = []
     original = RendererAgg.draw_text
 
@@ -76,6 +77,11 @@ def test_each_string_is_rasterised_once(monkeypatch: pytest.MonkeyPatch):
         return original(self, gc, x, y, s, prop, angle, ismath=ismath, mtext=mtext)
 
     monkeypatch.setattr(RendererAgg, "draw_text", spy)
+    return drawn
+
+
+def test_each_string_is_rasterised_once(monkeypatch: pytest.MonkeyPatch):
+    drawn = _count_matplotlib_text(monkeypatch)
     canvas_class = caching_canvas()
     text = "a string only this test draws"
     counts = []
@@ -120,18 +126,6 @@ def cold(monkeypatch: pytest.MonkeyPatch) -> None:
     """This process's caches emptied for the test (and put back afterwards)."""
     for cache in (_agg._BITMAPS, _agg._METRICS):
         monkeypatch.setattr(cache, "_items", OrderedDict())
-
-
-def _count_matplotlib_text(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    drawn: list[str] = []
-    original = RendererAgg.draw_text
-
-    def spy(self, gc, x, y, s, prop, angle, ismath=False, mtext=None):
-        drawn.append(s)
-        return original(self, gc, x, y, s, prop, angle, ismath=ismath, mtext=mtext)
-
-    monkeypatch.setattr(RendererAgg, "draw_text", spy)
-    return drawn
 
 
 def test_saved_strings_give_a_later_process_the_same_pixels_without_rasterising(
