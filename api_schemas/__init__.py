@@ -22,6 +22,7 @@ from api_schemas.result import (
     Artifacts,
     ObjectResult,
     QualityFlag,
+    RejectedPeakResult,
     RingdownResult,
     Spectrum,
 )
@@ -42,6 +43,7 @@ __all__ = [
     "ObjectResult",
     "Problem",
     "QualityFlag",
+    "RejectedPeakResult",
     "RingdownResult",
     "Spectrum",
     "StepReleaseExcitation",

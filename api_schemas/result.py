@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
+
+Regime = Literal["ring_down", "steady", "growing", "beating"]
 
 
 class QualityFlag(BaseModel):
@@ -33,6 +37,12 @@ class ObjectResult(BaseModel):
 
     id: int = Field(ge=1, description="The object's value in `mask.png`.")
     eigenfrequency_hz: float = Field(description="Damped eigenfrequency, Hz.")
+    regime: Regime = Field(
+        default="ring_down",
+        description="How the object moved in the analysed window: `ring_down` (it decays: damping is "
+        "measured), `steady` (a sustained or forced vibration that does not decay: damping is null, with "
+        "the reason in `null_reasons`), `growing`, or `beating` (two close frequencies not resolved).",
+    )
     eigenfrequency_uncertainty_hz: float | None = Field(default=None, description="Standard uncertainty, Hz.")
     natural_frequency_hz: float | None = Field(default=None, description="Undamped natural frequency, Hz.")
     angular_frequency_rad_s: float = Field(description="2π times the undamped natural frequency, rad/s.")
@@ -67,6 +77,20 @@ class ObjectResult(BaseModel):
         "motion along the line of sight.",
     )
     ringdown: RingdownResult | None = None
+
+
+class RejectedPeakResult(BaseModel):
+    """A spectral peak that was not reported as an object, and the evidence why."""
+
+    model_config = ConfigDict(title="RejectedPeak")
+
+    frequency_hz: float
+    evidence: str = Field(
+        description="`camera_motion`, `illumination_flicker`, `codec_keyframes`, `harmonic` (of an object "
+        "reported, possibly folded back below the Nyquist rate), `incoherent` (no single coherent "
+        "oscillation), `uncertain` (frequency uncertainty a quarter of itself or more) or `out_of_band`."
+    )
+    reason: str = Field(description="What was seen, in a sentence.")
 
 
 class Spectrum(BaseModel):
@@ -123,10 +147,17 @@ class AnalysisResult(BaseModel):
     spectrum: Spectrum
     artifacts: Artifacts = Field(default_factory=Artifacts)
     quality: list[QualityFlag] = Field(default_factory=list)
+    rejected_peaks: list[RejectedPeakResult] = Field(
+        default_factory=list, description="Peaks that are not objects, each with the evidence."
+    )
     method: str
     parameters: dict[str, object] = Field(description="Every parameter used, defaults included.")
-    fps: float
-    fps_source: str
+    fps: float = Field(description="The frame rate used, Hz: every frequency scales with it.")
+    fps_source: str = Field(
+        description="Where the rate came from: `user`, `bundle`, `timestamps`, `container` (a high-speed "
+        "camera may have written its playback rate: see the `frame_rate` quality flag) or `metadata` (a "
+        "capture rate the file records)."
+    )
     frames_used: list[int] = Field(description="[first, last) frame indices of the analysed window.")
     frame_step: int = Field(
         default=1,

@@ -22,6 +22,7 @@ from api_schemas import (
     ImpulseExcitation,
     ObjectResult,
     QualityFlag,
+    RejectedPeakResult,
     RingdownResult,
     Spectrum,
     StepReleaseExcitation,
@@ -202,6 +203,7 @@ def run_analysis(
         ObjectResult(
             id=o.id,
             eigenfrequency_hz=o.eigenfrequency_hz,
+            regime=o.regime,
             eigenfrequency_uncertainty_hz=_finite(o.eigenfrequency_sd_hz),
             natural_frequency_hz=_finite(o.natural_frequency_hz),
             angular_frequency_rad_s=o.angular_frequency_rad_s,
@@ -244,6 +246,11 @@ def run_analysis(
         ),
         artifacts=artifacts,
         quality=[QualityFlag(code=q.code, message=q.message, severity=q.severity) for q in analysis.quality],
+        rejected_peaks=[
+            RejectedPeakResult(frequency_hz=r.frequency_hz, evidence=r.evidence, reason=r.reason)
+            for r in analysis.rejected_peaks
+            if math.isfinite(r.frequency_hz)
+        ],
         method=analysis.method,
         parameters=parameters_used,
         fps=analysis.fps,

@@ -151,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
     if not result.objects:
         print("no vibrating object found")
     for o in result.objects:
-        line = f"object {o.id}: f = {o.eigenfrequency_hz:.4g} Hz"
+        line = f"object {o.id}: f = {o.eigenfrequency_hz:.4g} Hz ({o.regime.replace('_', '-')})"
         if o.damping_ratio is not None:
             line += f", ζ = {o.damping_ratio:.3g}"
         if o.amplitude_m is not None:

@@ -180,10 +180,13 @@ def summarize(job: dict[str, Any], base: str) -> list[str]:
             lines.append(f"error: {error.get('title')}: {error.get('detail')}")
         return lines
     result = job.get("result") or {}
+    source = result.get("fps_source") or "unknown"
+    lines.append(f"frame rate: {_fmt(result.get('fps'), 'fps')} (from {source})")
     lines.append(f"eigenfrequency: {_fmt(result.get('eigenfrequency_hz'), 'Hz')}")
     for obj in result.get("objects", []):
         lines.append(
-            f"object {obj.get('id')}: f = {_fmt(obj.get('eigenfrequency_hz'), 'Hz')}, "
+            f"object {obj.get('id')}: f = {_fmt(obj.get('eigenfrequency_hz'), 'Hz')} "
+            f"({str(obj.get('regime') or 'ring_down').replace('_', '-')}), "
             f"damping ratio = {_fmt(obj.get('damping_ratio'), '')}, "
             f"amplitude = {_fmt(obj.get('amplitude_m'), 'm')}, "
             f"stiffness = {_fmt(obj.get('stiffness_n_per_m'), 'N/m')}, "

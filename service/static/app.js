@@ -1037,6 +1037,7 @@
           const reasons = Array.isArray(obj.null_reasons) ? obj.null_reasons : [];
           return el("section", { class: "object", "data-object-id": String(obj.id), "aria-label": `Object ${obj.id}` },
             el("h3", {}, el("span", {}, `Object ${obj.id}`),
+              obj.regime ? el("span", { class: "regime", "data-regime": obj.regime }, obj.regime.replace("_", "-")) : null,
               obj.amplitude_source ? el("span", { class: "unit" }, `amplitude from ${obj.amplitude_source}`) : null),
             el("div", { class: "table-wrap" }, objectTable(obj)),
             reasons.length ? el("ul", { class: "nulls", "aria-label": "Why some values are missing" },

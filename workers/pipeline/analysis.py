@@ -13,8 +13,18 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
+from workers.pipeline.camera import CameraRing
 from workers.pipeline.clipio.types import ClipReader, Intrinsics
-from workers.pipeline.detection import candidate_peaks, drop_incoherent, reject_artefacts
+from workers.pipeline.detection import (
+    ARTEFACT_EVIDENCE,
+    WindowEvidence,
+    candidate_peaks,
+    clip_regime,
+    drop_objects,
+    folded_verdicts,
+    judge_objects,
+    reject_artefacts,
+)
 from workers.pipeline.flow import FlowConfig, needs_resampling, resample_uniform
 from workers.pipeline.measure import assign_excitations, measure_object
 from workers.pipeline.model import (
@@ -28,7 +38,15 @@ from workers.pipeline.model import (
     QualityNote,
     Stopwatch,
 )
-from workers.pipeline.quality import object_quality_notes
+from workers.pipeline.quality import (
+    SECOND_MOTION,
+    clip_notes,
+    close_pairs,
+    frame_notes,
+    frame_rate_notes,
+    object_quality_notes,
+    resolution_notes,
+)
 from workers.pipeline.segmentation import (
     Exclusion,
     exclude_background_surfaces,
@@ -36,8 +54,8 @@ from workers.pipeline.segmentation import (
     segment,
     upsample_labels,
 )
-from workers.pipeline.spectra import pixel_spectra
-from workers.pipeline.stream import stream_frames
+from workers.pipeline.spectra import PixelSpectra, pixel_spectra
+from workers.pipeline.stream import FrameBuffers, stream_frames
 from workers.pipeline.survey import Survey
 from workers.pipeline.window import analysis_band, plan_analysis, survey_notes
 
@@ -79,19 +97,47 @@ def analyze(
         main = next((e for e in excitations if e.object_id in (None, 1)), None)
         return analyze_paper(reader, config=config, excitation=main, progress=progress)
     result = _analyze_default(reader, config=config, excitations=excitations, progress=progress)
+    longer: float | None = None
+    if _needs_longer_window(result):
+        # Two oscillations share a region or stand closer than the window resolves, and the clip has
+        # more: analyse as long a window as the memory budget allows (every k-th frame if need be).
+        survey = result.window_survey
+        assert survey is not None
+        longer = survey.frames / survey.fps
+        first = result.timings_s
+        result = _analyze_default(
+            reader,
+            config=config,
+            excitations=excitations,
+            progress=progress,
+            survey=survey,
+            min_duration_s=longer,
+        )
+        result.timings_s = {"short_window_pass": sum(first.values()), **result.timings_s}
+        result.quality.append(
+            QualityNote(
+                "longer_window",
+                "two oscillations were closer than the first window resolves, so the clip was analysed "
+                f"again over frames {result.frames_used[0]}-{result.frames_used[1]}",
+                "info",
+            )
+        )
     if config.flow is None and _needs_careful_flow(result):
         # The fast default flow ("fine": no variational refinement) is five times cheaper than DIS
         # "medium" and as accurate on clear motion; weak, sub-pixel motion is measured again on medium.
         careful = dataclasses.replace(config, flow=FlowConfig(dis_preset="medium"))
         first = result.timings_s
+        kept = [q for q in result.quality if q.code == "longer_window"]
         result = _analyze_default(
             reader,
             config=careful,
             excitations=excitations,
             progress=progress,
             survey=result.window_survey,
+            min_duration_s=longer,
         )
         result.timings_s = {"fast_flow_pass": sum(first.values()), **result.timings_s}
+        result.quality.extend(kept)
         result.quality.append(
             QualityNote(
                 "careful_flow",
@@ -101,6 +147,21 @@ def analyze(
             )
         )
     return result
+
+
+def _needs_longer_window(result: Analysis) -> bool:
+    """Whether a longer window of a surveyed clip may separate what this one mixed: a region holding two
+    oscillations, or two objects closer than three lines; and the clip has frames to spare."""
+    survey = result.window_survey
+    if survey is None:
+        return False
+    first, last = result.frames_used
+    if last - first >= survey.first_frame + survey.frames - 2:
+        return False  # the window already spans the clip
+    if any(o.second_motion >= SECOND_MOTION for o in result.objects):
+        return True
+    freqs = result.frequencies_hz
+    return len(freqs) > 1 and bool(close_pairs(result.objects, bin_hz=float(freqs[1] - freqs[0])))
 
 
 #: Objects whose ring-down stands less than this above the noise are measured again on careful flow.
@@ -115,7 +176,7 @@ def _needs_careful_flow(result: Analysis) -> bool:
     """Whether the fast flow may have missed or blurred something: no object, a weak one, a peak that
     was rejected (a weak vibration on noisy flow can look like an artefact, and an artefact such as
     flicker is characterised better on the careful flow), or a dropped region that was nearly coherent."""
-    if not result.objects or result.rejected_peaks:
+    if not result.objects or any(r.evidence in ARTEFACT_EVIDENCE for r in result.rejected_peaks):
         return True
     if any(snr >= CAREFUL_FLOW_INCOHERENT_DB for snr in result.incoherent_snr_db):
         return True
@@ -129,11 +190,16 @@ def _analyze_default(
     excitations: list[Excitation],
     progress: Progress | None,
     survey: Survey | None = None,
+    min_duration_s: float | None = None,
 ) -> Analysis:
-    """``survey``: a survey of this clip already made (a second pass reuses the first's)."""
+    """One pass of the default method. ``survey``: a survey of this clip already made (a second pass
+    reuses the first's); ``min_duration_s``: the window must span at least this long (a second pass that
+    separates close frequencies)."""
     watch = Stopwatch()
     info = reader.info
-    plan = plan_analysis(info, config, reader=reader, progress=progress, survey=survey)
+    plan = plan_analysis(
+        info, config, reader=reader, progress=progress, survey=survey, min_duration_s=min_duration_s
+    )
     if progress:
         progress("flow", 0.05)
     watch.lap("survey" if plan.survey is not None else "setup")
@@ -142,7 +208,7 @@ def _analyze_default(
     watch.stream_lap(buffers)
     n = buffers.count
     band = analysis_band(config, plan.fps, n)
-    quality: list[QualityNote] = []
+    quality: list[QualityNote] = [*clip_notes(plan, buffers, info), *frame_notes(buffers)]
 
     if progress:
         progress("spectrum", 0.82)
@@ -166,9 +232,8 @@ def _analyze_default(
     if progress:
         progress("segmentation", 0.88)
     seg = segment(spectra, peaks, grid_shape=plan.grid, band_hz=band, config=config.segmentation)
-    seg, rejected = reject_artefacts(seg, spectra, band_hz=band)
-    for item in rejected:
-        quality.append(QualityNote("artefact_peak", item.reason, "info"))
+    evidence = window_evidence(buffers, spectra, grid=plan.grid)
+    seg, rejected = reject_artefacts(seg, spectra, evidence, band_hz=band)
     labels_grid = seg.labels
     exclusions: list[Exclusion] = []
     if buffers.depth is not None and seg.peaks:
@@ -198,10 +263,24 @@ def _analyze_default(
                 depth_override=config.depth_m,
                 excitation=by_label.get(label),
                 excluded=[e.reason for e in exclusions if e.label == label],
+                band_hz=band,
             )
         )
-    objects, labels_full, dropped = drop_incoherent(objects, labels_full, quality, by_label)
-    incoherent = [o.snr_db or 0.0 for o in dropped]
+    for item in rejected:
+        quality.append(QualityNote("artefact_peak", f"{item.reason}; not reported as an object", "info"))
+    # Every region measured is judged: a coherent oscillation inside the band, known well enough, that
+    # is no overtone of another (a region the user named in an excitation is always kept).
+    verdicts = judge_objects(objects, seg, band_hz=band, fps=plan.fps, bin_hz=spectra.bin_hz)
+    verdicts |= folded_verdicts(objects, plan.survey, sample_rate_hz=plan.fps, frame_step=plan.step)
+    dropped = {i: v for i, v in verdicts.items() if i not in by_label}
+    incoherent = [
+        o.snr_db or 0.0 for o in objects if o.id in dropped and dropped[o.id].evidence == "incoherent"
+    ]
+    rejected.extend(dropped.values())
+    objects, labels_full = drop_objects(objects, labels_full, dropped, quality)
+    if plan.survey is not None:
+        for obj in objects:
+            clip_regime(obj, plan.survey, clip_s=plan.survey.frames / plan.clip_fps)
     if not objects:
         quality.append(
             QualityNote(
@@ -219,6 +298,8 @@ def _analyze_default(
             )
         )
     quality.extend(object_quality_notes(objects, fps=plan.fps, band=band, bin_hz=plan.fps / n))
+    quality.extend(resolution_notes(objects, bin_hz=spectra.bin_hz, window_s=float(buffers.times_s[-1])))
+    quality.extend(frame_rate_notes(objects, info, window_s=float(buffers.times_s[-1])))
     quality.extend(survey_notes(plan, objects))
     watch.lap("mechanics")
     return Analysis(
@@ -231,13 +312,13 @@ def _analyze_default(
         frame_rgb=buffers.first_rgb,
         fps=plan.clip_fps,
         fps_source=info.fps_source or "unknown",
-        frames_used=(plan.start, plan.stop),
+        frames_used=(plan.start, plan.start + buffers.count * plan.step + 1),
         band_hz=band,
         quality=quality,
         timings_s=watch.times,
         parameters=config.describe()
         | {
-            "frames": plan.stop - plan.start,
+            "frames": buffers.count * plan.step + 1,
             "start_frame": plan.start,
             "frame_step": plan.step,
             "band_hz": list(band),
@@ -250,6 +331,31 @@ def _analyze_default(
         incoherent_snr_db=incoherent,
         frame_step=plan.step,
         window_survey=plan.survey,
+    )
+
+
+def window_evidence(buffers: FrameBuffers, spectra: PixelSpectra, *, grid: tuple[int, int]) -> WindowEvidence:
+    """What the whole picture did in the window (brightness, frame changes, the border's motion)."""
+    ring = CameraRing(grid)
+    if buffers.gray is not None:
+        import cv2
+
+        first = buffers.gray[0]
+        small = (
+            first
+            if first.shape == grid
+            else cv2.resize(first, (grid[1], grid[0]), interpolation=cv2.INTER_AREA)
+        )
+        ring.set_texture(small)
+    return WindowEvidence(
+        frequencies_hz=spectra.frequencies_hz,
+        nfft=spectra.n,
+        brightness=buffers.brightness,
+        frame_change=buffers.frame_change,
+        border_px=buffers.border_px,
+        camera_removed=buffers.camera_removed,
+        ring_pixels=ring.pixels,
+        ring_textured=ring.textured,
     )
 
 

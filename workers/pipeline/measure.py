@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.clipio.types import Intrinsics
+from workers.pipeline.detection import regime_of
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.mechanics import release_amplitude, release_instant, stiffness_and_mass
 from workers.pipeline.metric import metric_amplitude
@@ -18,7 +19,7 @@ from workers.pipeline.model import Excitation, ObjectMeasurement
 from workers.pipeline.peaks import Peak
 from workers.pipeline.ringdown import Ringdown, RingdownFit, sliding_ringdown
 from workers.pipeline.stream import FrameBuffers
-from workers.pipeline.tracking import track_object
+from workers.pipeline.tracking import second_motion, track_object
 
 #: Systematic floors on the ring-down fit's statistical uncertainties (model mismatch: projection
 #: nonlinearity, registration errors correlated with the motion), measured on randomised ground truth.
@@ -63,6 +64,7 @@ def measure_object(
     depth_override: float | None,
     excitation: Excitation | None,
     excluded: list[str],
+    band_hz: tuple[float, float] | None = None,
 ) -> ObjectMeasurement:
     """Measure one object of the window.
 
@@ -88,6 +90,8 @@ def measure_object(
         How it was excited; None: stiffness and mass are not measured.
     excluded : list of str
         Notes on pixels removed from its mask.
+    band_hz : (low, high), optional
+        The analysed band (the fitted frequency stays inside it).
 
     Returns
     -------
@@ -100,6 +104,7 @@ def measure_object(
         fps=fps,
         pixel_scale=pixel_scale,
         frequency_guess_hz=peak.frequency_hz,
+        band_hz=band_hz,
     )
     fit, onset, velocity = track.fit, track.onset, track.velocity_px
     f_sd = frequency_sd_hz(fit)
@@ -156,8 +161,10 @@ def measure_object(
             spectrogram_hz=ringdown.spectrogram_hz,
             spectrogram_power=ringdown.spectrogram_power,
         )
-    pixels = buffers.first_rgb[full_mask]
-    saturated = float(np.mean(np.any((pixels >= 255) | (pixels <= 0), axis=1))) if pixels.size else 0.0
+    # Clipped where the sensor's grey level is at its limit: one colour channel at 0 (a saturated blue)
+    # still carries texture in the others.
+    grey = buffers.first_rgb[full_mask].astype(np.float32).mean(axis=1)
+    saturated = float(np.mean((grey >= 254) | (grey <= 1))) if grey.size else 0.0
     disp = np.concatenate([[0.0], np.cumsum(velocity)])
     t = times_from_onset[: n + 1]
     model = np.full(n + 1, np.nan)
@@ -166,7 +173,7 @@ def measure_object(
     # Align the integrated displacement to the model's mean level after release.
     if after.any():
         disp = disp - np.nanmean(disp[after] - model[after])
-    return ObjectMeasurement(
+    obj = ObjectMeasurement(
         id=label,
         eigenfrequency_hz=fit.frequency_hz,
         eigenfrequency_sd_hz=f_sd,
@@ -187,6 +194,9 @@ def measure_object(
         harmonics_hz=list(peak.harmonics_hz),
         release_time_s=release_time,
         snr_db=fit.snr_db,
+        detection_db=fit.detection_db,
+        concentration=fit.concentration,
+        second_motion=second_motion(buffers.flow, mask, frequency_hz=fit.frequency_hz, fps=fps),
         null_reasons=null_reasons,
         amplitude_source=track.source,
         notes=notes,
@@ -196,6 +206,22 @@ def measure_object(
         displacement_px=disp,
         model_displacement_px=model,
     )
+    # Whether it decays is judged on the fit's own (statistical) uncertainty, before systematic floors.
+    decay_sd = fit.damping_sd * 2 * math.pi * fit.natural_frequency_hz * fit.duration_s
+    obj.regime = regime_of(obj, decay=fit.decay, decay_sd=decay_sd)
+    if obj.regime != "ring_down":
+        # Damping needs a decay to measure; a sustained (or growing) oscillation shows none here.
+        obj.damping_ratio = obj.damping_ratio_sd = None
+        obj.natural_frequency_hz = fit.frequency_hz
+        grows = "grows" if obj.regime == "growing" else "does not decay"
+        obj.null_reasons.insert(
+            0,
+            f"damping: the motion {grows} in the analysed window ({math.exp(-fit.decay) * 100:.0f} % of its "
+            f"amplitude left after {fit.duration_s:.3g} s): a {obj.regime} vibration, not a ring-down",
+        )
+        if excitation is None:
+            obj.release_time_s = None
+    return obj
 
 
 def assign_excitations(

@@ -159,10 +159,23 @@ class AnalysisConfig:
 
 @dataclass(frozen=True)
 class RejectedPeak:
-    """A spectral peak that is not an object."""
+    """A spectral peak that is not an object, and the evidence why.
+
+    Attributes
+    ----------
+    frequency_hz : float
+    reason : str
+        What was seen, in a sentence.
+    evidence : str
+        ``camera_motion``, ``illumination_flicker``, ``codec_keyframes``, ``harmonic`` (of an object
+        already reported, possibly folded back below the Nyquist rate), ``incoherent`` (no coherent
+        narrow-band oscillation), ``uncertain`` (frequency uncertainty a quarter of the frequency or more)
+        or ``out_of_band``.
+    """
 
     frequency_hz: float
     reason: str
+    evidence: str = "incoherent"
 
 
 @dataclass(frozen=True)
@@ -205,7 +218,7 @@ class ObjectMeasurement:
     notes: list[str] = field(default_factory=list)
     #: Sliding-window ring-down of the motion after release (times relative to the window start).
     ringdown: Ringdown | None = None
-    #: Fraction of the object's pixels at the sensor's limits (0 or 255) in the first frame.
+    #: Fraction of the object's pixels whose grey level is at the sensor's limits, first frame.
     saturated_fraction: float = 0.0
     #: Seconds of motion after release that were fitted.
     fitted_duration_s: float = 0.0
@@ -213,6 +226,16 @@ class ObjectMeasurement:
     displacement_px: NDArray[np.float64] | None = None
     #: Fitted model displacement at the same frames (NaN before release), input pixels.
     model_displacement_px: NDArray[np.float64] | None = None
+    #: ``ring_down`` (decays in the window: damping measured), ``steady`` (sustained or forced: no decay
+    #: in the window, damping null), ``growing`` or ``beating`` (two close, unresolved frequencies).
+    regime: str = "ring_down"
+    #: The oscillation's energy over the noise's variance, dB (see RingdownFit.detection_db).
+    detection_db: float | None = None
+    #: Fraction of the motion's energy near its frequency that one oscillation explains.
+    concentration: float | None = None
+    #: Power of a second, independent motion in the object's region near its frequency, relative to the
+    #: first (0: one motion): two oscillations closer than the window resolves.
+    second_motion: float = 0.0
 
     @property
     def angular_frequency_rad_s(self) -> float:

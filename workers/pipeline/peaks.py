@@ -141,13 +141,17 @@ def find_peaks(
     min_snr_db: float = 10.0,
     max_peaks: int = 8,
     harmonic_tolerance: float = 0.04,
+    resolved_snr_db: float = 20.0,
+    resolved_prominence_db: float = 3.0,
 ) -> list[Peak]:
     """Peaks of a summed spectrum inside ``band_hz``, strongest first, harmonics folded in.
 
     A peak must stand ``min_prominence_db`` above its key saddle inside the band (topographic
     prominence: a broad, heavily damped peak on a sloping background still counts, a wiggle on a
     plateau does not) and ``min_snr_db`` above the ``noise`` spectrum when one is given (the spectrum
-    a frame of static background would sum to). A peak at an integer multiple (2, 3, ...) of a stronger
+    a frame of static background would sum to). Two oscillations a few lines apart share a high
+    saddle: a peak that stands ``resolved_snr_db`` above the noise needs only
+    ``resolved_prominence_db`` of prominence. A peak at an integer multiple (2, 3, ...) of a stronger
     peak, within ``harmonic_tolerance`` relative error (or one bin), is recorded as that peak's harmonic
     instead of a peak of its own.
 
@@ -160,6 +164,7 @@ def find_peaks(
     min_prominence_db, min_snr_db : float
     max_peaks : int
     harmonic_tolerance : float
+    resolved_snr_db, resolved_prominence_db : float
 
     Returns
     -------
@@ -178,14 +183,16 @@ def find_peaks(
     candidates: list[Peak] = []
     for j in local:
         k = int(band[j])
-        prom = 10 * math.log10(topographic_prominence(np.asarray(sub, np.float64), int(j)))
-        if prom < min_prominence_db:
+        if not power[k] > 0:  # a flat, motionless spectrum has no peaks
             continue
+        prom = 10 * math.log10(topographic_prominence(np.asarray(sub, np.float64), int(j)))
         snr = float("inf")
         if noise is not None:
             snr = 10 * math.log10(power[k] / max(float(noise[k]), 1e-30))
             if snr < min_snr_db:
                 continue
+        if prom < min_prominence_db and not (prom >= resolved_prominence_db and snr >= resolved_snr_db):
+            continue
         fk = interpolate_peak(power, k) * bin_hz
         candidates.append(
             Peak(
@@ -204,10 +211,17 @@ def find_peaks(
 
 
 def fold_harmonics(
-    candidates: list[Peak], *, bin_hz: float, max_peaks: int = 8, harmonic_tolerance: float = 0.04
+    candidates: list[Peak],
+    *,
+    bin_hz: float,
+    max_peaks: int = 8,
+    harmonic_tolerance: float = 0.04,
+    min_separation_bins: float = 1.5,
+    max_order: int = 1_000_000,
 ) -> list[Peak]:
     """Keep peaks in the given order (strongest first), folding integer multiples of a kept peak into
-    its ``harmonics_hz`` and dropping repeats of a kept peak (within its width or a bin and a half).
+    its ``harmonics_hz`` and dropping repeats of a kept peak (within its width or
+    ``min_separation_bins``).
 
     Parameters
     ----------
@@ -215,6 +229,9 @@ def fold_harmonics(
     bin_hz : float
     max_peaks : int
     harmonic_tolerance : float
+    min_separation_bins : float
+    max_order : int
+        Highest multiple folded as a harmonic.
 
     Returns
     -------
@@ -223,14 +240,15 @@ def fold_harmonics(
     kept: list[Peak] = []
     for peak in candidates:
         if any(
-            abs(peak.frequency_hz - base.frequency_hz) <= max(1.5, base.width_bins) * bin_hz for base in kept
+            abs(peak.frequency_hz - base.frequency_hz) <= max(min_separation_bins, base.width_bins) * bin_hz
+            for base in kept
         ):
             continue
         parent = None
         for base in kept:
             ratio = peak.frequency_hz / base.frequency_hz
             order = round(ratio)
-            if order >= 2 and abs(peak.frequency_hz - order * base.frequency_hz) <= max(
+            if 2 <= order <= max_order and abs(peak.frequency_hz - order * base.frequency_hz) <= max(
                 harmonic_tolerance * peak.frequency_hz, 1.01 * bin_hz
             ):
                 parent = base

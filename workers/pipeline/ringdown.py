@@ -42,7 +42,15 @@ class RingdownFit:
         Standard uncertainties from the fit's Jacobian and residual variance.
     residual_rms : float
     snr_db : float
-        Signal power over residual power, dB.
+        Signal power over residual power per sample, dB.
+    samples : int
+        Samples fitted (from ``start_index``).
+    duration_s : float
+        Time they span, seconds.
+    concentration : float
+        Fraction of the motion's energy near the fitted frequency (within a few lines of it) that the
+        model explains: near 1 for one coherent oscillation, low for narrow-band noise, a wandering
+        frequency or two unresolved oscillations.
     """
 
     frequency_hz: float
@@ -57,6 +65,21 @@ class RingdownFit:
     amplitude_sd: float
     residual_rms: float
     snr_db: float
+    samples: int = 0
+    concentration: float = 1.0
+
+    @property
+    def detection_db(self) -> float:
+        """The oscillation's energy over the residual's variance, dB: the per-sample SNR summed over the
+        fitted samples (a weak but steady vibration is clearly detected over many periods)."""
+        return self.snr_db + 10 * math.log10(max(self.samples, 1))
+
+    duration_s: float = 0.0
+
+    @property
+    def decay(self) -> float:
+        """How far the envelope decays over the fitted span, nepers (σ times its duration)."""
+        return self.decay_per_s * self.duration_s
 
     def displacement(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
         """Model displacement (without the constant offset) at times ``t_s`` from the fit start."""
@@ -104,6 +127,7 @@ def fit_ringdown(
     frequency_guess_hz: float | None = None,
     start_index: int = 0,
     frame_times_s: NDArray[np.float64] | None = None,
+    band_hz: tuple[float, float] | None = None,
 ) -> RingdownFit:
     """Fit a damped oscillation to a per-frame velocity signal.
 
@@ -123,6 +147,9 @@ def fit_ringdown(
         Capture times of the frames that bound the samples (sample k spans frames k and k + 1). With
         dropped frames or jitter the model is evaluated at these true times, so gaps do not bias the fit;
         uniform at ``fps`` when omitted.
+    band_hz : (low, high), optional
+        The frequency is sought inside this band (the analysis band); anywhere below the Nyquist rate
+        when omitted.
 
     Returns
     -------
@@ -150,13 +177,20 @@ def fit_ringdown(
     def residual(p: NDArray[np.float64]) -> NDArray[np.float64]:
         return _profile(p, v, k_pos)[0]
 
+    w_lo, w_hi = 1e-4, math.pi
+    if band_hz is not None:
+        w_lo = max(w_lo, 2 * math.pi * band_hz[0] / fps)
+        w_hi = min(w_hi, 2 * math.pi * band_hz[1] / fps)
+        if w_lo >= w_hi:
+            raise ValueError(f"fit_ringdown: band {band_hz} Hz holds no frequency at {fps:g} fps")
+    omega0 = min(max(omega0, w_lo), w_hi)
     best = None
     for s0 in (sigma0, sigma0 * 0.3, sigma0 * 3):
         sol = least_squares(
             residual,
             np.array([omega0, min(max(s0, 1e-5), 0.5)]),
-            lower=np.array([1e-4, 0.0]),
-            upper=np.array([math.pi, 1.0]),
+            lower=np.array([w_lo, 0.0]),
+            upper=np.array([w_hi, 1.0]),
         )
         if best is None or sol.cost < best.cost:
             best = sol
@@ -187,7 +221,8 @@ def fit_ringdown(
     wn = math.hypot(omega, sigma)
     zeta = sigma / wn
     zeta_sd = sigma_sd / wn
-    signal_power = float(np.mean((v - res - coef[2] * np.diff(k_pos)) ** 2))
+    model = v - res - coef[2] * np.diff(k_pos)
+    signal_power = float(np.mean(model**2))
     snr_db = 10 * math.log10(max(signal_power, 1e-30) / max(s2, 1e-30))
     return RingdownFit(
         frequency_hz=omega * fps / (2 * math.pi),
@@ -202,7 +237,29 @@ def fit_ringdown(
         amplitude_sd=amp_sd,
         residual_rms=math.sqrt(s2),
         snr_db=snr_db,
+        samples=n,
+        duration_s=float(k_pos[-1] - k_pos[0]) / fps,
+        concentration=_concentration(v, model, omega=omega, sigma=sigma),
     )
+
+
+def _concentration(
+    v: NDArray[np.float64], model: NDArray[np.float64], *, omega: float, sigma: float
+) -> float:
+    """Fraction of the energy of ``v`` within a few lines of ω that ``model`` explains (see
+    :class:`RingdownFit`): lines are the window's resolution (1 / n cycles per sample) or the model's own
+    half-power width (σ / π), whichever is wider."""
+    n = len(v)
+    nfft = 1 << math.ceil(math.log2(max(4 * n, 64)))
+    freqs = np.fft.rfftfreq(nfft)
+    half_width = max(3.0 / n, 3.0 * sigma / math.pi)
+    near = np.abs(freqs - omega / (2 * math.pi)) <= half_width
+    data = np.fft.rfft(v - v.mean(), n=nfft)[near]
+    left = np.fft.rfft(v - v.mean() - (model - model.mean()), n=nfft)[near]
+    energy = float(np.sum(np.abs(data) ** 2))
+    if energy <= 0:
+        return 0.0
+    return max(0.0, 1.0 - float(np.sum(np.abs(left) ** 2)) / energy)
 
 
 @dataclass(frozen=True)

@@ -25,12 +25,14 @@ import math
 from collections import deque
 from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
+from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing
 from workers.pipeline.errors import ParameterError
+from workers.pipeline.light import FLICKER_ROWS, flickering_rows
 from workers.pipeline.peaks import Peak, find_peaks, fold_harmonics, noise_floor
 
 #: Floats held by the survey's segment buffer (flow of every survey pixel over one Welch segment).
@@ -41,9 +43,8 @@ MAX_BLOCKS = 2048
 #: A peak whose whitened power at the median pixel exceeds this (power over the pixel's own noise) is seen
 #: over the static background too: camera motion, flicker or codec pulses rather than an object.
 GLOBAL_MEDIAN_SNR = 2.5
-#: RMS per-frame motion of the survey grid's border (input pixels) above which it is removed as camera
-#: motion.
-CAMERA_MOTION_MIN_PX = 0.05
+#: Brightness is followed frame by frame in BRIGHTNESS_BLOCKS x BRIGHTNESS_BLOCKS blocks.
+BRIGHTNESS_BLOCKS = 8
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,8 @@ class Survey:
         Confident peaks, strongest first, harmonics folded in (``snr_db`` over the whitened floor).
     global_peaks_hz : list of float
         The peaks (among ``peaks``) that are seen over the whole picture.
+    flicker_hz : list of float
+        The peaks (among ``peaks``) at which the picture's brightness oscillates: lighting flicker.
     """
 
     fps: float
@@ -111,6 +114,7 @@ class Survey:
     max_step_px: float
     peaks: list[Peak]
     global_peaks_hz: list[float]
+    flicker_hz: list[float] = field(default_factory=list)
 
     @property
     def bin_hz(self) -> float:
@@ -133,6 +137,30 @@ class Survey:
         if not sel.any():
             sel[int(np.argmin(np.abs(self.frequencies_hz - frequency_hz)))] = True
         return np.asarray(self.segment_power[:, sel].sum(axis=1), np.float64)
+
+    def decay_at(self, frequency_hz: float, *, isolation_bins: float = 3.0) -> tuple[float, float] | None:
+        """The envelope's decay rate at ``frequency_hz`` over the whole clip, from the stored segments'
+        energy after its strongest one: (σ, its standard uncertainty), 1/s; None when fewer than three
+        segments follow it, or another peak lies within ``isolation_bins`` (their energies would mix).
+        """
+        if any(
+            self.bin_hz < abs(p.frequency_hz - frequency_hz) <= isolation_bins * self.bin_hz
+            for p in self.peaks
+        ):
+            return None
+        energy = self.band_energy(frequency_hz)
+        first = int(np.argmax(energy))
+        energy = energy[first:]
+        if energy.size < 3 or not np.all(energy > 0):
+            return None
+        t = (self.segment_starts[first:] + self.segment_span / 2) / self.fps
+        design = np.stack([np.ones_like(t, dtype=np.float64), t.astype(np.float64)], axis=1)
+        coef, *_ = np.linalg.lstsq(design, np.log(energy), rcond=None)
+        res = np.log(energy) - design @ coef
+        dof = max(len(t) - 2, 1)
+        cov = np.linalg.inv(design.T @ design) * float(res @ res) / dof
+        # Energy falls as exp(-2 sigma t).
+        return -float(coef[1]) / 2, math.sqrt(max(float(cov[1, 1]), 0.0)) / 2
 
     def explains(self, frequency_hz: float, *, tolerance: float = 0.02) -> bool:
         """Whether ``frequency_hz`` is one of the survey's peaks, or a harmonic of one, within
@@ -279,20 +307,21 @@ def survey_motion(
     dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
     dis.setFinestScale(0)  # the grid is already coarse: do not skip its finest level
     dis.setPatchStride(6)  # ... but sparser patches keep it about as cheap as decoding a frame
-    ring = np.ones((h, w), bool)
-    mh, mw = max(1, round(0.12 * h)), max(1, round(0.12 * w))
-    ring[mh:-mh, mw:-mw] = False
-    ring_idx = np.flatnonzero(ring.ravel())[::2]
-
+    ring = CameraRing((h, w), every=2)
+    first_small = small(first)
+    ring.set_texture(first_small)
     acc = _WelchAccumulator(
-        length=length, pixels=h * w, fps=fps, first_frame=first_frame, scale=scale, ring=ring_idx
+        length=length, pixels=h * w, fps=fps, first_frame=first_frame, scale=scale, ring=ring
     )
-    previous = [small(first)]
+    previous = [first_small]
+    blocks = (BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS)
+    brightness = [np.asarray(cv2.resize(first_small, blocks, interpolation=cv2.INTER_AREA), np.float32)]
 
     def flow_to(gray: NDArray[np.uint8]) -> NDArray[np.float32]:
         nxt = small(gray)
         flow = np.asarray(dis.calc(previous[0], nxt, None), np.float32)
         previous[0] = nxt
+        brightness.append(np.asarray(cv2.resize(nxt, blocks, interpolation=cv2.INTER_AREA), np.float32))
         return flow
 
     # Downscaling and flow run in one worker thread (in frame order) while the main thread decodes the
@@ -328,10 +357,25 @@ def survey_motion(
         noise=noise_floor(whitened, width=max(9, len(whitened) // 8)),
         min_snr_db=min_snr_db,
     )
-    candidates = [*strong, *(Peak(**{**vars(p), "harmonics_hz": []}) for p in weak)]
+    # A vibration of most of the picture (a compressor shaking everything near it) shows at the median
+    # pixel even when a stronger peak beside it hides it in the sums.
+    wide = find_peaks(
+        freqs,
+        median_snr,
+        band_hz=band,
+        noise=np.maximum(noise_floor(median_snr, width=max(9, len(median_snr) // 8)), 1.0),
+        min_snr_db=min_snr_db,
+    )
+    candidates = [
+        *strong,
+        *(Peak(**{**vars(p), "harmonics_hz": []}) for p in weak),
+        *(Peak(**{**vars(p), "harmonics_hz": []}) for p in wide),
+    ]
     candidates = [p for p in candidates if p.frequency_hz >= 2 * bin_hz]
-    peaks = fold_harmonics(candidates, bin_hz=bin_hz)
+    # Peaks of different detectors a bin apart are two components (a Hann window resolves about two).
+    peaks = fold_harmonics(candidates, bin_hz=bin_hz, min_separation_bins=1.0)
     global_hz = [p.frequency_hz for p in peaks if median_snr[p.bin] > GLOBAL_MEDIAN_SNR]
+    flicker_hz = _flicker(np.asarray(brightness, np.float32), fps=fps, peaks=peaks, bin_hz=bin_hz)
     starts, span, seg_power = acc.segments_stored()
     return Survey(
         fps=fps,
@@ -353,7 +397,30 @@ def survey_motion(
         max_step_px=acc.steps.quantile(0.9),
         peaks=peaks,
         global_peaks_hz=global_hz,
+        flicker_hz=flicker_hz,
     )
+
+
+def _flicker(brightness: NDArray[np.float32], *, fps: float, peaks: list[Peak], bin_hz: float) -> list[float]:
+    """The peaks (their frequencies) that are lighting flicker (see :mod:`workers.pipeline.light`): the
+    main analysis rejects them, and the window's frame step need not keep them below the Nyquist rate.
+
+    Parameters
+    ----------
+    brightness : ndarray of float32, shape (T, B, B)
+        Mean grey level of B x B blocks of each frame.
+    """
+    if len(brightness) < 32 or not peaks:
+        return []
+    n = len(brightness) - 1
+    freqs = np.asarray(np.fft.rfftfreq(n, d=1.0 / fps), np.float64)
+    change = np.diff(brightness.astype(np.float64), axis=0)
+    spec = np.fft.rfft(change - change.mean(axis=0), axis=0)
+    return [
+        p.frequency_hz
+        for p in peaks
+        if flickering_rows(spec, freqs, p.frequency_hz, max(1.0, p.width_bins) * bin_hz)[0] >= FLICKER_ROWS
+    ]
 
 
 class _BlockEnergy:
@@ -402,7 +469,7 @@ class _WelchAccumulator:
     """Per-pixel Welch spectra of signed flow, kept as sums over pixels and segments."""
 
     def __init__(
-        self, *, length: int, pixels: int, fps: float, first_frame: int, scale: float, ring: NDArray[np.intp]
+        self, *, length: int, pixels: int, fps: float, first_frame: int, scale: float, ring: CameraRing
     ) -> None:
         self.ring = ring
         self.blocks = _BlockEnergy()
@@ -447,7 +514,7 @@ class _WelchAccumulator:
             return
         order = (np.arange(self._stats_done, self.samples) % self.length).astype(np.intp)
         data = self.buffer[order].reshape(n, self.pixels, 2)
-        camera = np.median(data[:, self.ring, :], axis=1)
+        camera = self.ring.motions(data)
         self.camera[order] = camera
         moved = data - camera[:, None, :]
         sq = moved[..., 0] ** 2 + moved[..., 1] ** 2
@@ -482,7 +549,11 @@ class _WelchAccumulator:
         camera = self.camera[order]
         # Remove the camera's motion only when it really moves: subtracting a still camera's jitter
         # would add the border's noise to every pixel.
-        moving = float(np.sqrt(np.mean(camera.astype(np.float64) ** 2))) / self.scale > CAMERA_MOTION_MIN_PX
+        moving = self.ring.moves_as_whole(
+            self.buffer[order].reshape(n, self.pixels, 2),
+            camera,
+            min_rms_px=CAMERA_MOTION_MIN_PX * self.scale,
+        )
         # Transformed in blocks of pixels (time in order, mean removed, tapered): the complex spectrum
         # of the whole buffer would double it.
         power = np.empty((n // 2 + 1, self.pixels), np.float32)
@@ -551,32 +622,45 @@ def plan_window(
     default_frames: int,
     max_samples: int,
     grid_scale: float,
+    band_hz: tuple[float, float] | None = None,
+    min_duration_s: float | None = None,
     min_periods: float = 10.0,
     max_step_grid_px: float = 6.0,
-    samples_per_period: float = 10.0,
+    samples_per_period: float = 4.0,
+    resolve_lines: float = 4.0,
+    end_energy: float = 0.02,
+    lasting_energy: float = 0.5,
 ) -> WindowPlan:
     """Choose the main analysis window from a survey of the whole clip.
 
-    The window starts where the strongest ring-down of the strongest object frequency begins, and spans
-    at least ``min_periods`` periods of the lowest confident object frequency (peaks seen over the whole
-    picture, such as camera shake, do not count) and at least ``default_frames`` frames when the clip
-    has them. When that needs more than ``default_frames`` flow maps, every k-th frame is analysed,
-    provided each frequency seen keeps at least ``samples_per_period`` samples per period (its strong
-    harmonics stay below the Nyquist rate) and the motion between analysed frames stays below
-    ``max_step_grid_px``; the window never gives more than ``max_samples`` flow maps.
+    The window starts where the strongest ring-down of the strongest object frequency begins and lasts
+    as long as the scene needs: at least ``min_periods`` periods of the lowest confident frequency and
+    ``default_frames`` frames when the clip has them; as long as the motion lasts when it is still
+    ``lasting_energy`` as strong (in energy) where that window would end (until it falls below
+    ``end_energy`` of its peak: a steady vibration lasts to the end of the clip); and long enough to
+    resolve close frequencies (``resolve_lines`` lines between two peaks closer than a few survey bins,
+    or within a peak wider than a line). When that needs more than
+    ``default_frames`` flow maps, every k-th frame is analysed, provided each frequency seen keeps at
+    least ``samples_per_period`` samples per period (its strong harmonics stay below the Nyquist rate;
+    lighting flicker may fold back, it is rejected anyway) and the motion between analysed frames stays
+    below ``max_step_grid_px``; the window never gives more than ``max_samples`` flow maps.
 
     Parameters
     ----------
     survey : Survey
     total_frames : int
-        Frames in the clip.
+        Frames in the clip (that decode).
     default_frames : int
         Window length when nothing asks for more.
     max_samples : int
         Most flow maps the main analysis may hold (its memory budget).
     grid_scale : float
         Main flow grid pixels per input pixel.
-    min_periods, max_step_grid_px, samples_per_period : float
+    band_hz : (low, high), optional
+        Only peaks in this band shape the window (the analysis searches no other).
+    min_duration_s : float, optional
+        The window spans at least this long (a second pass that separates close frequencies).
+    min_periods, max_step_grid_px, samples_per_period, resolve_lines, end_energy, lasting_energy : float
 
     Returns
     -------
@@ -588,8 +672,10 @@ def plan_window(
             "allow at least 8 flow maps"
         )
     fps = survey.fps
-    objects = survey.object_peaks
-    if not objects:
+    lo, hi = band_hz if band_hz is not None else (0.0, math.inf)
+    seen = [p for p in survey.peaks if lo <= p.frequency_hz <= hi and p.frequency_hz not in survey.flicker_hz]
+    objects = [p for p in seen if p.frequency_hz not in survey.global_peaks_hz]
+    if not seen and min_duration_s is None:
         stop = min(total_frames, default_frames)
         return WindowPlan(
             start_frame=0,
@@ -602,18 +688,34 @@ def plan_window(
                 "analysed; give start_frame and frames to choose the window"
             ),
         )
-    main = objects[0]
-    lowest = min(p.frequency_hz for p in objects)
-    onset = _onset_frame(survey, main.frequency_hz)
-    needed = math.ceil(min_periods * fps / lowest) + 1
-    length = max(needed, min(default_frames, total_frames))
+    main = (objects or seen)[0] if seen else None
+    lowest = min((p.frequency_hz for p in seen), default=None)
+    onset = _onset_frame(survey, main.frequency_hz) if main is not None else survey.first_frame
+    length = min(default_frames, total_frames)
+    why = ""
+    if lowest is not None:
+        length = max(length, math.ceil(min_periods * fps / lowest) + 1)
+    resolve_s = _resolution_needed(survey, seen, lines=resolve_lines)
+    if resolve_s > 0 and math.ceil(resolve_s * fps) + 1 > length:
+        length = math.ceil(resolve_s * fps) + 1
+        why = f"; {resolve_s:.3g} s resolve frequencies {resolve_lines / resolve_s:.3g} Hz apart"
+    if seen and _energy_at(survey, [p.frequency_hz for p in seen], onset + length) >= lasting_energy:
+        # Still strong where the window would end (a steady vibration, a lightly damped fork): follow
+        # the motion while it lasts.
+        lasting = _motion_end(survey, [p.frequency_hz for p in seen], onset, level=end_energy) - onset
+        if lasting > length:
+            length = lasting
+            why += "; the motion lasts that long"
+    if min_duration_s is not None and math.ceil(min_duration_s * fps) + 1 > length:
+        length = math.ceil(min_duration_s * fps) + 1
+        why += f"; {min_duration_s:.3g} s asked for"
     # Frames skipped between analysed frames: as few as keep the buffer near the default size.
     step = max(1, math.ceil((length - 1) / max(default_frames - 1, 1)))
     step_max_rate = _max_step_for_rate(survey, samples_per_period=samples_per_period)
     per_frame_grid_px = survey.max_step_px * grid_scale
     step_max_motion = max(1, math.floor(max_step_grid_px / max(per_frame_grid_px, 1e-9)))
     step = max(1, min(step, step_max_rate, step_max_motion))
-    length = min(length, step * max_samples + 1)
+    length = min(length, step * max_samples + 1, total_frames)
     start = max(0, onset)
     stop = min(total_frames, start + length)
     if stop - start < min(length, total_frames):
@@ -623,12 +725,16 @@ def plan_window(
     if start + intervals * step + 1 > total_frames:
         intervals = (stop - start - 1) // step
     stop = start + intervals * step + 1
-    periods = lowest * (stop - start - 1) / fps
+    periods = (lowest or 0.0) * (stop - start - 1) / fps
     every = "" if step == 1 else f" (one frame in {step})"
-    reason = (
-        f"a survey of all {total_frames} frames found motion at {main.frequency_hz:.3g} Hz starting near "
-        f"frame {onset}; frames {start}-{stop}{every} span {periods:.1f} periods of {lowest:.3g} Hz"
-    )
+    if main is None or lowest is None:
+        reason = f"frames {start}-{stop}{every} of {total_frames}{why}"
+    else:
+        reason = (
+            f"a survey of all {total_frames} frames found motion at {main.frequency_hz:.3g} Hz starting "
+            f"near frame {onset}; frames {start}-{stop}{every} span {periods:.1f} periods of "
+            f"{lowest:.3g} Hz{why}"
+        )
     return WindowPlan(
         start_frame=start,
         stop_frame=stop,
@@ -639,17 +745,88 @@ def plan_window(
     )
 
 
+def _resolution_needed(survey: Survey, peaks: list[Peak], *, lines: float, near_bins: float = 6.0) -> float:
+    """Seconds of window that resolve ``lines`` lines between any two peaks closer than ``near_bins``
+    survey bins, or within a peak wider than its decay explains: a Hann window's tone is 1.44 bins wide
+    at half power, a decay at rate σ widens it by about σ / π Hz; one half as wide again may be two tones
+    about half its width apart. (A peak whose decay cannot be measured, being too short or too late in
+    the clip, asks for nothing.)"""
+    bin_hz = survey.bin_hz
+    needed = 0.0
+    for i, a in enumerate(peaks):
+        for b in peaks[i + 1 :]:
+            gap = abs(a.frequency_hz - b.frequency_hz)
+            if 0 < gap < near_bins * bin_hz:
+                needed = max(needed, lines / gap)
+        if a.width_bins > 1.0:
+            decay = survey.decay_at(a.frequency_hz)
+            if decay is None:
+                continue
+            explained = 1.44 * bin_hz + max(decay[0], 0.0) / math.pi
+            if 2 * a.width_bins * bin_hz > 1.5 * explained:
+                needed = max(needed, lines / (a.width_bins * bin_hz))
+    return needed
+
+
+def _energy_at(survey: Survey, frequencies_hz: list[float], frame: int) -> float:
+    """How strong the motion still is at clip ``frame`` relative to its strongest: the lower of two
+    readings, the stored segments' energy at ``frequencies_hz`` (coarse in time) and the motion energy
+    of the blocks of frames (fine in time, all frequencies)."""
+    energy = sum(survey.band_energy(f) for f in frequencies_hz)
+    if not isinstance(energy, np.ndarray) or energy.size == 0 or float(energy.max()) <= 0:
+        return 0.0
+    i = int(np.searchsorted(survey.segment_starts + survey.segment_span // 2, frame))
+    coarse = float(energy[min(i, len(energy) - 1)] / energy.max())
+    blocks = survey.block_energy
+    # The fine reading against the motion's typical strength (a few noisy blocks must not set the scale).
+    typical = float(np.percentile(blocks, 90)) if blocks.size else 0.0
+    if typical <= 0:
+        return coarse
+    b = min(len(blocks) - 1, max(0, (frame - survey.first_frame) // survey.block_frames))
+    fine = float(blocks[b] / typical)
+    return min(coarse, fine)
+
+
+def _motion_end(survey: Survey, frequencies_hz: list[float], onset: int, *, level: float) -> int:
+    """Clip frame where the motion at ``frequencies_hz`` has faded below ``level`` of its strongest after
+    ``onset`` (the clip's end when it never does)."""
+    energy = sum(survey.band_energy(f) for f in frequencies_hz)
+    starts = survey.segment_starts
+    end = survey.first_frame + survey.frames
+    if not isinstance(energy, np.ndarray) or energy.size == 0:
+        return end
+    after = np.flatnonzero(starts + survey.segment_span > onset)
+    if after.size == 0:
+        return end
+    peak_at = int(after[np.argmax(energy[after])])
+    peak = float(energy[peak_at])
+    for i in range(peak_at + 1, len(energy)):
+        if energy[i] < level * peak:
+            return int(min(end, starts[i] + survey.segment_span // 2))
+    return end
+
+
 def _max_step_for_rate(
-    survey: Survey, *, samples_per_period: float, relative_power: float = 0.1, harmonic_samples: float = 2.5
+    survey: Survey,
+    *,
+    samples_per_period: float,
+    relative_power: float = 0.1,
+    harmonic_samples: float = 2.5,
+    minor_power: float = 0.05,
 ) -> int:
     """Largest frame step that keeps ``samples_per_period`` samples in each period of every confident
-    peak, and each harmonic carrying ``relative_power`` of its peak's power below the reduced Nyquist
-    rate (``harmonic_samples`` per period; weaker overtones fold back as faint peaks, which the
-    segmentation recognises as folded harmonics)."""
+    peak carrying at least ``minor_power`` of the strongest one's power, and each harmonic carrying
+    ``relative_power`` of its peak's power below the reduced Nyquist rate (``harmonic_samples`` per
+    period; weaker overtones fold back as faint peaks, which the segmentation recognises as folded
+    harmonics). Lighting flicker, and minor peaks far above the motion that matters, may fold back: the
+    analysis recognises their images (see :func:`folded_image`)."""
     fps = survey.fps
     step = math.inf
     bins = survey.frequencies_hz
+    strongest = max((float(survey.power[p.bin]) for p in survey.peaks), default=0.0)
     for peak in survey.peaks:
+        if peak.frequency_hz in survey.flicker_hz or float(survey.power[peak.bin]) < minor_power * strongest:
+            continue
         step = min(step, fps / (samples_per_period * peak.frequency_hz))
         base = float(survey.power[max(peak.bin - 1, 0) : peak.bin + 2].max())
         for f in peak.harmonics_hz:
@@ -657,6 +834,32 @@ def _max_step_for_rate(
             if survey.power[max(k - 1, 0) : k + 2].max() >= relative_power * base:
                 step = min(step, fps / (harmonic_samples * f))
     return max(1, math.floor(step)) if math.isfinite(step) else 1
+
+
+def folded_image(
+    survey: Survey, frequency_hz: float, *, sample_rate_hz: float, tolerance_hz: float
+) -> float | None:
+    """The survey peak above the Nyquist rate of ``sample_rate_hz`` (a window analysed every k-th frame)
+    whose image folds back onto ``frequency_hz``, or None.
+
+    Parameters
+    ----------
+    frequency_hz : float
+        A frequency seen in the strided window.
+    sample_rate_hz : float
+        The window's sample rate (the clip's rate over its frame step).
+    tolerance_hz : float
+        How close the image must fall.
+    """
+    nyquist = sample_rate_hz / 2
+    for peak in survey.peaks:
+        f = peak.frequency_hz
+        if f <= nyquist:
+            continue
+        image = abs(f - sample_rate_hz * round(f / sample_rate_hz))
+        if abs(image - frequency_hz) <= tolerance_hz:
+            return f
+    return None
 
 
 def _onset_frame(survey: Survey, frequency_hz: float) -> int:
@@ -693,4 +896,12 @@ def _onset_frame(survey: Survey, frequency_hz: float) -> int:
     return max(survey.first_frame, survey.first_frame + b * survey.block_frames - margin)
 
 
-__all__ = ["Survey", "WindowPlan", "plan_window", "segment_length", "survey_factor", "survey_motion"]
+__all__ = [
+    "Survey",
+    "WindowPlan",
+    "folded_image",
+    "plan_window",
+    "segment_length",
+    "survey_factor",
+    "survey_motion",
+]

@@ -42,15 +42,25 @@ class SceneObject:
     damping_ratio : float
         ζ, dimensionless.
     mass_kg : float
-    excitation : ``"step_release"`` or ``"impulse"``
+    excitation : ``"step_release"``, ``"impulse"`` or ``"steady"``
+        ``steady``: a sustained (forced) oscillation of ``steady_amplitude_m`` from ``release_frame`` on
+        at ``frequency_hz``, with no decay (a shaker table, a running motor); ``damping_ratio`` is unused.
     force_n : float
         Holding force before release (step_release): A = F / k.
     impulse_ns : float
         Impulse (impulse): v0 = J / m.
     direction : (x, y, z)
         Motion direction in camera coordinates (x right, y down, z away); normalised.
+    steady_amplitude_m : float
+        Amplitude of a ``steady`` oscillation, metres.
     release_frame : int
         Frames before this one show the object held still.
+    pivot_px : (x, y) or None
+        When set, the object swings about this image point like a pendulum: its displacement is the arc
+        travelled by its centre, the object turns with the angle, and a rod (flat, ``rod_px`` wide)
+        joins it to the pivot. None: it translates along ``direction``.
+    rod_px : float
+        Width of the pendulum's rod, pixels.
     shadow_offset_px : (dx, dy) or None
         When set, a shadow of the object falls on the background at this offset and moves with it.
     harmonics : tuple of float
@@ -69,14 +79,17 @@ class SceneObject:
     frequency_hz: float = 5.0
     damping_ratio: float = 0.03
     mass_kg: float = 0.5
-    excitation: Literal["step_release", "impulse"] = "step_release"
+    excitation: Literal["step_release", "impulse", "steady"] = "step_release"
     force_n: float = 10.0
     impulse_ns: float = 0.3
+    steady_amplitude_m: float = 0.005
     direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
     release_frame: int = 0
     shadow_offset_px: tuple[float, float] | None = None
     harmonics: tuple[float, ...] = ()
     texture: Literal["noise", "flat"] = "noise"
+    pivot_px: tuple[float, float] | None = None
+    rod_px: float = 6.0
 
     @property
     def stiffness_n_per_m(self) -> float:
@@ -84,11 +97,21 @@ class SceneObject:
 
     @property
     def damped_frequency_hz(self) -> float:
+        """The frequency the object is seen to oscillate at (a steady oscillation's own)."""
+        if self.excitation == "steady":
+            return self.frequency_hz
         return self.frequency_hz * math.sqrt(1 - self.damping_ratio**2)
 
     @property
+    def regime(self) -> str:
+        """``"steady"`` for a sustained oscillation, else ``"ring_down"``."""
+        return "steady" if self.excitation == "steady" else "ring_down"
+
+    @property
     def amplitude_m(self) -> float:
-        """Envelope amplitude at release: F/k, or v0/ωd for an impulse."""
+        """Envelope amplitude at release: F/k, v0/ωd for an impulse, or a steady oscillation's own."""
+        if self.excitation == "steady":
+            return self.steady_amplitude_m
         if self.excitation == "step_release":
             return self.force_n / self.stiffness_n_per_m
         wd = 2 * math.pi * self.damped_frequency_hz
@@ -102,6 +125,8 @@ class SceneObject:
         tau = t_s - self.release_frame / fps
         after = tau >= 0
         tt = np.where(after, tau, 0.0)
+        if self.excitation == "steady":
+            return np.where(after, self.steady_amplitude_m * np.sin(wn * tt), 0.0)
         env = np.exp(-z * wn * tt)
         if self.excitation == "step_release":
             a = self.force_n / self.stiffness_n_per_m
@@ -140,6 +165,9 @@ class Scene:
         Slow camera drift of the whole image.
     flicker, flicker_hz : float
         Lighting flicker: brightness scaled by 1 + flicker sin(2π flicker_hz t).
+    flicker_rolling_px : float
+        With a rolling shutter, flicker shows as bands that roll through the picture: the phase falls by
+        a cycle every ``flicker_rolling_px`` rows. 0: a global shutter (the whole frame at once).
     keyframe_every, keyframe_pulse : int, float
         Codec keyframes: every ``keyframe_every`` frames the image jumps by ``keyframe_pulse`` levels.
     depth_noise_m : float
@@ -162,6 +190,7 @@ class Scene:
     drift_px_per_s: tuple[float, float] = (0.0, 0.0)
     flicker: float = 0.0
     flicker_hz: float = 0.0
+    flicker_rolling_px: float = 0.0
     keyframe_every: int = 0
     keyframe_pulse: float = 6.0
 
@@ -271,6 +300,101 @@ def _check(scene: Scene) -> None:
             raise ParameterError(f"synth: texture={o.texture!r} is unknown; use 'noise' or 'flat'")
 
 
+class _Layer:
+    """One object's texture and alpha, and where they go in frame k: a translating object is anchored at
+    its centre and scaled by its depth; a swinging one turns about its pivot."""
+
+    def __init__(
+        self,
+        label: int,
+        obj: SceneObject,
+        tex: NDArray[np.float32],
+        alpha: NDArray[np.float32],
+        *,
+        anchor: tuple[float, float],
+    ) -> None:
+        self.label, self.obj, self.tex, self.alpha, self.anchor = label, obj, tex, alpha, anchor
+        self.positions: NDArray[np.float64] | None = None  # (T, 3) camera coordinates of the centre
+        self.angles: NDArray[np.float64] | None = None  # (T,) swing angle, radians, from the rest angle
+        self.rest_angle = 0.0
+
+    def rest_matrix(self) -> NDArray[np.float32]:
+        """Canvas to image at rest (unit scale)."""
+        if self.obj.pivot_px is not None:
+            return self._rotation(self.rest_angle)
+        ax, ay = self.anchor
+        cx, cy = self.obj.center_px
+        return np.array([[1, 0, cx - ax], [0, 1, cy - ay]], np.float32)
+
+    def _rotation(self, angle: float) -> NDArray[np.float32]:
+        assert self.obj.pivot_px is not None
+        c, s = math.cos(angle), math.sin(angle)
+        rot = np.array([[c, s], [-s, c]])
+        pivot = np.asarray(self.obj.pivot_px, np.float64)
+        shift = pivot - rot @ np.asarray(self.anchor, np.float64)
+        return np.hstack([rot, shift[:, None]]).astype(np.float32)
+
+    def matrix(
+        self, k: int, intrinsics: tuple[float, float, float, float]
+    ) -> tuple[NDArray[np.float32], float]:
+        """Canvas to image in frame k, and the object's depth then."""
+        if self.angles is not None:
+            return self._rotation(self.rest_angle + float(self.angles[k])), self.obj.depth_m
+        assert self.positions is not None
+        fx, fy, cx, cy = intrinsics
+        X, Y, Z = self.positions[k]
+        scale = self.obj.depth_m / Z
+        u = fx * X / Z + cx
+        v = fy * Y / Z + cy
+        th, tw = self.alpha.shape
+        M = np.array([[scale, 0, u - scale * (tw - 1) / 2], [0, scale, v - scale * (th - 1) / 2]], np.float32)
+        return M, float(Z)
+
+
+def _swing_layer(
+    label: int,
+    obj: SceneObject,
+    tex: NDArray[np.float32],
+    alpha: NDArray[np.float32],
+    *,
+    pad: int,
+    fx: float,
+    disp_m: NDArray[np.float64],
+) -> _Layer:
+    """A pendulum: the object hangs on a flat rod from its pivot, and turns by the arc it travels over the
+    rod's length."""
+    assert obj.pivot_px is not None
+    th, tw = alpha.shape
+    dx = obj.center_px[0] - obj.pivot_px[0]
+    dy = obj.center_px[1] - obj.pivot_px[1]
+    length = math.hypot(dx, dy)
+    if length < 1:
+        raise ParameterError("synth: a swinging object's pivot_px must lie away from its centre")
+    rod = max(1, round(obj.rod_px))
+    width = max(tw, rod + 2 * pad)
+    height = round(length) + th // 2 + 2 * pad
+    canvas = np.zeros((height, width, 3), np.float32)
+    canvas_alpha = np.zeros((height, width), np.float32)
+    mid = (width - 1) / 2
+    top = pad
+    # The rod, from the pivot to the object's centre, in the object's average colour.
+    x0 = round(mid - rod / 2)
+    canvas[top : top + round(length), x0 : x0 + rod] = tex.reshape(-1, 3).mean(axis=0)
+    canvas_alpha[top : top + round(length), x0 : x0 + rod] = 1.0
+    # The object, centred at the rod's end.
+    oy = round(top + length - (th - 1) / 2)
+    ox = round(mid - (tw - 1) / 2)
+    region = (slice(oy, oy + th), slice(ox, ox + tw))
+    a = alpha[..., None]
+    canvas[region] = canvas[region] * (1 - a) + tex * a
+    canvas_alpha[region] = np.maximum(canvas_alpha[region], alpha)
+    layer = _Layer(label, obj, canvas, canvas_alpha, anchor=(mid, float(top)))
+    layer.rest_angle = math.atan2(dx, dy)
+    length_m = length * obj.depth_m / fx
+    layer.angles = disp_m / length_m
+    return layer
+
+
 class _Renderer:
     """The static parts of a scene (textures, masks, trajectories), and one frame at a time on demand."""
 
@@ -286,7 +410,7 @@ class _Renderer:
         self.background = _texture(rng, H, W, base=np.array([110, 120, 100], np.float32))
         t = np.arange(T, dtype=np.float64) / scene.fps
 
-        layers = []
+        layers: list[_Layer] = []
         true_mask = np.zeros((H, W), np.uint8)
         shadow_mask = np.zeros((H, W), bool)
         for label, obj in enumerate(scene.objects, start=1):
@@ -307,21 +431,15 @@ class _Renderer:
             Y0 = (obj.center_px[1] - cy) * obj.depth_m / fy
             Z0 = obj.depth_m
             rest = np.array([X0, Y0, Z0])
-            positions = rest[None, :] + disp[:, None] * direction[None, :]
-            layers.append((label, obj, tex, alpha, positions, pad))
+            if obj.pivot_px is None:
+                positions = rest[None, :] + disp[:, None] * direction[None, :]
+                layer = _Layer(label, obj, tex, alpha, anchor=((w + 2 * pad - 1) / 2, (h + 2 * pad - 1) / 2))
+                layer.positions = positions
+            else:
+                layer = _swing_layer(label, obj, tex, alpha, pad=pad, fx=fx, disp_m=disp)
+            layers.append(layer)
             # True mask at rest position.
-            m = cv2.warpAffine(
-                alpha,
-                np.array(
-                    [
-                        [1, 0, obj.center_px[0] - (w + 2 * pad - 1) / 2],
-                        [0, 1, obj.center_px[1] - (h + 2 * pad - 1) / 2],
-                    ],
-                    np.float32,
-                ),
-                (W, H),
-                flags=cv2.INTER_LINEAR,
-            )
+            m = cv2.warpAffine(layer.alpha, layer.rest_matrix(), (W, H), flags=cv2.INTER_LINEAR)
             true_mask[m >= 0.5] = label
             if obj.shadow_offset_px is not None:
                 shifted = np.roll(
@@ -329,7 +447,7 @@ class _Renderer:
                 )
                 shadow_mask |= shifted
         # Draw far objects first.
-        layers.sort(key=lambda item: -item[1].depth_m)
+        layers.sort(key=lambda layer: -layer.obj.depth_m)
         self.layers = layers
         self.true_mask = true_mask
         self.shadow_mask = shadow_mask & (true_mask == 0)
@@ -344,18 +462,11 @@ class _Renderer:
 
         scene = self.scene
         H, W = scene.height, scene.width
-        fx, fy, cx, cy = self.intrinsics
         frame = self.background.copy()
         dmap = self.bg_depth.copy()
-        for _, obj, tex, alpha, positions, _pad in self.layers:
-            X, Y, Z = positions[k]
-            scale = obj.depth_m / Z
-            u = fx * X / Z + cx
-            v = fy * Y / Z + cy
-            th, tw = alpha.shape
-            M = np.array(
-                [[scale, 0, u - scale * (tw - 1) / 2], [0, scale, v - scale * (th - 1) / 2]], np.float32
-            )
+        for layer in self.layers:
+            obj, alpha = layer.obj, layer.alpha
+            M, Z = layer.matrix(k, self.intrinsics)
             a = cv2.warpAffine(alpha, M, (W, H), flags=cv2.INTER_LINEAR)
             if obj.shadow_offset_px is not None:
                 sdx, sdy = obj.shadow_offset_px
@@ -365,7 +476,7 @@ class _Renderer:
                 sh = cv2.warpAffine(alpha, Ms, (W, H), flags=cv2.INTER_LINEAR)
                 sh = cv2.GaussianBlur(sh, (0, 0), 2.0)
                 frame *= (1.0 - 0.55 * sh)[..., None]
-            col = cv2.warpAffine(tex, M, (W, H), flags=cv2.INTER_LINEAR)
+            col = cv2.warpAffine(layer.tex, M, (W, H), flags=cv2.INTER_LINEAR)
             frame = frame * (1 - a[..., None]) + col * a[..., None]
             dmap = np.where(a >= 0.5, np.float32(Z), dmap)
         tk = k / scene.fps
@@ -376,7 +487,17 @@ class _Renderer:
             frame = cv2.warpAffine(frame, g, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             dmap = cv2.warpAffine(dmap, g, (W, H), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
         if scene.flicker:
-            frame *= np.float32(1 + scene.flicker * math.sin(2 * math.pi * scene.flicker_hz * tk))
+            if scene.flicker_rolling_px:
+                # A rolling shutter reads row y later than row 0: the flicker's phase moves down the picture.
+                phase = (
+                    2
+                    * math.pi
+                    * (scene.flicker_hz * tk - np.arange(H, dtype=np.float32) / scene.flicker_rolling_px)
+                )
+                gain = (1 + scene.flicker * np.sin(phase)).astype(np.float32)
+                frame *= gain[:, None, None]
+            else:
+                frame *= np.float32(1 + scene.flicker * math.sin(2 * math.pi * scene.flicker_hz * tk))
         if scene.keyframe_every and k % scene.keyframe_every == 0:
             frame += np.float32(scene.keyframe_pulse)
         frame += rng.standard_normal(frame.shape, dtype=np.float32) * np.float32(scene.rgb_noise)

@@ -18,6 +18,8 @@ from workers.pipeline.stream import FrameBuffers
 
 #: Objects whose pixels move this coherently are registered as rigid bodies for their amplitude.
 RIGID_COHERENCE = 0.7
+#: Objects whose motion spans this many grid pixels are also followed through the flow.
+FOLLOW_MIN_PX = 2.0
 
 
 @dataclass(frozen=True)
@@ -151,8 +153,9 @@ class Track:
         Per-frame displacement along ``axis_px``, input pixels.
     axis_px : (float, float)
         Unit vector of the motion axis in the image.
-    source : ``"registration"`` or ``"flow"``
-        What measured the motion.
+    source : ``"registration"``, ``"tracked"`` or ``"flow"``
+        What measured the motion: registration of its texture, its pixels followed through the flow
+        (a large swing), or the flow where it is.
     onset : int
         First flow sample of the motion (the release).
     fit : RingdownFit
@@ -172,6 +175,114 @@ class Track:
     region: NDArray[np.bool_]
 
 
+def follow_region(
+    flow: NDArray[np.float32],
+    seed: NDArray[np.bool_],
+    *,
+    ref_index: int,
+    max_points: int = 1500,
+    seed_rng: int = 0,
+) -> NDArray[np.float64]:
+    """Where a region is in every frame, by carrying its pixels along the flow from a reference frame.
+
+    Forward, each point moves by the flow at its position (bilinear); backward, by the flow that brought
+    it to where it is. The region's displacement is the median of its points' (robust to the few that
+    slip onto the background at its edges).
+
+    Parameters
+    ----------
+    flow : ndarray of float32, shape (N, h, w, 2)
+        Flow maps, map k from frame k to k + 1, grid pixels.
+    seed : ndarray of bool, shape (h, w)
+        The region's pixels in frame ``ref_index``.
+    ref_index : int
+    max_points : int
+        Points followed (a seeded sample of the region's pixels).
+
+    Returns
+    -------
+    ndarray of float64, shape (N + 1, 2)
+        (dx, dy) of the region in each frame relative to the reference, grid pixels.
+    """
+    import cv2
+
+    ys, xs = np.nonzero(seed)
+    if len(xs) > max_points:
+        pick = np.sort(np.random.default_rng(seed_rng).choice(len(xs), max_points, replace=False))
+        ys, xs = ys[pick], xs[pick]
+    n = len(flow)
+    points = np.empty((n + 1, len(xs), 2), np.float32)
+    points[ref_index, :, 0], points[ref_index, :, 1] = xs, ys
+
+    def at(k: int, where: NDArray[np.float32]) -> NDArray[np.float32]:
+        mx = np.ascontiguousarray(where[:, 0:1])
+        my = np.ascontiguousarray(where[:, 1:2])
+        sampled = cv2.remap(flow[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return np.asarray(sampled, np.float32).reshape(-1, 2)
+
+    for k in range(ref_index, n):
+        points[k + 1] = points[k] + at(k, points[k])
+    for k in range(ref_index - 1, -1, -1):
+        points[k] = points[k + 1] - at(k, points[k + 1])
+    return np.asarray(np.median(points - points[ref_index], axis=1), np.float64)
+
+
+def second_motion(
+    flow: NDArray[np.float32],
+    mask: NDArray[np.bool_],
+    *,
+    frequency_hz: float,
+    fps: float,
+    lines: float = 3.0,
+    max_pixels: int = 4000,
+    seed: int = 0,
+) -> float:
+    """How strong a second, independent motion near ``frequency_hz`` is in a region, relative to the
+    first: 0 when one motion explains the region (however its parts' phases differ), near the weaker's
+    share of the power when two unresolved oscillations share it.
+
+    Near its frequency a region's flow spectra are one pattern over the pixels times one line shape
+    over the frequency bins (rank one), for a ring-down as for a steady tone, rigid or not. Two
+    oscillations a line or two apart make it rank two. The second eigenvalue counts only where it stands
+    clearly above the rest (the noise).
+
+    Parameters
+    ----------
+    flow : ndarray of float32, shape (N, h, w, 2)
+    mask : ndarray of bool, shape (h, w)
+    frequency_hz, fps : float
+    lines : float
+        Half-width of the band examined, in lines of the window (fps / N).
+    max_pixels : int
+        Pixels sampled (seeded).
+
+    Returns
+    -------
+    float
+        The second eigenvalue over the first, or 0.
+    """
+    idx = np.flatnonzero(mask.ravel())
+    if idx.size < 4:
+        return 0.0
+    if idx.size > max_pixels:
+        idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
+    n = flow.shape[0]
+    data = flow.reshape(n, -1, 2)[:, idx, :].reshape(n, -1).astype(np.float64)
+    data -= data.mean(axis=0)
+    bins = np.arange(n // 2 + 1) / n * fps  # the window's own lines: independent of each other
+    near = np.flatnonzero(np.abs(bins - frequency_hz) <= lines * fps / n)
+    if near.size < 4:
+        return 0.0
+    t = np.arange(n)
+    basis = np.exp(-2j * np.pi * np.outer(bins[near] / fps, t))  # (K, N)
+    spectra = basis @ data  # (K, 2P)
+    values = np.sort(np.linalg.eigvalsh(spectra @ spectra.conj().T).real)[::-1]
+    if values[0] <= 0:
+        return 0.0
+    noise = float(np.median(values[2:])) if values.size > 2 else 0.0
+    return float(values[1] / values[0]) if values[1] >= 5 * noise else 0.0
+
+
 def _outline_grid(outline: NDArray[np.bool_], grid: tuple[int, int]) -> NDArray[np.bool_]:
     import cv2
 
@@ -187,6 +298,7 @@ def track_object(
     fps: float,
     pixel_scale: float,
     frequency_guess_hz: float,
+    band_hz: tuple[float, float] | None = None,
 ) -> Track:
     """Measure one object's motion and fit its ring-down.
 
@@ -209,6 +321,8 @@ def track_object(
         Input pixels per grid pixel.
     frequency_guess_hz : float
         Where the fit starts (the object's spectral peak).
+    band_hz : (low, high), optional
+        The analysed band: the fitted frequency stays inside it.
 
     Returns
     -------
@@ -223,6 +337,7 @@ def track_object(
             frequency_guess_hz=frequency_guess_hz,
             start_index=start,
             frame_times_s=buffers.times_s,
+            band_hz=band_hz,
         )
 
     motion = object_motion(buffers.flow, mask, pixel_scale=pixel_scale)
@@ -259,6 +374,26 @@ def track_object(
                 grid_outline = _outline_grid(outline, mask.shape)
                 if grid_outline.sum() >= 16:
                     region = grid_outline
+    if source == "flow":
+        # A large motion (a pendulum's swing) sweeps the object over pixels that are background most of
+        # the time: their flow at a fixed place is a pulse, not the object's motion. Follow the object
+        # through the flow instead, and keep that when it explains the motion better.
+        position = np.concatenate([[0.0], np.cumsum(velocity)]) / pixel_scale
+        reach = float(np.ptp(position))
+        if reach >= FOLLOW_MIN_PX:
+            ref = int(np.argmax(np.abs(velocity)))
+            seed = silhouette(buffers.flow[ref], mask, axis_px=axis, shape=mask.shape, reach_px=reach)
+            if int(seed.sum()) >= 16:
+                path = follow_region(buffers.flow, seed, ref_index=ref) * pixel_scale
+                centred = path - path.mean(axis=0)
+                _, vecs = np.linalg.eigh(centred.T @ centred)
+                along = vecs[:, -1] if float(vecs[:, -1] @ np.asarray(axis)) >= 0 else -vecs[:, -1]
+                followed = np.diff(path @ along)
+                f_onset, f_fit = fitted(followed)
+                if f_fit.snr_db > fit.snr_db + 1.0:
+                    axis = (float(along[0]), float(along[1]))
+                    velocity, onset, fit, source = followed, f_onset, f_fit, "tracked"
+                    region = seed
     return Track(
         velocity_px=velocity,
         axis_px=axis,
@@ -270,4 +405,13 @@ def track_object(
     )
 
 
-__all__ = ["RIGID_COHERENCE", "ObjectMotion", "Track", "object_motion", "silhouette", "track_object"]
+__all__ = [
+    "RIGID_COHERENCE",
+    "ObjectMotion",
+    "Track",
+    "follow_region",
+    "object_motion",
+    "second_motion",
+    "silhouette",
+    "track_object",
+]

@@ -38,6 +38,7 @@ class Plan:
     pixel_scale: float  # input pixels per grid pixel
     survey: Survey | None = None
     window: WindowPlan | None = None
+    decodable_frames: int = 0  # frames of the clip that decode (the survey counts them)
 
     def source(self, reader: ClipReader) -> tuple[ClipReader, int, int]:
         """The reader and frame range to stream: every ``step``-th frame of the window."""
@@ -86,12 +87,13 @@ def plan_analysis(
     reader: ClipReader | None = None,
     progress: Progress | None = None,
     survey: Survey | None = None,
+    min_duration_s: float | None = None,
 ) -> Plan:
     """Frame rate, window [start, stop) and step, flow settings, flow grid and input pixels per grid pixel.
 
     With a ``reader``, a clip longer than the default window whose window the user did not fix is
     surveyed first (unless a ``survey`` of it is given) and the window chosen from what moves where
-    (see :mod:`workers.pipeline.survey`).
+    (see :mod:`workers.pipeline.survey`), at least ``min_duration_s`` long when given.
     """
     if info.fps is None:
         raise ParameterError(
@@ -110,23 +112,40 @@ def plan_analysis(
     )
     if not surveyed:
         start, stop = fixed_window(info.frames, config)
-        return Plan(fps, fps, start, stop, 1, flow_cfg, grid, pixel_scale)
+        return Plan(fps, fps, start, stop, 1, flow_cfg, grid, pixel_scale, decodable_frames=info.frames)
     assert reader is not None
     if survey is None:
         survey = survey_motion(survey_grays(reader, progress), fps=fps, total_frames=info.frames)
+    # A damaged file decodes fewer frames than it lists: plan within those.
+    decodable = min(info.frames, survey.first_frame + survey.frames)
     # Bytes per flow map: flow (2 x float32), its share of the spectra and depth on the grid, and the
     # grey frame at input resolution kept for registration.
     per_sample = grid[0] * grid[1] * (8 + 4 + (4 if info.has_depth else 0)) + info.height * info.width
     budget = int(config.max_window_mib * 2**20 / per_sample)
+    band = (config.min_frequency_hz or 0.0, config.max_frequency_hz or fps / 2)
     window = plan_window(
         survey,
-        total_frames=info.frames,
+        total_frames=decodable,
         default_frames=DEFAULT_MAX_FRAMES,
         max_samples=max(budget, DEFAULT_MAX_FRAMES),
         grid_scale=1.0 / pixel_scale,
+        band_hz=band,
+        min_duration_s=min_duration_s,
     )
     start, stop, step = window.start_frame, window.stop_frame, window.frame_step
-    return Plan(fps / step, fps, start, stop, step, flow_cfg, grid, pixel_scale, survey, window)
+    return Plan(
+        fps / step,
+        fps,
+        start,
+        stop,
+        step,
+        flow_cfg,
+        grid,
+        pixel_scale,
+        survey,
+        window,
+        decodable_frames=decodable,
+    )
 
 
 def survey_grays(reader: ClipReader, progress: Progress | None) -> Iterator[NDArray[np.uint8]]:

@@ -119,7 +119,8 @@ class ClipInfo:
     fps : float or None
         Frame rate that will be used, Hz; None when neither the file nor the user gives one.
     fps_source : str or None
-        ``user``, ``bundle``, ``timestamps`` or ``container``.
+        ``user``, ``bundle``, ``timestamps``, ``container`` or ``metadata`` (a capture rate the file records
+        beside a slower playback rate, as phones write for slow motion).
     has_depth : bool
         Whether frames carry a depth map.
     depth_scale : float or None
@@ -141,6 +142,11 @@ class ClipInfo:
         Where the depth frames come from (array, folder, topic or companion file).
     notes : tuple of str
         How the reader aligned or adjusted the streams (for example dropped unpaired frames).
+    capture_fps_hint : float or None
+        A capture rate named by the file but not used (its name, say ``..._fps1000.mp4``): a container
+        rate may be a high-speed camera's playback rate.
+    capture_fps_hint_source : str or None
+        Where the hint comes from, in words.
     """
 
     format: str
@@ -160,6 +166,8 @@ class ClipInfo:
     size_bytes: int = 0
     depth_source: str | None = None
     notes: tuple[str, ...] = field(default_factory=tuple)
+    capture_fps_hint: float | None = None
+    capture_fps_hint_source: str | None = None
 
     @property
     def duration_s(self) -> float | None:

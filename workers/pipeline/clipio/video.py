@@ -17,7 +17,9 @@ dropped-frame count, and ``--fps`` rescales the timeline (for high-speed cameras
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
@@ -170,6 +172,9 @@ class VideoClip(ClosingReader):
         self._archive = archive
         self._depth: _DepthSource | None = None
         self._member: str | None = None
+        #: Frames that decoded when a read ended early (a damaged file), and why; None until then.
+        self.decodable_frames: int | None = None
+        self.decode_error: str | None = None
         try:
             self._setup(depth)
         except Exception:
@@ -229,6 +234,7 @@ class VideoClip(ClosingReader):
             check_size("video", width, height, limits)
             rate = stream.average_rate or stream.guessed_rate or stream.base_rate
             declared = float(rate) if rate else None
+            capture = _capture_rate(container.metadata, stream.metadata)
             tb: Fraction | None = stream.time_base
             pts: list[int] = []
             count = 0
@@ -254,13 +260,24 @@ class VideoClip(ClosingReader):
             stamps = (arr - arr[0]).astype(np.float64) * float(tb)
         if declared is not None and not math.isfinite(declared):
             declared = None
+        # A phone's slow motion records its capture rate beside a slower playback rate: the capture rate
+        # is the physics' clock (the user's --fps still wins).
+        use_capture = (
+            overrides.fps is None
+            and capture is not None
+            and declared is not None
+            and abs(capture / declared - 1) > 0.05
+        )
         timing = resolve_timing(
             "video",
-            user_fps=overrides.fps,
+            user_fps=capture if use_capture else overrides.fps,
             declared_fps=declared,
             declared_source="container",
             timestamps_s=stamps,
         )
+        if use_capture:
+            timing = dataclasses.replace(timing, fps_source="metadata")
+        hint = None if use_capture else capture_rate_in_name(self._member or self.path.name)
         if self._depth is not None:
             d = self._depth
             if d.frames != count:
@@ -292,6 +309,8 @@ class VideoClip(ClosingReader):
             size_bytes=self.path.stat().st_size,
             depth_source=self._depth.label if self._depth is not None else None,
             notes=(f"layout: {layout}", *timing.notes),
+            capture_fps_hint=hint,
+            capture_fps_hint_source="the file name" if hint is not None else None,
         )
 
     @property
@@ -346,7 +365,11 @@ class VideoClip(ClosingReader):
 
     def _decode(self, start: int, stop: int) -> Iterator[tuple[int, Any]]:
         """Decoded PyAV frames ``start <= index < stop`` with their index (frames before ``start`` are
-        decoded and dropped: a video is read from its beginning)."""
+        decoded and dropped: a video is read from its beginning).
+
+        A damaged file (a truncated tail, a corrupt packet) ends the frames early instead of failing:
+        the frames that decode are delivered, and :attr:`decodable_frames` says how many there were.
+        """
         info = self._info
         if not 0 <= start <= stop:
             raise ClipError(
@@ -367,19 +390,23 @@ class VideoClip(ClosingReader):
                 except StopIteration:
                     break
                 except errors as exc:
-                    raise ClipError(
-                        f"video: decoding failed at frame {index} ({_msg(exc)}); the file is corrupt"
-                    ) from exc
+                    self.decode_error = f"decoding failed at frame {index} ({_msg(exc)})"
+                    break
                 if index >= start:
                     yield index, frame
                 index += 1
         finally:
             container.close()
         if index < stop:
-            raise ClipError(
-                f"video: the stream ends after {index} decodable frames but {info.frames} were listed; "
-                "the file is truncated or corrupt"
+            self.decodable_frames = (
+                index if self.decodable_frames is None else min(self.decodable_frames, index)
             )
+            if index <= start:
+                why = self.decode_error or "the stream ends"
+                raise ClipError(
+                    f"video: no frame from {start} on decodes ({why} after {index} of the {info.frames} "
+                    "frames listed); the file is truncated or corrupt"
+                )
 
     def close(self) -> None:
         if self._depth is not None:
@@ -387,6 +414,39 @@ class VideoClip(ClosingReader):
             self._depth = None
         if self._archive is not None:
             self._archive.close()
+
+
+def _capture_rate(*metadata: dict[str, str]) -> float | None:
+    """The capture rate a phone writes beside a slow-motion video's playback rate
+    (``com.android.capture.fps``), or None."""
+    for meta in metadata:
+        for key, value in (meta or {}).items():
+            if key.lower().endswith("capture.fps"):
+                try:
+                    rate = float(str(value).strip())
+                except ValueError:
+                    continue
+                if math.isfinite(rate) and 0 < rate <= 100_000:
+                    return rate
+    return None
+
+
+_RATE_IN_NAME = re.compile(
+    r"(?:^|[^0-9a-z])(?:fps[-_ ]?(\d{2,6})|(\d{2,6})[-_ ]?fps)(?![0-9])", re.IGNORECASE
+)
+
+
+def capture_rate_in_name(name: str) -> float | None:
+    """A frame rate named in a file name (``clip_fps1000.mp4``, ``fork-240fps.mov``), or None.
+
+    High-speed cameras write a playback rate into the container; people often write the true one into the
+    name. It is only a hint (for a quality note), never used as the rate.
+    """
+    match = _RATE_IN_NAME.search(Path(name).stem)
+    if match is None:
+        return None
+    rate = float(match.group(1) or match.group(2))
+    return rate if 1 <= rate <= 100_000 else None
 
 
 def _msg(exc: BaseException) -> str:
