@@ -16,6 +16,7 @@ import zipfile
 from pathlib import Path, PurePosixPath
 from typing import IO
 
+from workers.pipeline.clipio._common import check_inflation
 from workers.pipeline.clipio.types import ReadLimits
 from workers.pipeline.errors import ClipError, ClipTooLargeError
 
@@ -80,6 +81,7 @@ class Archive:
                 f"{self.fmt}: archive lists {len(infos)} entries, over the cap of {self.limits.max_entries}"
             )
         total = 0
+        packed = 0
         for info in infos:
             name = _safe_name(info.filename, self.fmt)
             if info.is_dir() or not name:
@@ -89,7 +91,9 @@ class Archive:
             mode = info.external_attr >> 16
             if mode and stat.S_ISLNK(mode):
                 raise ClipError(f"{self.fmt}: entry {name!r} is a symbolic link; zip the files themselves")
+            check_inflation(self.fmt, f"entry {name!r}", info.file_size, info.compress_size, self.limits)
             total += info.file_size
+            packed += info.compress_size
             if total > self.limits.max_uncompressed_bytes:
                 raise ClipTooLargeError(
                     f"{self.fmt}: archive expands to more than {self.limits.max_uncompressed_bytes} bytes "
@@ -99,6 +103,7 @@ class Archive:
                 raise ClipError(f"{self.fmt}: entry {name!r} appears twice in the archive")
             self._sizes[name] = info.file_size
             self._zinfo[name] = info
+        check_inflation(self.fmt, "the archive", total, packed, self.limits)
 
     @property
     def is_zip(self) -> bool:
