@@ -13,10 +13,15 @@ import os
 import shutil
 import stat
 import zipfile
+import zlib
 from pathlib import Path, PurePosixPath
 from typing import IO
 
 from workers.pipeline.clipio._common import check_inflation
+
+#: What opening or reading a damaged zip archive raises: a bad CRC or header, a broken deflate stream, a
+#: cut file, an unsupported zip version or method, an encrypted member.
+ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError, NotImplementedError, RuntimeError)
 from workers.pipeline.clipio.types import ReadLimits
 from workers.pipeline.errors import ClipError, ClipTooLargeError
 
@@ -74,7 +79,7 @@ class Archive:
         try:
             self._zip = zipfile.ZipFile(self.path)
             infos = self._zip.infolist()
-        except (zipfile.BadZipFile, OSError, ValueError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"{self.fmt}: {self.path.name} is not a readable zip archive ({exc})") from exc
         if len(infos) > self.limits.max_entries:
             raise ClipTooLargeError(
@@ -84,7 +89,7 @@ class Archive:
         packed = 0
         for info in infos:
             name = _safe_name(info.filename, self.fmt)
-            if info.is_dir() or not name:
+            if not name or info.is_dir():
                 continue
             if info.flag_bits & 0x1:
                 raise ClipError(f"{self.fmt}: entry {name!r} is encrypted; upload an unencrypted zip")
@@ -121,7 +126,7 @@ class Archive:
         if self._zip is not None:
             try:
                 return self._zip.open(self._zinfo[name])
-            except (zipfile.BadZipFile, OSError, ValueError) as exc:
+            except ZIP_ERRORS as exc:
                 raise ClipError(f"{self.fmt}: entry {name!r} is corrupt ({exc})") from exc
         return (self.path / name).open("rb")
 
@@ -136,7 +141,7 @@ class Archive:
         try:
             with self.open(name) as fh:
                 data = fh.read(want)
-        except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"{self.fmt}: entry {name!r} is corrupt or truncated ({exc})") from exc
         if len(data) != want:
             raise ClipError(f"{self.fmt}: entry {name!r} is truncated ({len(data)} of {want} bytes)")
@@ -161,7 +166,7 @@ class Archive:
                                 f"{self.limits.max_uncompressed_bytes} bytes; refusing it"
                             )
                         out.write(chunk)
-            except (zipfile.BadZipFile, EOFError) as exc:
+            except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError) as exc:
                 raise ClipError(f"{self.fmt}: entry {name!r} is corrupt or truncated ({exc})") from exc
 
     def close(self) -> None:

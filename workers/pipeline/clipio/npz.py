@@ -16,6 +16,7 @@ or two whatever the clip length.
 from __future__ import annotations
 
 import math
+import tokenize
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,6 +26,7 @@ import numpy as np
 from numpy.lib import format as npy_format
 from numpy.typing import NDArray
 
+from workers.pipeline.clipio._archive import ZIP_ERRORS
 from workers.pipeline.clipio._common import (
     check_decoded,
     check_frames,
@@ -63,7 +65,7 @@ class _Member:
             with archive.open(name) as fh:
                 self.shape, self.fortran, self.dtype = _read_header(fh, key)
                 self.header_bytes = fh.tell()
-        except (zipfile.BadZipFile, OSError, EOFError, ValueError, NotImplementedError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"npz: '{key}' cannot be read ({exc}); re-export the clip") from exc
         if any(s < 0 for s in self.shape):
             raise ClipError(f"npz: '{key}' declares the shape {self.shape}; re-export the clip")
@@ -91,9 +93,9 @@ class _Member:
             raise ClipError(f"npz: '{self.key}' holds {nbytes} bytes; expected a small metadata array")
         if self.dtype.hasobject:
             raise ClipError(f"npz: '{self.key}' holds Python objects; store plain numbers")
-        with self.archive.open(self.name) as fh:
+        with self._open() as fh:
             _read_header(fh, self.key)
-            data = fh.read(nbytes)
+            data = _read(fh, nbytes, self.key)
         if len(data) != nbytes:
             raise ClipError(
                 f"npz: '{self.key}' is truncated ({len(data)} of {nbytes} bytes); re-export the clip"
@@ -124,17 +126,23 @@ class _Member:
                         )
                     yield frame
             return
-        with self.archive.open(self.name) as fh:
+        with self._open() as fh:
             _read_header(fh, self.key)
-            _skip(fh, per * start)
+            _skip(fh, per * start, self.key)
             for index in range(start, stop):
-                buf = fh.read(per)
+                buf = _read(fh, per, self.key)
                 if len(buf) != per:
                     raise ClipError(
                         f"npz: '{self.key}' is truncated at frame {index} of {self.shape[0]}; "
                         "re-export the clip"
                     )
                 yield np.frombuffer(buf, dtype=self.dtype).reshape(self.shape[1:])
+
+    def _open(self) -> IO[bytes]:
+        try:
+            return self.archive.open(self.name)
+        except ZIP_ERRORS as exc:
+            raise ClipError(f"npz: '{self.key}' is corrupt ({exc}); re-export the clip") from exc
 
     def _stored_range(self, per: int) -> tuple[int, int] | None:
         """Where a stored (uncompressed) member's frames start in the file, and how many are complete.
@@ -169,10 +177,18 @@ class _Member:
         return data_start, min(self.shape[0], max(available, 0) // per)
 
 
-def _skip(fh: IO[bytes], nbytes: int) -> None:
+def _read(fh: IO[bytes], nbytes: int, key: str) -> bytes:
+    """Up to ``nbytes`` of a member; a damaged member is a :class:`ClipError`."""
+    try:
+        return fh.read(nbytes)
+    except ZIP_ERRORS as exc:
+        raise ClipError(f"npz: '{key}' is corrupt ({exc}); re-export the clip") from exc
+
+
+def _skip(fh: IO[bytes], nbytes: int, key: str) -> None:
     chunk = 1 << 22
     while nbytes > 0:
-        got = fh.read(min(chunk, nbytes))
+        got = _read(fh, min(chunk, nbytes), key)
         if not got:
             raise ClipError("npz: archive member ends early; the file is truncated")
         nbytes -= len(got)
@@ -185,7 +201,7 @@ def _read_header(fh: IO[bytes], key: str) -> tuple[tuple[int, ...], bool, np.dty
             shape, fortran, dtype = npy_format.read_array_header_1_0(fh)
         else:
             shape, fortran, dtype = npy_format.read_array_header_2_0(fh)
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+    except (*ZIP_ERRORS, tokenize.TokenError, SyntaxError, TypeError) as exc:  # numpy parses it
         raise ClipError(f"npz: '{key}' is not a readable .npy array ({exc}); re-export the clip") from exc
     return tuple(int(s) for s in shape), bool(fortran), np.dtype(dtype)
 
@@ -212,7 +228,7 @@ class NpzClip(ClosingReader):
         limits = limits or ReadLimits()
         try:
             self._zip = zipfile.ZipFile(self.path)
-        except (zipfile.BadZipFile, OSError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"npz: {self.path.name} is not a readable .npz archive ({exc})") from exc
         try:
             self._info, self._rgb, self._depth = self._validate(overrides, limits)
@@ -382,7 +398,7 @@ class NpzDepth:
         limits = limits or ReadLimits()
         try:
             self._zip = zipfile.ZipFile(self.path)
-        except (zipfile.BadZipFile, OSError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"npz: {self.path.name} is not a readable .npz archive ({exc})") from exc
         try:
             members = {

@@ -27,7 +27,7 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.clipio._archive import Archive, common_root, visible
+from workers.pipeline.clipio._archive import ZIP_ERRORS, Archive, common_root, visible
 from workers.pipeline.clipio._common import (
     check_decoded,
     check_frames,
@@ -60,9 +60,10 @@ _LUMA_FIRST = frozenset(
 
 
 def _av_error_types() -> tuple[type[BaseException], ...]:
+    """What decoding a broken video raises: FFmpeg's errors, and those of a zip member it reads."""
     import av
 
-    return (av.error.FFmpegError, OSError, ValueError, EOFError)
+    return (av.error.FFmpegError, *ZIP_ERRORS)
 
 
 @dataclass
@@ -212,6 +213,8 @@ class VideoClip(ClosingReader):
         # The decoder refuses a picture over the pixel cap before allocating it (a stream that grows
         # in the middle, past the size its header declared).
         for stream in container.streams.video:
+            if stream.codec_context is None:
+                continue
             stream.codec_context.options = {
                 **stream.codec_context.options,
                 "max_pixels": str(self._limits.max_pixels_per_frame),
@@ -250,6 +253,8 @@ class VideoClip(ClosingReader):
             if not container.streams.video:
                 raise ClipError(f"video: {self._member or self.path.name} has no video stream")
             stream = container.streams.video[0]
+            if stream.codec_context is None:
+                raise ClipError(f"video: {self._member or self.path.name} has no decodable video stream")
             width, height = int(stream.codec_context.width), int(stream.codec_context.height)
             check_size("video", width, height, limits)
             rate = stream.average_rate or stream.guessed_rate or stream.base_rate
