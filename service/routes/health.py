@@ -70,13 +70,15 @@ async def readyz(ctx: ContextDep) -> Health:
     },
 )
 def metrics(request: Request, ctx: ContextDep) -> Response:
+    token = ctx.settings.metrics_token
     client = request.client.host if request.client is not None else ""
-    ctx.auth_limiter.check(client)
     authorization = request.headers.get("authorization")
+    if token is not None:
+        ctx.auth_limiter.check(client)
     try:
-        check_metrics_token(ctx.settings.metrics_token, ctx.keys.enabled, authorization)
+        check_metrics_token(token, ctx.keys.enabled, authorization)
     except UnauthorizedError:
-        if authorization:
+        if token is not None and authorization:  # a wrong token was presented: a guess
             ctx.auth_limiter.failed(client)
         raise
     return Response(ctx.metrics.render(), media_type=ctx.metrics.content_type)

@@ -350,7 +350,8 @@ def video_over_decoded_cap(d: Path) -> tuple[Path, dict[str, Any]]:
 
 CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (zip_slip, ClipError, "points outside the archive"),
-    (zip_slip_absolute, ClipError, "'/tmp/eigenscope-evil.png' points outside"),
+    # The API shows the entry without its folders (no absolute path in a problem detail).
+    (zip_slip_absolute, ClipError, "eigenscope-evil.png' points outside"),
     (zip_bomb, ClipTooLargeError, "expands to more than"),
     (png_pixel_bomb, ClipTooLargeError, "60000x60000 frames exceed the cap"),
     (too_many_entries, ClipTooLargeError, "lists 300 entries"),
