@@ -80,6 +80,10 @@ def _is_json(scope: Scope) -> bool:
     return True  # FastAPI parses a body without a content type as JSON
 
 
+def _has_body(scope: Scope) -> bool:
+    return any(name in (b"content-length", b"transfer-encoding") for name, _ in scope.get("headers", ()))
+
+
 def _declared_length(scope: Scope) -> int | None:
     for name, value in scope.get("headers", ()):
         if name == b"content-length":
@@ -109,6 +113,9 @@ class BodyLimits:
             return
         if (scope["method"], scope["path"]) in self.streamed:
             await self.app(scope, self._idle_timed(receive), send)
+            return
+        if not _has_body(scope):  # no Content-Length, no Transfer-Encoding: HTTP/1.1 sends no body
+            await self.app(scope, receive, send)
             return
         try:
             body = await self._read(scope, receive)

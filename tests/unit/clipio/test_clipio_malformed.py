@@ -315,11 +315,10 @@ def png_frame_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def npz_deflate_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
-    """75 MB of zeros deflated a thousandfold (the review's 4.8 GB bomb, scaled down with the floor)."""
+    """302 MB of zeros deflated a thousandfold into 0.3 MB (the review's bomb was 4.8 GB in 4.7 MB)."""
     from tests.unit.clipio.bombs import npz_bomb
 
-    limits = ReadLimits(inflation_floor_bytes=16 << 20)
-    return npz_bomb(d / "bomb.npz", (24, 1024, 1024, 3)), {"limits": limits}
+    return npz_bomb(d / "bomb.npz", (24, 2048, 2048, 3)), {}
 
 
 def frame_of_another_size(d: Path) -> tuple[Path, dict[str, Any]]:
@@ -341,11 +340,6 @@ def jpeg_frame_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
                 data = data[: sof + 5] + struct.pack(">HH", 60000, 60000) + data[sof + 9 :]
             zf.writestr(f"rgb/{i:03d}.jpg", data)
     return p, {}
-
-
-def video_over_decoded_cap(d: Path) -> tuple[Path, dict[str, Any]]:
-    p = w.write_video(d / "long.mkv", _rgb(12), fps=30.0, codec="ffv1")
-    return p, {"limits": ReadLimits(max_decoded_bytes=40 * 32 * 3 * 10)}
 
 
 CORPUS: list[tuple[Builder, type[Exception], str]] = [
@@ -386,7 +380,6 @@ CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (npz_deflate_bomb, ClipTooLargeError, "this is a decompression bomb"),
     (frame_of_another_size, ClipError, "rgb/007.png: the frame declares 80x64 pixels, but the clip is 40x32"),
     (jpeg_frame_bomb, ClipTooLargeError, "rgb/002.jpg: the frame declares 60000x60000 pixels"),
-    (video_over_decoded_cap, ClipTooLargeError, "12 frames of 40x32 decode to 0 MiB, over the cap"),
 ]
 
 
@@ -441,3 +434,13 @@ def test_every_malformed_clip_has_its_own_message(tmp_path: Path) -> None:
             messages.append(str(exc))
     assert len(messages) == len(CORPUS)
     assert len(set(messages)) == len(messages)
+
+
+def test_video_over_the_decoded_cap_is_refused_when_opened(tmp_path: Path) -> None:
+    """A video's declared size times its frame count is checked when it is opened (from the demuxed
+    packets), before any frame is decoded; the decoder itself is told the pixel cap."""
+    path = w.write_video(tmp_path / "long.mkv", _rgb(12), fps=30.0, codec="ffv1")
+    with pytest.raises(ClipTooLargeError, match="12 frames of 40x32 decode to 0 MiB, over the cap of 0 MiB"):
+        open_clip(path, limits=ReadLimits(max_decoded_bytes=40 * 32 * 3 * 10))
+    with open_clip(path, limits=ReadLimits(max_decoded_bytes=40 * 32 * 3 * 12)) as reader:
+        assert sum(1 for _ in reader.frames()) == 12

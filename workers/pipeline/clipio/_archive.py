@@ -21,7 +21,15 @@ from workers.pipeline.clipio._common import check_inflation
 
 #: What opening or reading a damaged zip archive raises: a bad CRC or header, a broken deflate stream, a
 #: cut file, an unsupported zip version or method, an encrypted member.
-ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError, NotImplementedError, RuntimeError)
+ZIP_ERRORS = (
+    zipfile.BadZipFile,
+    zlib.error,
+    OSError,
+    EOFError,
+    ValueError,
+    NotImplementedError,
+    RuntimeError,
+)
 from workers.pipeline.clipio.types import ReadLimits
 from workers.pipeline.errors import ClipError, ClipTooLargeError
 
