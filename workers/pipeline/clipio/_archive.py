@@ -18,6 +18,8 @@ from pathlib import Path, PurePosixPath
 from typing import IO
 
 from workers.pipeline.clipio._common import check_inflation
+from workers.pipeline.clipio.types import ReadLimits
+from workers.pipeline.errors import ClipError, ClipTooLargeError
 
 #: What opening or reading a damaged zip archive raises: a bad CRC or header, a broken deflate stream, a
 #: cut file, an unsupported zip version or method, an encrypted member.
@@ -30,8 +32,6 @@ ZIP_ERRORS = (
     NotImplementedError,
     RuntimeError,
 )
-from workers.pipeline.clipio.types import ReadLimits
-from workers.pipeline.errors import ClipError, ClipTooLargeError
 
 
 def _safe_name(raw: str, fmt: str) -> str:
