@@ -19,6 +19,7 @@ from service.auth import FailedAuthLimiter
 from service.bodies import NonFiniteNumberError, strict_json_loads
 from service.errors import InvalidClipError, QuotaExceededError, redact_paths
 from service.settings import Settings
+from tests.unit.service.test_access import make_client
 
 KEY = "hardening-key-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {KEY}"}
@@ -38,9 +39,7 @@ class BrokenQueue:
 
 
 def client_for(settings: Settings) -> TestClient:
-    app = create_app(settings)
-    app.state.ctx.queue = BrokenQueue()
-    return TestClient(app)
+    return make_client(settings, BrokenQueue())
 
 
 @pytest.fixture
