@@ -10,11 +10,8 @@ worker peaked at 3.9 GB) and an ``.npz`` whose ``rgb`` deflates to 96 frames of 
 from __future__ import annotations
 
 import json
-import os
-import resource
 import subprocess
 import sys
-import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -43,31 +40,40 @@ except EigenscopeError as exc:
 """
 
 
+#: Runs the command given after it and reports the command's peak resident memory. The command is forked
+#: from this small launcher, not from pytest: a process forked from a large one would report that one's
+#: resident set as its own peak (Linux records the memory it replaces at exec).
+LAUNCHER = """
+import os, resource, sys
+limit = int(sys.argv[1]) * 1024 * 1024
+resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+pid = os.fork()
+if pid == 0:
+    os.execv(sys.executable, [sys.executable, *sys.argv[2:]])
+_, status, usage = os.wait4(pid, 0)
+sys.stderr.write(f"MAXRSS_KB {usage.ru_maxrss}\\n")
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
 def run_measured(argv: list[str], *, timeout_s: float = 300) -> tuple[int, dict[str, str], float]:
     """Run ``python argv`` under an address-space cap; returns exit status, its last JSON line and its
-    peak resident memory in MiB (``ru_maxrss`` of ``wait4``)."""
-
-    def cap() -> None:
-        limit = CHILD_AS_MB * 1024 * 1024
-        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-
-    out = ROOT / ".pytest-bomb-out"
-    with out.open("wb") as sink:
-        proc = subprocess.Popen(
-            [sys.executable, *argv], stdout=sink, stderr=subprocess.STDOUT, cwd=ROOT, preexec_fn=cap
-        )
-    killer = threading.Timer(timeout_s, proc.kill)
-    killer.start()
-    try:
-        _, status, usage = os.wait4(proc.pid, 0)
-    finally:
-        killer.cancel()
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    text = out.read_text(errors="replace")
-    out.unlink()
-    lines = [line for line in text.splitlines() if line.startswith("{")]
-    verdict = json.loads(lines[-1]) if lines else {"code": "none", "detail": text[-2000:]}
-    return proc.returncode, verdict, usage.ru_maxrss / 1024
+    peak resident memory in MiB (``ru_maxrss`` from ``wait4``)."""
+    run = subprocess.run(
+        [sys.executable, "-c", LAUNCHER, str(CHILD_AS_MB), *argv],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout_s,
+        check=False,
+    )
+    lines = [line for line in run.stdout.splitlines() if line.startswith("{")]
+    verdict = (
+        json.loads(lines[-1]) if lines else {"code": "none", "detail": (run.stdout + run.stderr)[-2000:]}
+    )
+    peak = [line.split()[1] for line in run.stderr.splitlines() if line.startswith("MAXRSS_KB ")]
+    assert peak, run.stderr[-2000:]
+    return run.returncode, verdict, int(peak[-1]) / 1024
 
 
 BOMBS: list[tuple[str, Callable[[Path], Path], str]] = [
