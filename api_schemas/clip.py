@@ -10,7 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 class CameraIntrinsicsModel(BaseModel):
     """Pinhole intrinsics in pixels."""
 
-    model_config = ConfigDict(title="CameraIntrinsics")
+    model_config = ConfigDict(title="CameraIntrinsics", allow_inf_nan=False)
 
     fx: float = Field(gt=0)
     fy: float = Field(gt=0)
@@ -21,7 +21,7 @@ class CameraIntrinsicsModel(BaseModel):
 class ClipInfoModel(BaseModel):
     """What was detected in an uploaded clip (the same as ``eigenscope probe`` prints)."""
 
-    model_config = ConfigDict(title="Clip")
+    model_config = ConfigDict(title="Clip", allow_inf_nan=False)
 
     id: str
     format: str = Field(description="Detected container/layout, e.g. `npz`, `zip-frames`, `tum`, `video`.")

@@ -15,7 +15,7 @@ from api_schemas.result import AnalysisResult
 class StepReleaseExcitation(BaseModel):
     """Object held by a known force, then released: A = F/k."""
 
-    model_config = ConfigDict(title="StepReleaseExcitation", extra="forbid")
+    model_config = ConfigDict(title="StepReleaseExcitation", allow_inf_nan=False, extra="forbid")
 
     type: Literal["step_release"]
     force_n: float = Field(gt=0, description="Holding force, newtons.")
@@ -32,7 +32,7 @@ class StepReleaseExcitation(BaseModel):
 class ImpulseExcitation(BaseModel):
     """Object struck by a known impulse: v0 = J/m."""
 
-    model_config = ConfigDict(title="ImpulseExcitation", extra="forbid")
+    model_config = ConfigDict(title="ImpulseExcitation", allow_inf_nan=False, extra="forbid")
 
     type: Literal["impulse"]
     impulse_ns: float = Field(gt=0, description="Impulse, newton-seconds.")
@@ -55,7 +55,7 @@ ExcitationSpec = Excitation | Annotated[list[Excitation], Field(min_length=1, ma
 class AnalysisParameters(BaseModel):
     """Analysis options; every field has a default that works without tuning."""
 
-    model_config = ConfigDict(title="AnalysisParameters", extra="forbid")
+    model_config = ConfigDict(title="AnalysisParameters", allow_inf_nan=False, extra="forbid")
 
     method: Literal["default", "paper"] = "default"
     flow: Literal["farneback", "dis"] | None = Field(
@@ -89,7 +89,7 @@ class AnalysisParameters(BaseModel):
 class JobCreate(BaseModel):
     """Request body of ``POST /v1/jobs``."""
 
-    model_config = ConfigDict(title="JobCreate", extra="forbid")
+    model_config = ConfigDict(title="JobCreate", allow_inf_nan=False, extra="forbid")
 
     clip_id: str = Field(min_length=1, max_length=64)
     excitation: ExcitationSpec | None = Field(
@@ -111,7 +111,7 @@ class JobStatus(StrEnum):
 class JobModel(BaseModel):
     """A job record."""
 
-    model_config = ConfigDict(title="Job")
+    model_config = ConfigDict(title="Job", allow_inf_nan=False)
 
     id: str
     clip_id: str
@@ -131,7 +131,7 @@ class JobModel(BaseModel):
 class JobList(BaseModel):
     """A page of jobs, newest first."""
 
-    model_config = ConfigDict(title="JobList")
+    model_config = ConfigDict(title="JobList", allow_inf_nan=False)
 
     items: list[JobModel]
     next_cursor: str | None = None

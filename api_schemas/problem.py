@@ -12,7 +12,7 @@ class Problem(BaseModel):
     validation failures.
     """
 
-    model_config = ConfigDict(extra="allow", title="Problem")
+    model_config = ConfigDict(extra="allow", title="Problem", allow_inf_nan=False)
 
     type: str = Field(default="about:blank", description="URI identifying the problem type.")
     title: str = Field(description="Short, human-readable summary of the problem type.")

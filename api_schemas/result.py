@@ -12,7 +12,7 @@ Regime = Literal["ring_down", "steady", "growing", "beating"]
 class QualityFlag(BaseModel):
     """A reason why (part of) a result may be unreliable."""
 
-    model_config = ConfigDict(title="QualityFlag")
+    model_config = ConfigDict(title="QualityFlag", allow_inf_nan=False)
 
     code: str = Field(description="Stable machine-readable code, e.g. `possibly_aliased`, `no_depth`.")
     message: str = Field(description="What was seen and what to do about it.")
@@ -22,7 +22,7 @@ class QualityFlag(BaseModel):
 class RingdownResult(BaseModel):
     """How an object's oscillation decays: amplitude and frequency over sliding windows."""
 
-    model_config = ConfigDict(title="Ringdown")
+    model_config = ConfigDict(title="Ringdown", allow_inf_nan=False)
 
     times_s: list[float] = Field(description="Window centres, seconds from the analysed window's start.")
     amplitude_px: list[float] = Field(description="Displacement amplitude at the object's frequency, pixels.")
@@ -33,7 +33,7 @@ class RingdownResult(BaseModel):
 class ObjectResult(BaseModel):
     """One vibrating object found in the clip."""
 
-    model_config = ConfigDict(title="ObjectResult")
+    model_config = ConfigDict(title="ObjectResult", allow_inf_nan=False)
 
     id: int = Field(ge=1, description="The object's value in `mask.png`.")
     eigenfrequency_hz: float = Field(description="Damped eigenfrequency, Hz.")
@@ -96,7 +96,7 @@ class RejectedPeakResult(BaseModel):
 class Spectrum(BaseModel):
     """Summed motion power spectrum of the clip."""
 
-    model_config = ConfigDict(title="Spectrum")
+    model_config = ConfigDict(title="Spectrum", allow_inf_nan=False)
 
     frequencies_hz: list[float]
     power: list[float]
@@ -108,7 +108,7 @@ class Spectrum(BaseModel):
 class Artifacts(BaseModel):
     """Files produced by the analysis: names relative to the output directory, or URLs when served."""
 
-    model_config = ConfigDict(title="Artifacts", extra="allow")
+    model_config = ConfigDict(title="Artifacts", allow_inf_nan=False, extra="allow")
 
     mask: str = Field(
         default="mask.png",
@@ -140,7 +140,7 @@ class Artifacts(BaseModel):
 class AnalysisResult(BaseModel):
     """Everything one analysis measured."""
 
-    model_config = ConfigDict(title="AnalysisResult")
+    model_config = ConfigDict(title="AnalysisResult", allow_inf_nan=False)
 
     eigenfrequency_hz: float | None = Field(description="The main object's eigenfrequency, Hz.")
     objects: list[ObjectResult]

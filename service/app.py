@@ -15,6 +15,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI, Request, Response
 from fastapi.routing import APIRoute
 
+from service.bodies import BodyLimits
 from service.context import ServiceContext
 from service.openapi import install_openapi
 from service.problems import install_problem_handlers
@@ -75,6 +76,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         redoc_url=None,
     )
     app.state.ctx = ctx
+    app.add_middleware(
+        BodyLimits,
+        max_body_bytes=settings.max_json_body_bytes,
+        idle_timeout_s=settings.body_idle_timeout_s,
+    )
     install_problem_handlers(app)
     app.include_router(clips.router)
     app.include_router(jobs.router)

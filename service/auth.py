@@ -7,17 +7,28 @@ digest, so it never reveals the key and is stable across restarts.
 
 With no key configured the service is open and every request belongs to the tenant ``""`` (the app logs
 a warning at start).
+
+A client (IP address) that presents wrong keys more than ``EIGENSCOPE_AUTH_FAILURES_PER_WINDOW`` times in
+``EIGENSCOPE_AUTH_FAILURE_WINDOW_S`` is answered 429 with ``Retry-After`` until the window has passed,
+whatever key it sends meanwhile (a guess that happens to be right tells it nothing). ``eigenscope serve``
+hands its API process the keys' digests in a file (:func:`write_digest_file`), never the keys.
 """
 
 from __future__ import annotations
 
 import hashlib
 import hmac
+import math
+import os
 import re
+import tempfile
+import threading
+import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from service.errors import UnauthorizedError
+from service.errors import QuotaExceededError, UnauthorizedError
 from service.settings import Settings
 
 #: Tenant of every request when the service runs without keys.
@@ -115,3 +126,77 @@ def _checked(key: str, where: str) -> str:
             "characters (e.g. `python -c 'import secrets; print(secrets.token_urlsafe(32))'`)"
         )
     return key
+
+
+def write_digest_file(ring: KeyRing, folder: Path) -> Path:
+    """Write the ring's digests, one ``sha256:<hex>`` a line, to a new private file in ``folder``.
+
+    For child processes: they read ``EIGENSCOPE_API_KEYS_FILE`` and never see a plain key.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=".api-key-digests-", dir=folder)
+    with os.fdopen(fd, "w", encoding="ascii") as fh:  # mkstemp: mode 0600
+        fh.write("# digests of the API keys, written by eigenscope serve for its processes\n")
+        fh.writelines(f"sha256:{digest}\n" for digest in ring.tenants)
+    return Path(name)
+
+
+def check_metrics_token(token: str | None, keys_enabled: bool, authorization: str | None) -> None:
+    """Raise :class:`UnauthorizedError` unless ``/metrics`` may be read with this ``Authorization``.
+
+    With a token set it must be presented as ``Bearer <token>``; without one, ``/metrics`` is open on a
+    server that runs open and refused on one with API keys (its counts span every tenant).
+    """
+    if token is None:
+        if keys_enabled:
+            raise UnauthorizedError(
+                "/metrics spans every key's jobs: set EIGENSCOPE_METRICS_TOKEN and scrape with "
+                "`Authorization: Bearer <token>`",
+                code="metrics-token-required",
+            )
+        return
+    scheme, _, given = (authorization or "").strip().partition(" ")
+    if scheme.lower() != "bearer" or not hmac.compare_digest(given.strip().encode(), token.encode()):
+        raise UnauthorizedError(
+            "send the metrics token as `Authorization: Bearer <token>`", code="invalid-token"
+        )
+
+
+class FailedAuthLimiter:
+    """Counts wrong credentials per client and refuses (429) a client past its limit."""
+
+    #: Clients remembered at most (the oldest are forgotten first).
+    MAX_CLIENTS = 10_000
+
+    def __init__(self, limit: int, window_s: float) -> None:
+        self.limit = limit
+        self.window_s = window_s
+        self._failures: dict[str, deque[float]] = {}
+        self._lock = threading.Lock()
+
+    def check(self, client: str) -> None:
+        """Raise :class:`QuotaExceededError` (429) while ``client`` is over its limit."""
+        now = time.monotonic()
+        with self._lock:
+            failures = self._failures.get(client)
+            if failures is None:
+                return
+            while failures and failures[0] <= now - self.window_s:
+                failures.popleft()
+            if len(failures) < self.limit:
+                return
+            wait = max(1, math.ceil(failures[0] + self.window_s - now))
+        raise QuotaExceededError(
+            f"too many requests with a wrong API key from this client; try again in {wait} s",
+            code="too-many-failed-authentications",
+            retry_after_s=wait,
+        )
+
+    def failed(self, client: str) -> None:
+        """Count one wrong credential of ``client``."""
+        with self._lock:
+            failures = self._failures.pop(client, None) or deque()
+            failures.append(time.monotonic())
+            self._failures[client] = failures  # most recent last: the first ones are forgotten first
+            while len(self._failures) > self.MAX_CLIENTS:
+                del self._failures[next(iter(self._failures))]

@@ -13,7 +13,7 @@ from starlette.requests import Request
 
 from api_schemas import ClipInfoModel
 from service.context import ServiceContext
-from service.errors import InsufficientStorageError, ServiceError
+from service.errors import InsufficientStorageError, ServiceError, UnavailableError
 from service.multipart import receive_file
 from service.probing import probe_clip
 from service.retention import expiry
@@ -54,8 +54,26 @@ async def upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cli
 
     Refused before the body is read: 503 when the database or the storage is unavailable, 429 when the
     key's stored bytes are at their quota (or the declared size would pass it), 507 when the disk is too
-    full. A refused or failed upload leaves neither a file nor a record.
+    full, 503 when ``max_uploads_in_flight`` uploads are being received already. A body that stalls is
+    answered 408 (see :mod:`service.bodies`). A refused or failed upload leaves neither a file nor a
+    record.
     """
+    settings = ctx.settings
+    if ctx.uploads_in_flight >= settings.max_uploads_in_flight:
+        raise UnavailableError(
+            f"{ctx.uploads_in_flight} uploads are in progress, the most this server receives at once "
+            "(EIGENSCOPE_MAX_UPLOADS_IN_FLIGHT); try again shortly",
+            code="too-many-uploads",
+            retry_after_s=settings.quota_retry_after_s,
+        )
+    ctx.uploads_in_flight += 1  # one event loop: no other upload runs between the check and this
+    try:
+        return await _upload_clip(ctx, request, tenant)
+    finally:
+        ctx.uploads_in_flight -= 1
+
+
+async def _upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> ClipInfoModel:
     settings = ctx.settings
     quota = settings.max_stored_mb_per_key * 1024 * 1024
     used = (await run_in_threadpool(ctx.store.usage, tenant)).stored_bytes
@@ -81,6 +99,10 @@ async def upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cli
                 memory_mb=settings.probe_memory_mb,
                 max_frames=settings.max_frames,
                 max_pixels=settings.max_pixels_per_frame,
+                max_decoded_mb=settings.max_decoded_mb,
+                max_inflation_ratio=settings.max_inflation_ratio,
+                inflation_floor_mb=settings.inflation_floor_mb,
+                scratch_dir=sink.path.parent,
                 nice=settings.background_niceness,
             )
         except ServiceError as exc:

@@ -8,7 +8,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from service.auth import KeyRing
+from service.auth import FailedAuthLimiter, KeyRing
 from service.errors import UnavailableError
 from service.metrics import Metrics
 from service.queue import JobQueue
@@ -50,7 +50,10 @@ class ServiceContext:
     queue: JobQueue
     metrics: Metrics
     keys: KeyRing = field(default_factory=lambda: KeyRing({}))
+    auth_limiter: FailedAuthLimiter = field(default_factory=lambda: FailedAuthLimiter(20, 60.0))
     schema_ready: bool = False
+    #: Uploads being received now (changed on the event loop only).
+    uploads_in_flight: int = 0
     _stop: threading.Event = field(default_factory=threading.Event)
     _sweeper: threading.Thread | None = None
     _last_cleanup: float = float("-inf")
@@ -67,6 +70,7 @@ class ServiceContext:
             queue=JobQueue(settings),
             metrics=Metrics(store),
             keys=KeyRing.from_settings(settings),
+            auth_limiter=FailedAuthLimiter(settings.auth_failures_per_window, settings.auth_failure_window_s),
         )
 
     def start(self) -> None:
@@ -131,6 +135,7 @@ class ServiceContext:
                 published.append(job_id)
         if published:
             log.info("sweeper: published %d job(s) again: %s", len(published), ", ".join(published))
+        self.remove_abandoned_workdirs()
         _remove_older_than(self.settings.broker_dir / "processed", "*.msg", _CLEANUP_AGE_S)
         _remove_older_than(self.storage.root / "tmp", "upload-*", 24 * _CLEANUP_AGE_S)
         _remove_older_than(
@@ -142,6 +147,18 @@ class ServiceContext:
             self._last_cleanup = now
             cleanup(self.store, self.storage, orphan_grace_s=self.settings.orphan_grace_s)
         return published
+
+    def remove_abandoned_workdirs(self) -> int:
+        """Remove the temporary folders of attempts no worker runs any more (their job is not running:
+        requeued after its worker died, failed, cancelled or gone). Returns how many were removed."""
+        removed = 0
+        for job_id in self.storage.job_workdirs():
+            job = self.store.find_job(job_id)
+            if job is None or job.status != "running":
+                removed += self.storage.remove_job_workdirs(job_id)
+        if removed:
+            log.info("sweeper: removed %d temporary folder(s) of abandoned attempts", removed)
+        return removed
 
     def _sweep_loop(self) -> None:
         while True:

@@ -11,7 +11,9 @@ from typing import Annotated
 from fastapi import Depends, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from service.auth import OPEN_TENANT
 from service.context import ServiceContext
+from service.errors import UnauthorizedError
 from service.settings import Settings
 from service.storage import Storage
 from service.store import Store
@@ -51,9 +53,19 @@ async def get_tenant(
     request: Request,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)],
 ) -> str:
-    """The tenant (API key) of the request; 401 problem when keys are configured and none valid is sent."""
-    header = request.headers.get("authorization")
-    return _context(request).keys.tenant(header)
+    """The tenant (API key) of the request; 401 problem when keys are configured and none valid is sent,
+    429 once the client has sent too many wrong ones (see :class:`service.auth.FailedAuthLimiter`)."""
+    ctx = _context(request)
+    if not ctx.keys.enabled:
+        return OPEN_TENANT
+    client = request.client.host if request.client is not None else ""
+    ctx.auth_limiter.check(client)
+    try:
+        return ctx.keys.tenant(request.headers.get("authorization"))
+    except UnauthorizedError as exc:
+        if exc.code != "missing-api-key":  # a credential was presented, and it was wrong
+            ctx.auth_limiter.failed(client)
+        raise
 
 
 ContextDep = Annotated[ServiceContext, Depends(get_context)]

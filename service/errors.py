@@ -6,10 +6,33 @@ Routes and service functions raise these; one handler in :mod:`service.problems`
 
 from __future__ import annotations
 
+import re
 from typing import Any, ClassVar
 
 #: Problem types are ``PROBLEM_BASE + code``; the page need not exist (RFC 9457 allows opaque URIs).
 PROBLEM_BASE = "https://eigenscope.dev/problems/"
+
+#: An absolute file path of two or more components, not inside a word, URL or media type.
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~:/\\-])/((?:[^\s'\"`/:;,()\[\]{}<>|]+/)+)([^\s'\"`/:;,()\[\]{}<>|]*)")
+#: First components of the API's own URL paths, which messages quote and which are not server paths.
+_URL_ROOTS = frozenset({"v1", "docs", "docs-assets", "static", "openapi.json"})
+
+
+def redact_paths(text: str) -> str:
+    """``text`` with every absolute server path cut to its last component.
+
+    ``/srv/eigenscope/var/tmp/upload-1/clip.npz`` becomes ``clip.npz`` (a folder keeps its own name):
+    problem details name files, never where the server keeps them. The API's URL paths (``/v1/...``)
+    are left alone.
+    """
+
+    def short(match: re.Match[str]) -> str:
+        folders, last = match.group(1), match.group(2)
+        if folders.split("/", 1)[0] in _URL_ROOTS:
+            return match.group(0)
+        return last or folders.rstrip("/").rsplit("/", 1)[-1]
+
+    return _ABSOLUTE_PATH.sub(short, text)
 
 
 class ServiceError(Exception):
@@ -46,7 +69,7 @@ class ServiceError(Exception):
             "type": self.type_uri,
             "title": self.title,
             "status": self.status,
-            "detail": self.detail,
+            "detail": redact_paths(self.detail),
         }
         if instance is not None:
             doc["instance"] = instance
@@ -67,6 +90,17 @@ class NotFoundError(ServiceError):
     status = 404
     title = "Not found"
     code = "not-found"
+
+
+class RequestTimeoutError(ServiceError):
+    """The request body stalled (sent nothing for the idle timeout): 408, and the connection closes."""
+
+    status = 408
+    title = "Request timeout"
+    code = "request-timeout"
+
+    def headers(self) -> dict[str, str]:
+        return {**super().headers(), "Connection": "close"}
 
 
 class ConflictError(ServiceError):

@@ -28,9 +28,16 @@ def probe_clip(
     memory_mb: int,
     max_frames: int | None = None,
     max_pixels: int | None = None,
+    max_decoded_mb: int | None = None,
+    max_inflation_ratio: float | None = None,
+    inflation_floor_mb: int | None = None,
+    scratch_dir: Path | None = None,
     nice: int = 10,
 ) -> dict[str, Any]:
     """Describe the clip at ``path`` (see :func:`workers.probe.probe`), or raise the matching API error.
+
+    The probe reads the clip under the same caps as an analysis (``max_decoded_mb`` also bounds what a
+    zip may expand to, and so what a zipped ROS 2 bag unpacks to in ``scratch_dir``).
 
     Raises
     ------
@@ -56,6 +63,14 @@ def probe_clip(
         cmd += ["--max-frames", str(max_frames)]
     if max_pixels is not None:
         cmd += ["--max-pixels", str(max_pixels)]
+    if max_decoded_mb is not None:
+        cmd += ["--max-decoded-mb", str(max_decoded_mb), "--max-unpacked-mb", str(max_decoded_mb)]
+    if max_inflation_ratio is not None:
+        cmd += ["--max-inflation-ratio", repr(float(max_inflation_ratio))]
+    if inflation_floor_mb is not None:
+        cmd += ["--inflation-floor-mb", str(inflation_floor_mb)]
+    if scratch_dir is not None:
+        cmd += ["--scratch-dir", str(scratch_dir)]
     try:
         proc = subprocess.run(
             cmd, capture_output=True, timeout=timeout_s, env=env, stdin=subprocess.DEVNULL, check=False

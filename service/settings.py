@@ -51,6 +51,30 @@ class Settings(BaseSettings):
 
     probe_timeout_s: float = Field(default=120, gt=0, description="Upload validation time limit.")
     probe_memory_mb: int = Field(default=4096, ge=256, description="Address-space cap of the probe.")
+    job_memory_mb: int = Field(
+        default=6144,
+        ge=0,
+        description="Memory budget of one analysis, MiB: the address-space limit of the process that runs "
+        "it (about twice its resident memory). A job over it fails once with `resources-exhausted` and is "
+        "not retried (0: no budget).",
+    )
+    max_decoded_mb: int = Field(
+        default=32768,
+        ge=1,
+        description="Most a clip may decompress to, MiB: its frames decoded (frames x width x height x "
+        "bytes per pixel of its colour and depth streams, from what the file declares), and the entries "
+        "of a zip archive (what a zipped ROS 2 bag unpacks to on disk) (413 `clip-too-large` beyond).",
+    )
+    max_inflation_ratio: float = Field(
+        default=100.0,
+        ge=2,
+        description="Largest ratio of decompressed to compressed bytes of a zip archive or a deflated npz "
+        "member, once it decompresses to more than INFLATION_FLOOR_MB (real footage deflates by a few; "
+        "a decompression bomb by up to 1032).",
+    )
+    inflation_floor_mb: int = Field(
+        default=256, ge=1, description="Archives decompressing to less than this are not ratio-checked, MiB."
+    )
     background_niceness: int = Field(
         default=10,
         ge=0,
@@ -61,6 +85,35 @@ class Settings(BaseSettings):
 
     retry_after_s: int = Field(default=1, ge=1, description="Suggested polling interval for clients.")
     log_level: str = Field(default="INFO")
+
+    # Request bodies, connections and HTTP server limits ---------------------------------------
+    max_json_body_kb: int = Field(
+        default=1024,
+        ge=1,
+        description="Largest body of every route but the clip upload, KiB (413 beyond; bodies declared "
+        "larger are refused before they are read).",
+    )
+    body_idle_timeout_s: float = Field(
+        default=30,
+        gt=0,
+        description="A request body (an upload included) that sends nothing for this long is dropped: "
+        "408, the connection closed and any temporary file removed.",
+    )
+    max_uploads_in_flight: int = Field(
+        default=32, ge=1, description="Uploads received at once per API process (503 beyond, Retry-After)."
+    )
+    http_timeout_keep_alive_s: int = Field(
+        default=5, ge=1, description="Uvicorn: an idle keep-alive connection is closed after this."
+    )
+    http_limit_concurrency: int = Field(
+        default=512,
+        ge=8,
+        description="Uvicorn: connections and tasks at once per API process (503 beyond).",
+    )
+    http_backlog: int = Field(default=1024, ge=16, description="Uvicorn: pending connections queued.")
+    http_max_header_kb: int = Field(
+        default=16, ge=4, description="Uvicorn (h11): largest request line plus headers, KiB."
+    )
 
     # Access, limits and retention -----------------------------------------------------------
     api_keys: str | None = Field(
@@ -73,6 +126,29 @@ class Settings(BaseSettings):
         default=None,
         description="File of API keys, one a line: the key itself or `sha256:<hex digest>`; `#` comments.",
     )
+    allow_open_api: bool = Field(
+        default=False,
+        description="Let `eigenscope serve` listen on a non-loopback address without API keys (only "
+        "behind a proxy that authenticates). Without it such a start is refused.",
+    )
+    published_host: str | None = Field(
+        default=None,
+        description="Address the API is reachable on from other machines when it differs from "
+        "`--host` (a container's published port, see docker/compose.yaml); checked like `--host`.",
+    )
+    metrics_token: str | None = Field(
+        default=None,
+        repr=False,
+        description="Bearer token `/metrics` requires. Unset: `/metrics` is open on a server without API "
+        "keys and refused (401) on one with keys.",
+    )
+    auth_failures_per_window: int = Field(
+        default=20,
+        ge=1,
+        description="Wrong API keys one client (IP address) may send per AUTH_FAILURE_WINDOW_S; beyond, "
+        "its requests get 429 with Retry-After until the window ends.",
+    )
+    auth_failure_window_s: float = Field(default=60, gt=0, description="See AUTH_FAILURES_PER_WINDOW.")
     max_active_jobs_per_key: int = Field(
         default=50, ge=1, description="Queued plus running jobs one key may have (429 beyond)."
     )
@@ -99,7 +175,15 @@ class Settings(BaseSettings):
         "kills the worker running it). Never enable in production.",
     )
 
-    @field_validator("redis_url", "database_url", "api_keys", "api_keys_file", mode="before")
+    @field_validator(
+        "redis_url",
+        "database_url",
+        "api_keys",
+        "api_keys_file",
+        "published_host",
+        "metrics_token",
+        mode="before",
+    )
     @classmethod
     def _blank_is_unset(cls, value: Any) -> Any:
         if isinstance(value, str) and not value.strip():
@@ -151,15 +235,23 @@ class Settings(BaseSettings):
         return self.max_upload_mb * 1024 * 1024
 
     @property
+    def max_json_body_bytes(self) -> int:
+        return self.max_json_body_kb * 1024
+
+    @property
     def broker_dir(self) -> Path:
         """Folders of the embedded filesystem broker."""
         return self.data_path / "broker"
 
     def child_environment(self) -> dict[str, str]:
-        """These settings as ``EIGENSCOPE_*`` variables, for processes started on this machine."""
+        """These settings as ``EIGENSCOPE_*`` variables, for processes started on this machine.
+
+        Plain API keys are never among them: :func:`service.auth.write_digest_file` hands children the
+        keys' digests in a file instead (``EIGENSCOPE_API_KEYS_FILE``).
+        """
         env: dict[str, str] = {}
         for name, value in self.model_dump().items():
-            if value is None:
+            if value is None or name == "api_keys":
                 continue
             if name == "data_dir":
                 value = self.data_path

@@ -27,6 +27,8 @@ from service.errors import (
 
 _SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,12}(\.[A-Za-z0-9]{1,6})?$")
 _ARTIFACT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+#: ``tmp/job-<job id>-<attempt>-<random>[-scratch]``: one attempt's outputs (and scratch) being written.
+_WORKDIR = re.compile(r"^job-([0-9A-Za-z]+)-\d+-[0-9a-f]{8}(?:-scratch)?$")
 
 
 def safe_suffix(filename: str | None) -> str:
@@ -175,6 +177,33 @@ class Storage:
         path = self.root / "tmp" / f"job-{job_id}-{attempt}-{uuid.uuid4().hex[:8]}"
         path.mkdir(parents=True)
         return path
+
+    def job_workdirs(self) -> dict[str, list[Path]]:
+        """The attempt folders in ``tmp/`` (outputs and scratch being written), by job id."""
+        found: dict[str, list[Path]] = {}
+        try:
+            entries = list(os.scandir(self.root / "tmp"))
+        except FileNotFoundError:
+            return found
+        for entry in entries:
+            match = _WORKDIR.match(entry.name)
+            if match:
+                found.setdefault(match.group(1), []).append(Path(entry.path))
+        return found
+
+    def remove_job_workdirs(self, job_id: str, *, keep: Path | None = None) -> int:
+        """Remove the attempt folders of ``job_id`` (but ``keep``); returns how many were removed.
+
+        Called when an attempt is abandoned (its worker was killed or lost its lease) and when the job is
+        claimed again, so a killed attempt leaves nothing behind.
+        """
+        removed = 0
+        for path in self.job_workdirs().get(job_id, []):
+            if keep is not None and path == keep:
+                continue
+            shutil.rmtree(path, ignore_errors=True)
+            removed += 1
+        return removed
 
     def publish_job_outputs(self, job_id: str, workdir: Path) -> Path:
         """Atomically make ``workdir`` the job's output directory (replacing an older attempt's)."""

@@ -17,6 +17,7 @@ import binascii
 import hashlib
 import json
 import os
+import re
 import secrets
 import socket
 import time
@@ -263,12 +264,17 @@ def _encode_cursor(seq: int) -> str:
     return base64.urlsafe_b64encode(f"s{seq}".encode()).decode().rstrip("=")
 
 
+#: A job sequence number a cursor may carry: a positive 63-bit integer (what both databases store).
+_CURSOR = re.compile(r"^s([1-9][0-9]{0,17})$")
+
+
 def _decode_cursor(cursor: str) -> int:
     try:
         raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
-        if not raw.startswith("s"):
+        match = _CURSOR.match(raw)
+        if match is None:
             raise ValueError(raw)
-        return int(raw[1:])
+        return int(match.group(1))
     except (ValueError, binascii.Error, UnicodeDecodeError):
         raise InvalidInputError(
             f"cursor {cursor!r} is not valid; pass the next_cursor of a previous page", code="invalid-cursor"
@@ -318,7 +324,11 @@ class Store:
     @staticmethod
     def _make_engine(url: str, *, immediate: bool = True) -> Engine:
         if url.startswith("sqlite"):
-            engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+            engine = create_engine(
+                url,
+                connect_args={"timeout": 30, "check_same_thread": False},
+                json_serializer=_dumps_finite,
+            )
 
             @event.listens_for(engine, "connect")
             def _sqlite_connect(dbapi_conn: Any, _record: Any) -> None:
@@ -339,7 +349,13 @@ class Store:
             return engine
         connect_args = {"connect_timeout": 5} if url.startswith("postgresql") else {}
         return create_engine(
-            url, pool_pre_ping=True, pool_size=5, max_overflow=5, pool_timeout=10, connect_args=connect_args
+            url,
+            pool_pre_ping=True,
+            pool_size=5,
+            max_overflow=5,
+            pool_timeout=10,
+            connect_args=connect_args,
+            json_serializer=_dumps_finite,
         )
 
     # Life cycle -----------------------------------------------------------------------------
@@ -893,6 +909,12 @@ def _scoped_key(owner: str, key: str | None) -> str | None:
     if not owner:
         return key
     return f"{owner}:{hashlib.sha256(key.encode()).hexdigest()}"  # fits the 255-character column
+
+
+def _dumps_finite(value: Any) -> str:
+    """JSON for the store's JSON columns: NaN and infinities are refused (``ValueError``), never stored as
+    tokens that PostgreSQL rejects and SQLite hands back as numbers no JSON schema allows."""
+    return json.dumps(value, allow_nan=False)
 
 
 def dumps_canonical(value: Any) -> str:

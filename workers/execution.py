@@ -8,20 +8,28 @@ tested with a real store and a stand-in runner. The job row is the source of tru
 - a heartbeat thread renews the lease while the analysis runs; progress is written at most every
   ``progress_interval_s`` (and on every stage change);
 - a progress write that no longer lands (the job was cancelled or taken over) aborts the analysis;
-- outputs are written to a fresh directory and renamed into place, so a re-run never mixes files;
-- domain errors fail the job with a problem document; unexpected errors give the job back to the queue
-  until ``max_attempts`` is reached.
+- outputs are written to a fresh directory and renamed into place, so a re-run never mixes files; the
+  folders of an earlier, abandoned attempt are removed when the job is claimed again;
+- the analysis runs under a memory budget (an address-space limit on this process while it runs);
+- retries only where they can help: a deterministic failure -- a bad clip or bad parameters (domain
+  errors), a job over its memory budget, an unexpected error of the analysis itself (it would fail the
+  same way again) -- fails the job at once with a problem document. Only infrastructure faults (the
+  database, the storage or the network failing: ``OSError``, an unavailable database) give the job
+  back to the queue, until ``max_attempts`` is reached; a lost worker is taken over by the sweeper or the
+  next delivery (see :meth:`service.store.Store.recover_stale_jobs`).
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import resource
 import shutil
 import signal
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -35,7 +43,7 @@ from api_schemas import (
     ImpulseExcitation,
     StepReleaseExcitation,
 )
-from service.errors import PROBLEM_BASE
+from service.errors import PROBLEM_BASE, UnavailableError, redact_paths
 from service.store import ClaimOutcome, ClipRecord, Store, lease_owner_token
 
 log = logging.getLogger(__name__)
@@ -48,6 +56,13 @@ _EXCITATION: TypeAdapter[
 
 #: HTTP-ish status recorded in a failed job's problem, by domain error code.
 _ERROR_STATUS = {"unsupported-format": 415, "clip-too-large": 413}
+#: Messages of native libraries (OpenCV, threads) that ran out of memory or address space.
+_EXHAUSTION_MARKERS = (
+    "insufficient memory",
+    "failed to allocate",
+    "can't start new thread",
+    "cannot allocate",
+)
 #: With ``EIGENSCOPE_TEST_HOOKS=1`` only: a clip uploaded under a name starting with this kills the
 #: worker process that runs its job, every time (fault-injection for the test suite).
 KILL_WORKER_MARKER = "__eigenscope_kill_worker__"
@@ -91,7 +106,76 @@ class Outcome:
 
 
 def problem(code: str, title: str, status: int, detail: str) -> dict[str, Any]:
-    return {"type": PROBLEM_BASE + code, "title": title, "status": status, "detail": detail, "code": code}
+    """A failed job's problem document (server paths cut from ``detail``)."""
+    return {
+        "type": PROBLEM_BASE + code,
+        "title": title,
+        "status": status,
+        "detail": redact_paths(detail),
+        "code": code,
+    }
+
+
+def _vm_size_bytes() -> int:
+    """This process's address space now (``VmSize``), bytes; 0 where ``/proc`` has none."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError):
+        pass
+    return 0
+
+
+class BudgetTooSmallError(Exception):
+    """The memory budget is below what this process already uses: an operator's setting to fix."""
+
+
+@contextmanager
+def memory_budget(megabytes: int) -> Iterator[None]:
+    """Run the block with this process's address space capped at ``megabytes`` MiB (0: no cap).
+
+    An allocation past the cap fails (``MemoryError`` in Python, an allocation error in native code)
+    instead of growing the worker until the kernel kills it. The previous limit is restored after.
+    """
+    if megabytes <= 0:
+        yield
+        return
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    cap = megabytes * 1024 * 1024
+    if hard != resource.RLIM_INFINITY:
+        cap = min(cap, hard)
+    in_use = _vm_size_bytes()
+    if in_use and cap < in_use + 64 * 1024 * 1024:
+        raise BudgetTooSmallError(
+            f"the memory budget of {megabytes} MiB (EIGENSCOPE_JOB_MEMORY_MB) is below the "
+            f"{in_use // 2**20} MiB of address space the worker already uses; ask the operator to raise it"
+        )
+    resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
+def is_exhaustion(exc: BaseException) -> bool:
+    """True when ``exc`` says the analysis ran out of memory (or address space, or threads)."""
+    if isinstance(exc, MemoryError | BudgetTooSmallError):
+        return True
+    text = str(exc).lower()
+    return type(exc).__name__ in ("error", "RuntimeError") and any(m in text for m in _EXHAUSTION_MARKERS)
+
+
+def is_infrastructure_fault(exc: BaseException) -> bool:
+    """True for failures of what the analysis runs on (storage, database, network), which a later
+    attempt may not meet; everything else an analysis raises would fail the same way again."""
+    if isinstance(exc, OSError | UnavailableError):
+        return True
+    return any(
+        cls.__module__.startswith("sqlalchemy") and cls.__name__ in ("OperationalError", "InterfaceError")
+        for cls in type(exc).__mro__
+    )
 
 
 class _Lease:
@@ -153,6 +237,7 @@ def execute_job(
     soft_time_limit_s: float | None = None,
     timeout_errors: tuple[type[BaseException], ...] = (),
     test_hooks: bool = False,
+    memory_budget_mb: int = 0,
 ) -> Outcome:
     """Run one delivery of job ``job_id``; see the module docstring.
 
@@ -168,6 +253,8 @@ def execute_job(
     test_hooks : bool
         Enable fault injection (``EIGENSCOPE_TEST_HOOKS``; see :data:`KILL_WORKER_MARKER`). Off in
         production: without it no request can trigger a hook.
+    memory_budget_mb : int
+        Address-space cap of this process while the runner runs (``EIGENSCOPE_JOB_MEMORY_MB``; 0: none).
     """
     from service.storage import Storage, tree_bytes
 
@@ -206,15 +293,18 @@ def execute_job(
 
     if test_hooks and clip is not None:
         _fault_injection(clip)
+    if storage.remove_job_workdirs(job_id):  # an earlier attempt was abandoned (its worker was killed)
+        log.info("job %s: removed the folders of an abandoned attempt", job_id)
     workdir = storage.new_job_workdir(job_id, job.attempts)
     try:
         with _Lease(store, job_id, owner) as lease:
             callback = _Progress(store, job_id, owner, lease, progress_interval_s)
             try:
                 callback("starting", 0.0)
-                result = runner(
-                    clip_path, workdir, excitation=excitation, parameters=parameters, progress=callback
-                )
+                with memory_budget(memory_budget_mb):
+                    result = runner(
+                        clip_path, workdir, excitation=excitation, parameters=parameters, progress=callback
+                    )
                 if lease.lost.is_set() or not store.renew_lease(job_id, owner):
                     raise JobAbortedError(job_id)
                 output_bytes = tree_bytes(workdir)
@@ -239,25 +329,59 @@ def execute_job(
                     )
                 )
             except Exception as exc:
-                code = getattr(exc, "code", None)
-                if _is_domain_error(exc) and isinstance(code, str):
-                    status = _ERROR_STATUS.get(code, 422)
-                    return fail(problem(code, _ERROR_TITLE.get(code, "Analysis failed"), status, str(exc)))
-                log.exception("job %s: attempt %d crashed", job_id, job.attempts)
-                if job.attempts < store.max_attempts:
-                    store.release_job(job_id, owner)
-                    return Outcome("retry", retry_in_s=float(2**job.attempts))
-                return fail(
-                    problem(
-                        "internal-error",
-                        "Internal error",
-                        500,
-                        f"the analysis crashed {job.attempts} time(s); last error: "
-                        f"{type(exc).__name__}: {exc}",
-                    )
-                )
+                return _failed(store, job_id, owner, job.attempts, exc, memory_budget_mb, fail)
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _failed(
+    store: Store,
+    job_id: str,
+    owner: str,
+    attempts: int,
+    exc: Exception,
+    memory_budget_mb: int,
+    fail: Callable[[dict[str, Any]], Outcome],
+) -> Outcome:
+    """What one attempt that raised ``exc`` comes to (see the module docstring on retries)."""
+    code = getattr(exc, "code", None)
+    if _is_domain_error(exc) and isinstance(code, str):
+        status = _ERROR_STATUS.get(code, 422)
+        return fail(problem(code, _ERROR_TITLE.get(code, "Analysis failed"), status, str(exc)))
+    if is_exhaustion(exc):
+        log.warning("job %s: over its memory budget (%s: %s)", job_id, type(exc).__name__, exc)
+        detail = (
+            str(exc)
+            if isinstance(exc, BudgetTooSmallError)
+            else f"the analysis needed more memory than the budget of {memory_budget_mb} MiB of address "
+            "space (EIGENSCOPE_JOB_MEMORY_MB); analyse a shorter window (parameters.frames) or a smaller "
+            "clip, or ask the operator to raise the budget"
+        )
+        return fail(problem("resources-exhausted", "Resources exhausted", 413, detail))
+    if is_infrastructure_fault(exc):
+        log.warning("job %s: attempt %d met an infrastructure fault", job_id, attempts, exc_info=True)
+        if attempts < store.max_attempts:
+            store.release_job(job_id, owner)
+            return Outcome("retry", retry_in_s=float(2**attempts))
+        return fail(
+            problem(
+                "internal-error",
+                "Internal error",
+                500,
+                f"the analysis failed {attempts} time(s) on a fault of the server; last error: "
+                f"{type(exc).__name__}: {exc}",
+            )
+        )
+    log.exception("job %s: attempt %d failed with an unexpected error (not retried)", job_id, attempts)
+    return fail(
+        problem(
+            "analysis-crashed",
+            "Analysis crashed",
+            500,
+            f"the analysis failed with an unexpected error ({type(exc).__name__}: {exc}); it would fail "
+            "the same way again, so it is not retried -- please report it with the clip",
+        )
+    )
 
 
 def _fault_injection(clip: ClipRecord) -> None:

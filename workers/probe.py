@@ -28,13 +28,20 @@ def _limit(which: int, value: int) -> None:
     resource.setrlimit(which, (value, hard if hard != resource.RLIM_INFINITY else value))
 
 
-def apply_limits(*, memory_mb: int | None, cpu_s: int | None) -> None:
-    """Cap this process: address space (MiB), CPU time (s), no file larger than 16 MiB, 256 open files."""
+#: Largest file the probe may write when it is given no unpacking cap (it writes none but a zipped ROS 2
+#: bag's storage file, unpacked for reading).
+DEFAULT_FILE_CAP = 16 * 1024 * 1024
+
+
+def apply_limits(*, memory_mb: int | None, cpu_s: int | None, file_bytes: int | None = None) -> None:
+    """Cap this process: address space (MiB), CPU time (s), largest file written (``file_bytes``, by
+    default 16 MiB; a zipped ROS 2 bag is unpacked under the same cap as in an analysis), 256 open
+    files."""
     if memory_mb:
         _limit(resource.RLIMIT_AS, memory_mb * 1024 * 1024)
     if cpu_s:
         _limit(resource.RLIMIT_CPU, cpu_s)
-    _limit(resource.RLIMIT_FSIZE, 16 * 1024 * 1024)
+    _limit(resource.RLIMIT_FSIZE, file_bytes or DEFAULT_FILE_CAP)
     _limit(resource.RLIMIT_NOFILE, 256)
     _limit(resource.RLIMIT_CORE, 0)
 
@@ -51,13 +58,21 @@ def probe(path: str, args: argparse.Namespace) -> dict[str, Any]:
     overrides = ClipOverrides(
         fps=args.fps, fx=args.fx, fy=args.fy, cx=args.cx, cy=args.cy, depth_scale=args.depth_scale
     )
-    caps: dict[str, int] = {}
+    caps: dict[str, Any] = {}
     if args.max_frames:
         caps["max_frames"] = args.max_frames
     if args.max_pixels:
         caps["max_pixels_per_frame"] = args.max_pixels
+    if args.max_decoded_mb:
+        caps["max_decoded_bytes"] = args.max_decoded_mb * 1024 * 1024
+    if args.max_unpacked_mb:
+        caps["max_uncompressed_bytes"] = args.max_unpacked_mb * 1024 * 1024
+    if args.max_inflation_ratio:
+        caps["max_inflation_ratio"] = args.max_inflation_ratio
+    if args.inflation_floor_mb:
+        caps["inflation_floor_bytes"] = args.inflation_floor_mb * 1024 * 1024
     limits = ReadLimits(**caps)
-    with open_clip(path, overrides=overrides, limits=limits) as reader:
+    with open_clip(path, overrides=overrides, limits=limits, scratch_dir=args.scratch_dir) as reader:
         info = reader.info
         for _frame in reader.frames(0, 1):
             break
@@ -86,6 +101,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--depth-scale", type=float, default=None)
     parser.add_argument("--max-frames", type=int, default=None, help="most frames a clip may hold")
     parser.add_argument("--max-pixels", type=int, default=None, help="largest frame, width x height")
+    parser.add_argument("--max-decoded-mb", type=int, default=None, help="most a clip may decode to, MiB")
+    parser.add_argument(
+        "--max-unpacked-mb", type=int, default=None, help="most a zip may expand to (and unpack), MiB"
+    )
+    parser.add_argument("--max-inflation-ratio", type=float, default=None, help="decompression ratio cap")
+    parser.add_argument("--inflation-floor-mb", type=int, default=None, help="ratio-checked above this, MiB")
+    parser.add_argument("--scratch-dir", default=None, help="where a zipped ROS 2 bag is unpacked")
     parser.add_argument("--memory-mb", type=int, default=None, help="address-space cap, MiB")
     parser.add_argument("--cpu-s", type=int, default=None, help="CPU time cap, seconds")
     parser.add_argument("--nice", type=int, default=0, help="lower this process's CPU priority by this much")
@@ -94,7 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    apply_limits(memory_mb=args.memory_mb, cpu_s=args.cpu_s)
+    unpacked = args.max_unpacked_mb * 1024 * 1024 if args.max_unpacked_mb else None
+    apply_limits(memory_mb=args.memory_mb, cpu_s=args.cpu_s, file_bytes=unpacked)
     if args.nice:
         os.nice(args.nice)  # validation yields the CPU to the API's requests
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):

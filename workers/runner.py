@@ -10,10 +10,11 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from api_schemas import (
     AnalysisParameters,
@@ -29,8 +30,10 @@ from api_schemas import (
 )
 
 if TYPE_CHECKING:
+    from service.settings import Settings
     from workers.pipeline.analysis import Excitation as PipelineExcitation
     from workers.pipeline.analysis import ObjectMeasurement
+    from workers.pipeline.clipio import ReadLimits
 
 #: ``progress(stage, fraction)`` with fraction in [0, 1] over the whole analysis.
 ProgressCallback = Callable[[str, float], None]
@@ -121,6 +124,7 @@ def run_analysis(
     flow_threads: int | None = None,
     drawing_process: bool = True,
     draw_elsewhere: bool = False,
+    limits: ReadLimits | None = None,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
 
@@ -131,7 +135,8 @@ def run_analysis(
     images in this process's long-lived drawing process (see :func:`workers.pipeline.render.render_all`);
     a process that analyses one clip and exits passes False, or starts that process in the background
     as it starts (:func:`workers.pipeline.render.start_drawing_process`) and passes ``draw_elsewhere``:
-    every figure is then drawn there, and matplotlib is never imported here.
+    every figure is then drawn there, and matplotlib is never imported here. ``limits`` caps what the
+    clip may hold and decode to (default :class:`~workers.pipeline.clipio.ReadLimits`).
 
     Raises
     ------
@@ -182,7 +187,9 @@ def run_analysis(
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with open_clip(clip_path, overrides=overrides, depth=depth_path, scratch_dir=scratch_dir) as reader:
+    with open_clip(
+        clip_path, overrides=overrides, limits=limits, depth=depth_path, scratch_dir=scratch_dir
+    ) as reader:
         analysis = analyze(reader, config=config, excitation=exc, progress=report)
     report("rendering", 0.97)
     from time import perf_counter
@@ -264,6 +271,38 @@ def run_analysis(
     _atomic_write_text(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
     report("done", 1.0)
     return result
+
+
+def read_limits(settings: Settings) -> ReadLimits:
+    """The clip readers' caps from the service settings (the same the upload's validation applies)."""
+    from workers.pipeline.clipio import ReadLimits
+
+    mib = 1024 * 1024
+    return ReadLimits(
+        max_frames=settings.max_frames,
+        max_pixels_per_frame=settings.max_pixels_per_frame,
+        max_uncompressed_bytes=settings.max_decoded_mb * mib,
+        max_decoded_bytes=settings.max_decoded_mb * mib,
+        max_inflation_ratio=settings.max_inflation_ratio,
+        inflation_floor_bytes=settings.inflation_floor_mb * mib,
+    )
+
+
+def job_runner(settings: Settings) -> Callable[..., AnalysisResult]:
+    """:func:`run_analysis` for a worker: the settings' read limits, and a scratch folder beside the
+    attempt's output folder (``<out_dir>-scratch``: a zipped ROS 2 bag is unpacked there, and an
+    abandoned attempt's scratch is removed with its outputs)."""
+    limits = read_limits(settings)
+
+    def run(clip_path: str | Path, out_dir: str | Path, **options: Any) -> AnalysisResult:
+        scratch = Path(out_dir).with_name(Path(out_dir).name + "-scratch")
+        scratch.mkdir(exist_ok=True)
+        try:
+            return run_analysis(clip_path, out_dir, limits=limits, scratch_dir=scratch, **options)
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+    return run
 
 
 def _atomic_write_text(path: Path, text: str) -> None:

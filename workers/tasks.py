@@ -17,7 +17,7 @@ import workers.pipeline.flow
 import workers.pipeline.render  # noqa: F401 - preloaded here so that no job pays for the imports
 from workers.celery_app import TASK_RUN_JOB, EigenscopeCelery
 from workers.execution import execute_job
-from workers.runner import run_analysis
+from workers.runner import job_runner
 
 log = logging.getLogger(__name__)
 
@@ -38,11 +38,12 @@ def run_job(self: Task, job_id: str) -> str:
         ctx.store,
         ctx.storage.root,
         job_id,
-        runner=run_analysis,
+        runner=job_runner(ctx.settings),
         progress_interval_s=ctx.settings.progress_interval_s,
         soft_time_limit_s=ctx.settings.task_soft_time_limit_s,
         timeout_errors=(SoftTimeLimitExceeded,),
         test_hooks=ctx.settings.test_hooks,
+        memory_budget_mb=ctx.settings.job_memory_mb,
     )
     if outcome.retry_in_s is not None:
         try:

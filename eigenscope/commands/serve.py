@@ -157,6 +157,13 @@ def run(args: argparse.Namespace) -> int:
     if args.api_workers < 1:
         raise UsageError(f"--api-workers={args.api_workers} must be at least 1")
     settings = load_settings(data_dir=args.data_dir, log_level=args.log_level)
+    from service.auth import KeyConfigError, KeyRing, write_digest_file
+
+    try:
+        ring = KeyRing.from_settings(settings)
+    except KeyConfigError as exc:
+        raise UsageError(str(exc)) from None
+    check_exposure(args.host, settings, keys=ring.enabled)
 
     from service.storage import Storage
     from service.store import Store
@@ -174,7 +181,14 @@ def run(args: argparse.Namespace) -> int:
     if settings.embedded:
         broker_options(settings)
 
-    env = {**os.environ, **settings.child_environment()}
+    # The children get the keys' digests in a private file, never the plain keys in their environment.
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("EIGENSCOPE_API_KEYS", "EIGENSCOPE_API_KEYS_FILE")
+    }
+    env.update(settings.child_environment())
+    digests = write_digest_file(ring, settings.data_path / "run") if ring.enabled else None
+    if digests is not None:
+        env["EIGENSCOPE_API_KEYS_FILE"] = str(digests)
     level = settings.log_level.lower()
     supervisor = Supervisor(env, grace_s=args.grace)
     signal.signal(signal.SIGTERM, supervisor.request_stop)
@@ -193,6 +207,7 @@ def run(args: argparse.Namespace) -> int:
         level,
         "--timeout-graceful-shutdown",
         str(max(int(args.grace) - 2, 1)),
+        *uvicorn_limits(settings),
     ]
     if args.api_workers > 1:
         api_cmd += ["--workers", str(args.api_workers)]
@@ -216,3 +231,53 @@ def run(args: argparse.Namespace) -> int:
         return supervisor.watch(restartable=("worker",))
     finally:
         supervisor.stop_all()
+        if digests is not None:
+            digests.unlink(missing_ok=True)
+
+
+def uvicorn_limits(settings: Settings) -> list[str]:
+    """Uvicorn's timeouts and limits, chosen rather than left at its defaults (see the settings).
+
+    Keep-alive connections idle for ``http_timeout_keep_alive_s`` are closed; beyond
+    ``http_limit_concurrency`` connections and tasks uvicorn answers 503; ``http_backlog`` pending
+    connections wait in the kernel; a request line plus headers larger than ``http_max_header_kb`` is
+    refused. Bodies are bounded by the app (:mod:`service.bodies`).
+    """
+    return [
+        "--timeout-keep-alive",
+        str(settings.http_timeout_keep_alive_s),
+        "--limit-concurrency",
+        str(settings.http_limit_concurrency),
+        "--backlog",
+        str(settings.http_backlog),
+        "--h11-max-incomplete-event-size",
+        str(settings.http_max_header_kb * 1024),
+    ]
+
+
+def is_loopback(host: str) -> bool:
+    """True for an address (or ``localhost``) that only this machine reaches."""
+    import ipaddress
+
+    if host.strip("[]").lower() in ("localhost", "localhost."):
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def check_exposure(host: str, settings: Settings, *, keys: bool) -> None:
+    """Refuse to serve an open API (no keys) on an address other machines reach.
+
+    ``settings.published_host`` is where a container's port is published (it decides when given:
+    inside a container the API listens on 0.0.0.0 whatever the host publishes).
+    """
+    exposed = settings.published_host or host
+    if keys or settings.allow_open_api or is_loopback(exposed):
+        return
+    raise UsageError(
+        f"refusing to serve the API on {exposed} without API keys: anyone who reaches it could read and "
+        "delete every clip and job. Set EIGENSCOPE_API_KEYS (or EIGENSCOPE_API_KEYS_FILE), listen on "
+        "127.0.0.1, or set EIGENSCOPE_ALLOW_OPEN_API=true if a proxy in front authenticates"
+    )

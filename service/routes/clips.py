@@ -24,11 +24,12 @@ ClipId = Annotated[str, Path(min_length=1, max_length=64, description="Clip id f
     summary="Upload a clip",
     description=(
         "Upload a clip as multipart/form-data, field `file`. The body is streamed to storage and the clip is "
-        "validated before the response: 413 over the size cap, 415 for a format Eigenscope does not read, "
-        "422 with the reader's message for a malformed clip."
+        "validated before the response: 413 over the size cap (or a clip that would decode past the "
+        "server's caps), 415 for a format Eigenscope does not read, 422 with the reader's message for a "
+        "malformed clip, 408 when the body stalls, 503 while too many uploads are in progress."
     ),
     responses={
-        **problem_responses(401, 413, 415, 422, 429, 503, 507),
+        **problem_responses(401, 408, 413, 415, 422, 429, 503, 507),
         201: {"headers": {"Location": {"description": "URL of the clip", "schema": {"type": "string"}}}},
     },
     openapi_extra=UPLOAD_REQUEST_BODY,
@@ -42,7 +43,7 @@ async def create_clip(
 
 
 @router.get(
-    "/{clip_id}", name="get_clip", summary="Describe a clip", responses=problem_responses(401, 404, 503)
+    "/{clip_id}", name="get_clip", summary="Describe a clip", responses=problem_responses(401, 404, 429, 503)
 )
 def get_clip(clip_id: ClipId, ctx: ContextDep, tenant: TenantDep) -> ClipInfoModel:
     return clips.clip_view(ctx.store.get_clip(clip_id, tenant))
@@ -54,7 +55,7 @@ def get_clip(clip_id: ClipId, ctx: ContextDep, tenant: TenantDep) -> ClipInfoMod
     status_code=204,
     summary="Delete a clip",
     description="Delete the clip file. Refused (409) while a queued or running job uses it.",
-    responses=problem_responses(401, 404, 409, 503),
+    responses=problem_responses(401, 404, 409, 429, 503),
 )
 async def delete_clip(clip_id: ClipId, ctx: ContextDep, tenant: TenantDep) -> Response:
     await run_in_threadpool(clips.delete_clip, ctx, clip_id, tenant)

@@ -33,7 +33,7 @@ def _root(request: Request) -> str:
         "body is a 422."
     ),
     responses={
-        **problem_responses(401, 422, 429, 503),
+        **problem_responses(401, 408, 413, 422, 429, 503),
         202: {
             "headers": {
                 "Location": {"description": "URL of the job", "schema": {"type": "string"}},
@@ -73,7 +73,7 @@ def create_job(
     "",
     name="list_jobs",
     summary="List jobs, newest first",
-    responses=problem_responses(401, 422, 503),
+    responses=problem_responses(401, 422, 429, 503),
 )
 def list_jobs(
     request: Request,
@@ -98,7 +98,9 @@ def list_jobs(
     )
 
 
-@router.get("/{job_id}", name="get_job", summary="Poll a job", responses=problem_responses(401, 404, 503))
+@router.get(
+    "/{job_id}", name="get_job", summary="Poll a job", responses=problem_responses(401, 404, 429, 503)
+)
 def get_job(
     job_id: JobId, request: Request, response: Response, ctx: ContextDep, tenant: TenantDep
 ) -> JobModel:
@@ -116,7 +118,7 @@ def get_job(
         "Cancel a queued or running job (best effort: a running analysis stops at its next progress "
         "report). The record stays, with status `cancelled`. 409 if the job already succeeded or failed."
     ),
-    responses=problem_responses(401, 404, 409, 503),
+    responses=problem_responses(401, 404, 409, 429, 503),
 )
 def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantDep) -> JobModel:
     return jobs.job_view(ctx.store.cancel_job(job_id, tenant), root_path=_root(request))
@@ -137,7 +139,7 @@ def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantD
                 "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
             },
         },
-        **problem_responses(401, 404, 503),
+        **problem_responses(401, 404, 429, 503),
     },
 )
 def get_job_artifact(

@@ -51,7 +51,75 @@ def test_compose_services(compose: dict[str, Any]) -> None:
     assert "--no-worker" in services["api"]["command"]
     assert services["worker"]["command"][1] == "worker"
     assert services["worker"]["deploy"]["replicas"] >= 1
-    assert "--broker=redis://redis:6379/0" in services["flower"]["command"]
+    assert "--broker=redis://redis:6379/0" in " ".join(services["flower"]["command"])
+
+
+_VARIABLE = re.compile(r"\$\{(\w+)(?::-([^}]*))?\}")
+
+
+def interpolate(value: Any, env: dict[str, str]) -> Any:
+    """Compose's ``${VAR:-default}`` interpolation (``$$`` is a literal ``$``) over ``value``."""
+    if isinstance(value, str):
+        text = _VARIABLE.sub(lambda m: env.get(m.group(1)) or (m.group(2) or ""), value.replace("$$", "\0"))
+        return text.replace("\0", "$")
+    if isinstance(value, list):
+        return [interpolate(v, env) for v in value]
+    if isinstance(value, dict):
+        return {k: interpolate(v, env) for k, v in value.items()}
+    return value
+
+
+def published_hosts(service: dict[str, Any], env: dict[str, str]) -> list[str]:
+    """The host address of each published port (``HOST:PUBLISHED:TARGET``; none given is every one)."""
+    hosts = []
+    for mapping in interpolate(service.get("ports", []), env):
+        parts = str(mapping).rsplit(":", 2)
+        hosts.append(parts[0] if len(parts) == 3 else "0.0.0.0")
+    return hosts
+
+
+def api_settings(compose: dict[str, Any], env: dict[str, str]) -> Any:
+    from service.settings import Settings
+
+    api_env = interpolate(compose["services"]["api"]["environment"], env)
+    prefix = "EIGENSCOPE_"
+    values = {k.removeprefix(prefix).lower(): v for k, v in api_env.items() if k.startswith(prefix)}
+    return Settings(**{k: v for k, v in values.items() if k not in ("redis_url",)})
+
+
+def test_compose_is_safe_by_default(compose: dict[str, Any]) -> None:
+    """The API is published on loopback only unless asked; asked to publish it on a public address
+    without keys, the API refuses to start; Flower runs only when enabled, behind basic auth, on
+    loopback; no other service is published."""
+    from eigenscope.cli import UsageError
+    from eigenscope.commands.serve import check_exposure
+
+    services = compose["services"]
+    api = services["api"]
+    host = api["command"][api["command"].index("--host") + 1]
+    assert published_hosts(api, {}) == ["127.0.0.1"]
+    settings = api_settings(compose, {})
+    assert settings.api_keys is None
+    check_exposure(host, settings, keys=False)  # open, but only this machine reaches it
+    public = {"EIGENSCOPE_API_BIND": "0.0.0.0"}
+    assert published_hosts(api, public) == ["0.0.0.0"]
+    with pytest.raises(UsageError, match="without API keys"):
+        check_exposure(host, api_settings(compose, public), keys=False)
+    keyed = api_settings(compose, {**public, "EIGENSCOPE_API_KEYS": "k" * 32})
+    assert keyed.api_keys == "k" * 32
+    check_exposure(host, keyed, keys=True)
+    # Only the API holds the keys (the workers need none).
+    assert "EIGENSCOPE_API_KEYS" not in services["worker"]["environment"]
+    # Flower: not started by default, refuses to start without basic auth, loopback only.
+    flower = services["flower"]
+    assert "flower" in flower.get("profiles", [])
+    command = " ".join(interpolate(flower["command"], {}))
+    assert 'test -n "$FLOWER_BASIC_AUTH" ||' in command
+    assert '--basic-auth="$FLOWER_BASIC_AUTH"' in command
+    assert published_hosts(flower, {}) == ["127.0.0.1"]
+    for name, service in services.items():
+        if name not in ("api", "flower"):
+            assert "ports" not in service, name
 
 
 def test_dockerfile() -> None:

@@ -127,6 +127,8 @@ def test_sigkilled_worker_job_runs_again_on_another_and_succeeds_once(
     assert (service.data_dir / "jobs" / job_id / "mask.png").is_file()
     assert len([d for d in (service.data_dir / "jobs").iterdir() if d.name == job_id]) == 1
     assert survivor.alive()
+    # The killed attempt's temporary folders went when the job was claimed again (not two hours later).
+    assert list((service.data_dir / "tmp").glob("job-*")) == []
     replace_worker(service, victim)
     time.sleep(1.0)
     again = store.get_job(job_id)

@@ -246,9 +246,106 @@ def video_depth_count_mismatch(d: Path) -> tuple[Path, dict[str, Any]]:
     return video, {"depth": comp}
 
 
+def _frames_zip(path: Path, frames: list[bytes], *, link: int | None = None) -> Path:
+    """A zip of ``rgb/NNN.png`` frames; frame ``link`` a symbolic link."""
+    with zipfile.ZipFile(path, "w") as zf:
+        for i, data in enumerate(frames):
+            info = zipfile.ZipInfo(f"rgb/{i:03d}.png")
+            if i == link:
+                info.external_attr = (0o120777 << 16) | 0x20
+                data = b"../../../etc/passwd"
+            zf.writestr(info, data)
+    return path
+
+
+def _mark_encrypted(path: Path, name: str) -> Path:
+    """Set the 'encrypted' flag of entry ``name`` in its local and central headers (zipfile writes none)."""
+    data = bytearray(path.read_bytes())
+    encoded = name.encode()
+    for signature, flags_at, name_at in ((b"PK\x03\x04", 6, 30), (b"PK\x01\x02", 8, 46)):
+        start = 0
+        while (start := data.find(signature, start)) >= 0:
+            if data[start + name_at : start + name_at + len(encoded)] == encoded:
+                data[start + flags_at] |= 0x1
+            start += 4
+    path.write_bytes(bytes(data))
+    return path
+
+
+def encrypted_zip_entry(d: Path) -> tuple[Path, dict[str, Any]]:
+    return _mark_encrypted(_frames_zip(d / "locked.zip", [_png(f) for f in _rgb()]), "rgb/004.png"), {}
+
+
+def encrypted_npz_member(d: Path) -> tuple[Path, dict[str, Any]]:
+    return _mark_encrypted(write_npz(d / "locked.npz", _rgb(), fps=30.0), "rgb.npy"), {}
+
+
+def symlink_entry(d: Path) -> tuple[Path, dict[str, Any]]:
+    return _frames_zip(d / "link.zip", [_png(f) for f in _rgb()], link=2), {}
+
+
+def fortran_order_npz(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "fortran.npz"
+    np.savez(p, rgb=np.asfortranarray(_rgb()), fps=np.float64(30.0))
+    return p, {}
+
+
+def hundred_entry_npz(d: Path) -> tuple[Path, dict[str, Any]]:
+    p = d / "many.npz"
+    extra = {f"extra{i:02d}": np.zeros(1) for i in range(98)}
+    np.savez(p, rgb=_rgb(), fps=np.float64(30.0), **extra)
+    return p, {}
+
+
+def repeated_timestamps(d: Path) -> tuple[Path, dict[str, Any]]:
+    stamps = np.arange(12, dtype=np.float64) / 30.0
+    stamps[6] = stamps[5]
+    return write_npz(d / "repeat.npz", _rgb(), fps=30.0, timestamps=stamps), {}
+
+
+def one_pixel_frames(d: Path) -> tuple[Path, dict[str, Any]]:
+    return write_npz(d / "dot.npz", _rgb(16, 1, 1), fps=30.0), {}
+
+
+def png_frame_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
+    """The review's bomb: the fourth PNG declares 16000x16000 16-bit RGB (1.5 GB decoded)."""
+    from tests.unit.clipio.bombs import png_bomb_zip
+
+    return png_bomb_zip(d / "bomb-frames.zip"), {}
+
+
+def npz_deflate_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
+    """302 MB of zeros deflated a thousandfold into 0.3 MB (the review's bomb was 4.8 GB in 4.7 MB)."""
+    from tests.unit.clipio.bombs import npz_bomb
+
+    return npz_bomb(d / "bomb.npz", (24, 2048, 2048, 3)), {}
+
+
+def frame_of_another_size(d: Path) -> tuple[Path, dict[str, Any]]:
+    frames = [_png(f) for f in _rgb()]
+    frames[7] = _png(_rgb(1, 64, 80)[0])
+    return _frames_zip(d / "sizes.zip", frames), {}
+
+
+def jpeg_frame_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
+    """A JPEG frame whose SOF declares 60000x60000 pixels (the data is a 40x32 image's)."""
+    import cv2
+
+    p = d / "jpeg-bomb.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        for i, f in enumerate(_rgb()):
+            data = bytes(cv2.imencode(".jpg", f)[1])
+            if i == 2:
+                sof = data.index(b"\xff\xc0")
+                data = data[: sof + 5] + struct.pack(">HH", 60000, 60000) + data[sof + 9 :]
+            zf.writestr(f"rgb/{i:03d}.jpg", data)
+    return p, {}
+
+
 CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (zip_slip, ClipError, "points outside the archive"),
-    (zip_slip_absolute, ClipError, "'/tmp/eigenscope-evil.png' points outside"),
+    # The API shows the entry without its folders (no absolute path in a problem detail).
+    (zip_slip_absolute, ClipError, "eigenscope-evil.png' points outside"),
     (zip_bomb, ClipTooLargeError, "expands to more than"),
     (png_pixel_bomb, ClipTooLargeError, "60000x60000 frames exceed the cap"),
     (too_many_entries, ClipTooLargeError, "lists 300 entries"),
@@ -272,6 +369,17 @@ CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (corrupt_png_frame, ClipError, "005.png: image data is corrupt"),
     (zip_without_layout, UnsupportedFormatError, "zip holds no clip layout"),
     (video_depth_count_mismatch, ClipError, "12 video frames but 9 depth maps"),
+    (encrypted_zip_entry, ClipError, "entry 'rgb/004.png' is encrypted"),
+    (encrypted_npz_member, ClipError, "npz: 'rgb' is encrypted"),
+    (symlink_entry, ClipError, "entry 'rgb/002.png' is a symbolic link"),
+    (fortran_order_npz, ClipError, "'rgb' is stored in Fortran order"),
+    (hundred_entry_npz, ClipError, "npz: 100 entries"),
+    (repeated_timestamps, ClipError, "timestamps are not strictly increasing (1 repeats"),
+    (one_pixel_frames, ClipError, "frames of 1x1 pixels are too small"),
+    (png_frame_bomb, ClipTooLargeError, "rgb/0003.png: the frame declares 16000x16000 pixels, over the cap"),
+    (npz_deflate_bomb, ClipTooLargeError, "this is a decompression bomb"),
+    (frame_of_another_size, ClipError, "rgb/007.png: the frame declares 80x64 pixels, but the clip is 40x32"),
+    (jpeg_frame_bomb, ClipTooLargeError, "rgb/002.jpg: the frame declares 60000x60000 pixels"),
 ]
 
 
@@ -326,3 +434,13 @@ def test_every_malformed_clip_has_its_own_message(tmp_path: Path) -> None:
             messages.append(str(exc))
     assert len(messages) == len(CORPUS)
     assert len(set(messages)) == len(messages)
+
+
+def test_video_over_the_decoded_cap_is_refused_when_opened(tmp_path: Path) -> None:
+    """A video's declared size times its frame count is checked when it is opened (from the demuxed
+    packets), before any frame is decoded; the decoder itself is told the pixel cap."""
+    path = w.write_video(tmp_path / "long.mkv", _rgb(12), fps=30.0, codec="ffv1")
+    with pytest.raises(ClipTooLargeError, match="12 frames of 40x32 decode to 0 MiB, over the cap of 0 MiB"):
+        open_clip(path, limits=ReadLimits(max_decoded_bytes=40 * 32 * 3 * 10))
+    with open_clip(path, limits=ReadLimits(max_decoded_bytes=40 * 32 * 3 * 12)) as reader:
+        assert sum(1 for _ in reader.frames()) == 12

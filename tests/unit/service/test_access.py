@@ -39,9 +39,10 @@ class RecordingQueue:
         pass
 
 
-def make_client(settings: Settings) -> TestClient:
+def make_client(settings: Settings, queue: Any = None) -> TestClient:
+    """The app of ``settings`` publishing to ``queue`` (a :class:`RecordingQueue` by default)."""
     app = create_app(settings)
-    app.state.ctx.queue = RecordingQueue()
+    app.state.ctx.queue = queue if queue is not None else RecordingQueue()
     return TestClient(app)
 
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import resource
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from api_schemas import AnalysisResult, Spectrum
@@ -82,9 +84,11 @@ def test_domain_error_fails_the_job_with_a_problem(store: Store, settings: Setti
     assert job.error["type"].endswith("/invalid-clip")
 
 
-def test_crash_is_retried_then_failed(store: Store, settings: Settings, job_id: str) -> None:
+def test_infrastructure_fault_is_retried_then_failed(store: Store, settings: Settings, job_id: str) -> None:
+    """Only faults of what the analysis runs on (storage, database, network) are worth another try."""
+
     def runner(*_a: Any, **_k: Any) -> AnalysisResult:
-        raise RuntimeError("segfault-ish")
+        raise OSError(5, "Input/output error", str(settings.data_path / "jobs" / "x" / "mask.png"))
 
     first = execute_job(store, settings.data_path, job_id, runner=runner)
     assert first.status == "retry"
@@ -95,7 +99,124 @@ def test_crash_is_retried_then_failed(store: Store, settings: Settings, job_id: 
     job = store.get_job(job_id)
     assert job.attempts == 2
     assert job.error is not None
-    assert "RuntimeError" in job.error["detail"]
+    assert "OSError" in job.error["detail"]
+    assert "mask.png" in job.error["detail"]
+    assert str(settings.data_path) not in job.error["detail"]  # no server path in a problem
+    assert "/jobs/" not in job.error["detail"]
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        ValueError("cannot convert float NaN to integer"),
+        RuntimeError("segfault-ish"),
+        IndexError("index 3 is out of bounds for axis 0 with size 3"),
+    ],
+)
+def test_unexpected_error_fails_once_without_retry(
+    store: Store, settings: Settings, job_id: str, error: Exception
+) -> None:
+    """A bug of the analysis fails the same way on every attempt: one attempt, then a clear problem."""
+    calls = []
+
+    def runner(*_a: Any, **_k: Any) -> AnalysisResult:
+        calls.append(1)
+        raise error
+
+    outcome = execute_job(store, settings.data_path, job_id, runner=runner)
+    assert outcome.status == "failed"
+    assert outcome.retry_in_s is None
+    job = store.get_job(job_id)
+    assert (job.status, job.attempts, len(calls)) == ("failed", 1, 1)
+    assert job.error is not None
+    assert job.error["type"].endswith("/analysis-crashed")
+    assert type(error).__name__ in job.error["detail"]
+    assert "not retried" in job.error["detail"]
+
+
+def test_job_over_its_memory_budget_fails_once(store: Store, settings: Settings, job_id: str) -> None:
+    """The runner runs under an address-space cap: an allocation past it is a MemoryError, and the job
+    fails at once with `resources-exhausted` instead of growing the worker (and is not retried)."""
+    from workers.execution import _vm_size_bytes
+
+    before = resource.getrlimit(resource.RLIMIT_AS)
+    budget_mb = _vm_size_bytes() // 2**20 + 512
+    seen: dict[str, Any] = {}
+
+    def runner(*_a: Any, **_k: Any) -> AnalysisResult:
+        seen["limit"] = resource.getrlimit(resource.RLIMIT_AS)[0]
+        np.ones(2 * 2**30, np.uint8)  # 2 GiB: past the budget
+        raise AssertionError("the allocation succeeded")
+
+    outcome = execute_job(store, settings.data_path, job_id, runner=runner, memory_budget_mb=budget_mb)
+    assert outcome.status == "failed"
+    assert seen["limit"] == budget_mb * 2**20
+    assert resource.getrlimit(resource.RLIMIT_AS) == before  # restored for the next job
+    job = store.get_job(job_id)
+    assert (job.status, job.attempts) == ("failed", 1)
+    assert job.error is not None
+    assert job.error["type"].endswith("/resources-exhausted")
+    assert job.error["status"] == 413
+    assert f"{budget_mb} MiB" in job.error["detail"]
+    assert "EIGENSCOPE_JOB_MEMORY_MB" in job.error["detail"]
+
+
+def test_budget_below_the_worker_itself_is_a_clear_failure(
+    store: Store, settings: Settings, job_id: str
+) -> None:
+    def runner(*_a: Any, **_k: Any) -> AnalysisResult:
+        raise AssertionError("must not run")
+
+    assert (
+        execute_job(store, settings.data_path, job_id, runner=runner, memory_budget_mb=1).status == "failed"
+    )
+    job = store.get_job(job_id)
+    assert job.error is not None
+    assert job.error["type"].endswith("/resources-exhausted")
+    assert "already uses" in job.error["detail"]
+
+
+def test_abandoned_attempt_folders_are_removed(store: Store, settings: Settings, job_id: str) -> None:
+    """A killed attempt leaves its output and scratch folders; the sweeper removes them as soon as the
+    job is no longer running, and the next attempt's claim removes them too."""
+    from service.context import ServiceContext
+
+    storage = Storage(settings.data_path)
+    tmp = storage.root / "tmp"
+    other = store.create_job(clip_id="c1", excitation=None, parameters={})[0].id
+
+    def abandoned(job: str, attempt: int) -> list[Path]:
+        folders = [tmp / f"job-{job}-{attempt}-0123abcd", tmp / f"job-{job}-{attempt}-0123abcd-scratch"]
+        for folder in folders:
+            folder.mkdir()
+            (folder / "half-written.png").write_bytes(b"x")
+        return folders
+
+    # The claim of the next attempt removes the earlier one's folders.
+    left = abandoned(job_id, 1)
+    seen = []
+
+    def runner(clip_path: Any, out_dir: Any, **_k: Any) -> AnalysisResult:
+        seen.extend(p for p in left if p.exists())
+        return result()
+
+    assert execute_job(store, settings.data_path, job_id, runner=runner).status == "succeeded"
+    assert seen == []
+    assert list(tmp.iterdir()) == []
+
+    # The sweeper removes them once the job is not running (queued again, failed, cancelled or gone),
+    # and leaves a running attempt's folders alone.
+    left = abandoned(other, 1)
+    ctx = ServiceContext.build(settings)
+    try:
+        assert store.claim_job(other, "me/1/x").job is not None
+        assert ctx.remove_abandoned_workdirs() == 0
+        assert all(p.exists() for p in left)
+        assert store.release_job(other, "me/1/x")  # its worker died: the job is queued again
+        assert ctx.remove_abandoned_workdirs() == 2
+        assert list(tmp.iterdir()) == []
+    finally:
+        ctx.store.dispose()
 
 
 def test_cancel_while_running_stops_the_runner(store: Store, settings: Settings, job_id: str) -> None:

@@ -13,11 +13,25 @@ import os
 import shutil
 import stat
 import zipfile
+import zlib
 from pathlib import Path, PurePosixPath
 from typing import IO
 
+from workers.pipeline.clipio._common import check_inflation
 from workers.pipeline.clipio.types import ReadLimits
 from workers.pipeline.errors import ClipError, ClipTooLargeError
+
+#: What opening or reading a damaged zip archive raises: a bad CRC or header, a broken deflate stream, a
+#: cut file, an unsupported zip version or method, an encrypted member.
+ZIP_ERRORS = (
+    zipfile.BadZipFile,
+    zlib.error,
+    OSError,
+    EOFError,
+    ValueError,
+    NotImplementedError,
+    RuntimeError,
+)
 
 
 def _safe_name(raw: str, fmt: str) -> str:
@@ -73,23 +87,26 @@ class Archive:
         try:
             self._zip = zipfile.ZipFile(self.path)
             infos = self._zip.infolist()
-        except (zipfile.BadZipFile, OSError, ValueError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"{self.fmt}: {self.path.name} is not a readable zip archive ({exc})") from exc
         if len(infos) > self.limits.max_entries:
             raise ClipTooLargeError(
                 f"{self.fmt}: archive lists {len(infos)} entries, over the cap of {self.limits.max_entries}"
             )
         total = 0
+        packed = 0
         for info in infos:
             name = _safe_name(info.filename, self.fmt)
-            if info.is_dir() or not name:
+            if not name or info.is_dir():
                 continue
             if info.flag_bits & 0x1:
                 raise ClipError(f"{self.fmt}: entry {name!r} is encrypted; upload an unencrypted zip")
             mode = info.external_attr >> 16
             if mode and stat.S_ISLNK(mode):
                 raise ClipError(f"{self.fmt}: entry {name!r} is a symbolic link; zip the files themselves")
+            check_inflation(self.fmt, f"entry {name!r}", info.file_size, info.compress_size, self.limits)
             total += info.file_size
+            packed += info.compress_size
             if total > self.limits.max_uncompressed_bytes:
                 raise ClipTooLargeError(
                     f"{self.fmt}: archive expands to more than {self.limits.max_uncompressed_bytes} bytes "
@@ -99,6 +116,7 @@ class Archive:
                 raise ClipError(f"{self.fmt}: entry {name!r} appears twice in the archive")
             self._sizes[name] = info.file_size
             self._zinfo[name] = info
+        check_inflation(self.fmt, "the archive", total, packed, self.limits)
 
     @property
     def is_zip(self) -> bool:
@@ -116,7 +134,7 @@ class Archive:
         if self._zip is not None:
             try:
                 return self._zip.open(self._zinfo[name])
-            except (zipfile.BadZipFile, OSError, ValueError) as exc:
+            except ZIP_ERRORS as exc:
                 raise ClipError(f"{self.fmt}: entry {name!r} is corrupt ({exc})") from exc
         return (self.path / name).open("rb")
 
@@ -131,7 +149,7 @@ class Archive:
         try:
             with self.open(name) as fh:
                 data = fh.read(want)
-        except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"{self.fmt}: entry {name!r} is corrupt or truncated ({exc})") from exc
         if len(data) != want:
             raise ClipError(f"{self.fmt}: entry {name!r} is truncated ({len(data)} of {want} bytes)")
@@ -156,7 +174,7 @@ class Archive:
                                 f"{self.limits.max_uncompressed_bytes} bytes; refusing it"
                             )
                         out.write(chunk)
-            except (zipfile.BadZipFile, EOFError) as exc:
+            except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError) as exc:
                 raise ClipError(f"{self.fmt}: entry {name!r} is corrupt or truncated ({exc})") from exc
 
     def close(self) -> None:

@@ -139,6 +139,80 @@ def check_size(fmt: str, width: int, height: int, limits: ReadLimits) -> None:
         )
 
 
+def check_decoded(
+    fmt: str, frames: int, width: int, height: int, has_depth: bool, limits: ReadLimits
+) -> None:
+    """Refuse a clip whose frames would decode to more than ``limits.max_decoded_bytes`` in total.
+
+    Counted as delivered: RGB at 3 bytes a pixel, depth at 4 (float32 metres).
+    """
+    per_frame = width * height * (3 + (4 if has_depth else 0))
+    total = frames * per_frame
+    if total > limits.max_decoded_bytes:
+        mib = 1024 * 1024
+        raise ClipTooLargeError(
+            f"{fmt}: {frames} frames of {width}x{height}{' with depth' if has_depth else ''} decode to "
+            f"{total // mib} MiB, over the cap of {limits.max_decoded_bytes // mib} MiB; trim the clip or "
+            "downscale it"
+        )
+
+
+def check_inflation(fmt: str, what: str, decompressed: int, compressed: int, limits: ReadLimits) -> None:
+    """Refuse ``what`` when it decompresses to more than ``limits.max_inflation_ratio`` times its
+    compressed size (only beyond ``limits.inflation_floor_bytes``): a decompression bomb."""
+    if decompressed <= limits.inflation_floor_bytes:
+        return
+    ratio = decompressed / max(compressed, 1)
+    if ratio > limits.max_inflation_ratio:
+        raise ClipTooLargeError(
+            f"{fmt}: {what} inflates from {compressed} to {decompressed} bytes, {ratio:.0f} times (the cap "
+            f"is {limits.max_inflation_ratio:g}); this is a decompression bomb, not footage"
+        )
+
+
+def check_image(
+    head: ImageHeader,
+    what: str,
+    limits: ReadLimits,
+    *,
+    size: tuple[int, int] | None = None,
+    depth: bool = False,
+) -> None:
+    """Refuse an encoded frame, from its header, before it is decoded.
+
+    Parameters
+    ----------
+    head : ImageHeader
+        What the frame's PNG IHDR or JPEG SOF declares.
+    what : str
+        Names the frame in messages.
+    size : (width, height), optional
+        The clip's frame size: every frame must declare it.
+    depth : bool
+        A depth frame: a 16-bit single-channel PNG.
+    """
+    if head.width * head.height > limits.max_pixels_per_frame:
+        raise ClipTooLargeError(
+            f"{what}: the frame declares {head.width}x{head.height} pixels, over the cap of "
+            f"{limits.max_pixels_per_frame} pixels; downscale the clip"
+        )
+    if size is not None and (head.width, head.height) != size:
+        raise ClipError(
+            f"{what}: the frame declares {head.width}x{head.height} pixels, but the clip is "
+            f"{size[0]}x{size[1]}; all frames must have one size"
+        )
+    if depth and (head.kind != "png" or head.bit_depth != 16 or head.channels != 1):
+        raise ClipError(
+            f"{what}: a depth frame must be a 16-bit single-channel PNG "
+            f"(got {head.kind}, {head.bit_depth}-bit, {head.channels} channel(s))"
+        )
+    if not depth and (head.bit_depth not in (1, 2, 4, 8, 12, 16) or head.channels not in (1, 2, 3, 4)):
+        raise ClipError(
+            f"{what}: the frame declares {head.bit_depth}-bit samples in {head.channels} channel(s), which "
+            "no camera writes; the file is corrupt"
+        )
+
+
 def natural_key(name: str) -> tuple[Any, ...]:
     """Sort key that orders ``frame2`` before ``frame10``."""
     return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))

@@ -18,7 +18,7 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-from workers.pipeline.clipio._archive import Archive, common_root, visible
+from workers.pipeline.clipio._archive import ZIP_ERRORS, Archive, common_root, visible
 from workers.pipeline.clipio.types import ClipOverrides, ClipReader, ReadLimits
 from workers.pipeline.errors import ClipError, ParameterError, UnsupportedFormatError
 
@@ -133,7 +133,7 @@ def detect_format(path: str | Path) -> str:
         try:
             with zipfile.ZipFile(path) as zf:
                 names = zf.namelist()
-        except (zipfile.BadZipFile, OSError, ValueError) as exc:
+        except ZIP_ERRORS as exc:
             kind = "npz" if ext == ".npz" else "zip"
             raise ClipError(
                 f"{kind}: {path.name} is a zip archive but is corrupt or truncated ({exc}); upload it again"

@@ -28,8 +28,11 @@ from numpy.typing import NDArray
 
 from workers.pipeline.clipio._archive import Archive, common_root, visible
 from workers.pipeline.clipio._common import (
+    ImageHeader,
     associate_nearest,
+    check_decoded,
     check_frames,
+    check_image,
     check_size,
     decode_color,
     decode_depth_png,
@@ -53,6 +56,7 @@ COLOR_EXTS = (".png", ".jpg", ".jpeg")
 TUM_DEPTH_SCALE = 1.0 / 5000.0
 DEFAULT_DEPTH_SCALE = 0.001
 _HEADER_BYTES = 64 * 1024
+_SMALL_HEADER_BYTES = 1024
 _CAMERA_FIELDS = ("fps", "fx", "fy", "cx", "cy", "depth_scale")
 
 
@@ -161,6 +165,7 @@ class FramesClip(ClosingReader):
         is_tum = "rgb.txt" in rel
         fmt = "tum" if is_tum else "zip-frames"
         self._fmt = self._archive.fmt = fmt
+        self._max_frame_bytes = limits.max_pixels_per_frame * 8 + (1 << 20)
         camera: dict[str, float] = {}
         if "camera.json" in rel:
             camera = read_camera_json(self._archive, rel["camera.json"], fmt)
@@ -222,14 +227,14 @@ class FramesClip(ClosingReader):
                 raise ClipError(f"{fmt}: frame file {f!r} is listed but missing from the archive")
 
         check_frames(fmt, len(rgb_files), limits)
-        head = image_header(self._archive.read(rgb_files[0], head=_HEADER_BYTES), f"{fmt}: {rgb_files[0]}")
+        head = self._header(rgb_files[0])
         width, height = head.width, head.height
         check_size(fmt, width, height, limits)
+        check_decoded(fmt, len(rgb_files), width, height, depth_files is not None, limits)
         max_frame_bytes = width * height * 8 + (1 << 20)
+        self._max_frame_bytes = max_frame_bytes
         if depth_files is not None:
-            dh = image_header(
-                self._archive.read(depth_files[0], head=_HEADER_BYTES), f"{fmt}: {depth_files[0]}"
-            )
+            dh = self._header(depth_files[0])
             if dh.kind != "png" or dh.bit_depth != 16 or dh.channels != 1:
                 raise ClipError(
                     f"{fmt}: depth frame {depth_files[0]!r} must be a 16-bit single-channel PNG "
@@ -239,6 +244,13 @@ class FramesClip(ClosingReader):
                 raise ClipError(
                     f"{fmt}: depth frames are {dh.width}x{dh.height} but colour frames are {width}x{height}; "
                     "depth must be aligned to colour, same size"
+                )
+        # Every frame's header, before any frame is decoded: a frame deep in the clip that declares a
+        # larger size (a decompression bomb) is refused here, at the upload's validation.
+        for names, is_depth in ((rgb_files, False), (depth_files or [], True)):
+            for name in names:
+                check_image(
+                    self._header(name), f"{fmt}: {name}", limits, size=(width, height), depth=is_depth
                 )
 
         timing = resolve_timing(
@@ -251,7 +263,7 @@ class FramesClip(ClosingReader):
         depth_scale = camera_depth_scale(camera, overrides, default_scale, fmt)
         self._rgb_files = rgb_files
         self._depth_files = depth_files
-        self._max_frame_bytes = max_frame_bytes
+        self._limits = limits
         self._depth_scale = depth_scale
         streams = ["rgb/"] + (["depth/"] if depth_files else [])
         if is_tum:
@@ -278,6 +290,27 @@ class FramesClip(ClosingReader):
             notes=tuple(notes) + timing.notes,
         )
 
+    def _header(self, name: str) -> ImageHeader:
+        """The header of frame file ``name``, reading as little of it as its format needs."""
+        what = f"{self._fmt}: {name}"
+        size = self._archive.size(name)
+        for want in (_SMALL_HEADER_BYTES, _HEADER_BYTES):
+            data = self._archive.read(name, head=want)
+            try:
+                return image_header(data, what)
+            except ClipError:
+                if len(data) == size:
+                    raise
+        # A JPEG with long metadata before its frame header.
+        return image_header(self._archive.read(name, self._max_frame_bytes), what)
+
+    def _checked(self, name: str, data: bytes, *, depth: bool) -> bytes:
+        """``data`` of frame ``name`` once its header declares the clip's size (before it is decoded)."""
+        info = self._info
+        what = f"{self._fmt}: {name}"
+        check_image(image_header(data, what), what, self._limits, size=(info.width, info.height), depth=depth)
+        return data
+
     @property
     def info(self) -> ClipInfo:
         return self._info
@@ -293,7 +326,8 @@ class FramesClip(ClosingReader):
         fps = info.fps or 1.0
         for index in range(start, stop):
             name = self._rgb_files[index]
-            rgb = decode_color(self._archive.read(name, self._max_frame_bytes), f"{self._fmt}: {name}")
+            data = self._checked(name, self._archive.read(name, self._max_frame_bytes), depth=False)
+            rgb = decode_color(data, f"{self._fmt}: {name}")
             if rgb.shape[:2] != (info.height, info.width):
                 raise ClipError(
                     f"{self._fmt}: frame {name!r} is {rgb.shape[1]}x{rgb.shape[0]}, but the clip is "
@@ -302,9 +336,8 @@ class FramesClip(ClosingReader):
             depth: NDArray[np.float32] | None = None
             if self._depth_files is not None:
                 dname = self._depth_files[index]
-                raw = decode_depth_png(
-                    self._archive.read(dname, self._max_frame_bytes), f"{self._fmt}: {dname}"
-                )
+                ddata = self._checked(dname, self._archive.read(dname, self._max_frame_bytes), depth=True)
+                raw = decode_depth_png(ddata, f"{self._fmt}: {dname}")
                 if raw.shape != (info.height, info.width):
                     raise ClipError(
                         f"{self._fmt}: depth frame {dname!r} is {raw.shape[1]}x{raw.shape[0]}, but colour "

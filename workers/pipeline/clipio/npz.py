@@ -16,6 +16,7 @@ or two whatever the clip length.
 from __future__ import annotations
 
 import math
+import tokenize
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,7 +26,14 @@ import numpy as np
 from numpy.lib import format as npy_format
 from numpy.typing import NDArray
 
-from workers.pipeline.clipio._common import check_frames, check_size, resolve_timing
+from workers.pipeline.clipio._archive import ZIP_ERRORS
+from workers.pipeline.clipio._common import (
+    check_decoded,
+    check_frames,
+    check_inflation,
+    check_size,
+    resolve_timing,
+)
 from workers.pipeline.clipio.types import (
     ClipInfo,
     ClipOverrides,
@@ -50,18 +58,44 @@ class _Member:
         self.archive = archive
         self.name = name
         self.key = key
-        with archive.open(name) as fh:
-            self.shape, self.fortran, self.dtype = _read_header(fh, key)
+        self.info = archive.getinfo(name)
+        if self.info.flag_bits & 0x1:
+            raise ClipError(f"npz: '{key}' is encrypted; save the bundle without a password")
+        try:
+            with archive.open(name) as fh:
+                self.shape, self.fortran, self.dtype = _read_header(fh, key)
+                self.header_bytes = fh.tell()
+        except ZIP_ERRORS as exc:
+            raise ClipError(f"npz: '{key}' cannot be read ({exc}); re-export the clip") from exc
+        if any(s < 0 for s in self.shape):
+            raise ClipError(f"npz: '{key}' declares the shape {self.shape}; re-export the clip")
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the array's data, from its header (Python ints: no overflow)."""
+        return math.prod(self.shape) * self.dtype.itemsize
+
+    def check_bounds(self, limits: ReadLimits) -> None:
+        """Refuse, from the headers alone, a member whose data the archive cannot hold or that inflates
+        like a decompression bomb."""
+        if self.nbytes > self.info.file_size - self.header_bytes:
+            raise ClipError(
+                f"npz: '{self.key}' declares {self.shape} {self.dtype} ({self.nbytes} bytes) but its archive "
+                f"member holds {max(self.info.file_size - self.header_bytes, 0)}; the file is truncated or "
+                "forged -- re-export the clip"
+            )
+        if self.info.compress_type != zipfile.ZIP_STORED:
+            check_inflation("npz", f"'{self.key}'", self.info.file_size, self.info.compress_size, limits)
 
     def small(self, limit_bytes: int = 1 << 20) -> NDArray[Any]:
-        nbytes = int(np.prod(self.shape, dtype=np.int64)) * self.dtype.itemsize
+        nbytes = self.nbytes
         if nbytes > limit_bytes:
             raise ClipError(f"npz: '{self.key}' holds {nbytes} bytes; expected a small metadata array")
         if self.dtype.hasobject:
             raise ClipError(f"npz: '{self.key}' holds Python objects; store plain numbers")
-        with self.archive.open(self.name) as fh:
+        with self._open() as fh:
             _read_header(fh, self.key)
-            data = fh.read(nbytes)
+            data = _read(fh, nbytes, self.key)
         if len(data) != nbytes:
             raise ClipError(
                 f"npz: '{self.key}' is truncated ({len(data)} of {nbytes} bytes); re-export the clip"
@@ -92,17 +126,23 @@ class _Member:
                         )
                     yield frame
             return
-        with self.archive.open(self.name) as fh:
+        with self._open() as fh:
             _read_header(fh, self.key)
-            _skip(fh, per * start)
+            _skip(fh, per * start, self.key)
             for index in range(start, stop):
-                buf = fh.read(per)
+                buf = _read(fh, per, self.key)
                 if len(buf) != per:
                     raise ClipError(
                         f"npz: '{self.key}' is truncated at frame {index} of {self.shape[0]}; "
                         "re-export the clip"
                     )
                 yield np.frombuffer(buf, dtype=self.dtype).reshape(self.shape[1:])
+
+    def _open(self) -> IO[bytes]:
+        try:
+            return self.archive.open(self.name)
+        except ZIP_ERRORS as exc:
+            raise ClipError(f"npz: '{self.key}' is corrupt ({exc}); re-export the clip") from exc
 
     def _stored_range(self, per: int) -> tuple[int, int] | None:
         """Where a stored (uncompressed) member's frames start in the file, and how many are complete.
@@ -137,10 +177,18 @@ class _Member:
         return data_start, min(self.shape[0], max(available, 0) // per)
 
 
-def _skip(fh: IO[bytes], nbytes: int) -> None:
+def _read(fh: IO[bytes], nbytes: int, key: str) -> bytes:
+    """Up to ``nbytes`` of a member; a damaged member is a :class:`ClipError`."""
+    try:
+        return fh.read(nbytes)
+    except ZIP_ERRORS as exc:
+        raise ClipError(f"npz: '{key}' is corrupt ({exc}); re-export the clip") from exc
+
+
+def _skip(fh: IO[bytes], nbytes: int, key: str) -> None:
     chunk = 1 << 22
     while nbytes > 0:
-        got = fh.read(min(chunk, nbytes))
+        got = _read(fh, min(chunk, nbytes), key)
         if not got:
             raise ClipError("npz: archive member ends early; the file is truncated")
         nbytes -= len(got)
@@ -153,7 +201,7 @@ def _read_header(fh: IO[bytes], key: str) -> tuple[tuple[int, ...], bool, np.dty
             shape, fortran, dtype = npy_format.read_array_header_1_0(fh)
         else:
             shape, fortran, dtype = npy_format.read_array_header_2_0(fh)
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+    except (*ZIP_ERRORS, tokenize.TokenError, SyntaxError, TypeError) as exc:  # numpy parses it
         raise ClipError(f"npz: '{key}' is not a readable .npy array ({exc}); re-export the clip") from exc
     return tuple(int(s) for s in shape), bool(fortran), np.dtype(dtype)
 
@@ -180,7 +228,7 @@ class NpzClip(ClosingReader):
         limits = limits or ReadLimits()
         try:
             self._zip = zipfile.ZipFile(self.path)
-        except (zipfile.BadZipFile, OSError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"npz: {self.path.name} is not a readable .npz archive ({exc})") from exc
         try:
             self._info, self._rgb, self._depth = self._validate(overrides, limits)
@@ -198,6 +246,8 @@ class NpzClip(ClosingReader):
         for name in names:
             key = name[:-4] if name.endswith(".npy") else name
             if key in _KNOWN_KEYS:
+                if key in members:
+                    raise ClipError(f"npz: '{key}' appears twice in the bundle; re-export the clip")
                 members[key] = _Member(self._zip, name, key)
         if "rgb" not in members:
             found = ", ".join(sorted(n.removesuffix(".npy") for n in names)) or "nothing"
@@ -212,6 +262,15 @@ class NpzClip(ClosingReader):
         frames, height, width = rgb.shape[:3]
         check_frames("npz", frames, limits)
         check_size("npz", width, height, limits)
+        check_decoded("npz", frames, width, height, "depth" in members, limits)
+        for member in members.values():
+            member.check_bounds(limits)
+        for streamed in (rgb, members.get("depth")):
+            if streamed is not None and streamed.fortran:
+                raise ClipError(
+                    f"npz: '{streamed.key}' is stored in Fortran order, which cannot be streamed; "
+                    "save it with np.ascontiguousarray"
+                )
 
         depth = members.get("depth")
         if depth is not None:
@@ -331,12 +390,15 @@ class NpzClip(ClosingReader):
 class NpzDepth:
     """The ``depth`` array of an ``.npz`` used as a depth companion of a video, streamed in metres."""
 
-    def __init__(self, path: str | Path, *, overrides: ClipOverrides | None = None) -> None:
+    def __init__(
+        self, path: str | Path, *, overrides: ClipOverrides | None = None, limits: ReadLimits | None = None
+    ) -> None:
         self.path = Path(path)
         overrides = overrides or ClipOverrides()
+        limits = limits or ReadLimits()
         try:
             self._zip = zipfile.ZipFile(self.path)
-        except (zipfile.BadZipFile, OSError) as exc:
+        except ZIP_ERRORS as exc:
             raise ClipError(f"npz: {self.path.name} is not a readable .npz archive ({exc})") from exc
         try:
             members = {
@@ -349,6 +411,8 @@ class NpzDepth:
             self._depth = members["depth"]
             if len(self._depth.shape) != 3:
                 raise ClipError(f"npz: 'depth' must have shape (T, H, W), got {self._depth.shape}")
+            for member in members.values():
+                member.check_bounds(limits)
             if not (self._depth.dtype == np.uint16 or np.issubdtype(self._depth.dtype, np.floating)):
                 raise ClipError(
                     f"npz: 'depth' must be uint16 (depth units) or float32 (metres), got {self._depth.dtype}"

@@ -43,7 +43,9 @@ from workers.pipeline.clipio._archive import Archive, common_root, rmtree_quiet,
 from workers.pipeline.clipio._common import (
     align_depth_to_color,
     associate_nearest,
+    check_decoded,
     check_frames,
+    check_image,
     check_size,
     decode_color,
     decode_depth_png,
@@ -114,7 +116,7 @@ class _Source:
         reader = Reader(path)
         try:
             reader.open()
-        except (ReaderError, OSError, struct.error, ValueError, KeyError, EOFError) as exc:
+        except (ReaderError, Exception) as exc:  # rosbags raises many types (asserts too) on a corrupt bag
             raise ClipError(
                 f"ros1-bag: {path.name} cannot be read ({_short(exc)}); it is truncated, corrupt or not "
                 "indexed -- run `rosbag reindex` on it or re-record"
@@ -372,6 +374,7 @@ class BagClip(ClosingReader):
                 )
         check_frames(fmt, len(c_order), self._limits)
         check_size(fmt, color.width, color.height, self._limits)
+        check_decoded(fmt, len(c_order), color.width, color.height, depth is not None, self._limits)
         if depth is not None:
             check_size(fmt, depth.width, depth.height, self._limits)
 
@@ -566,7 +569,14 @@ class BagClip(ClosingReader):
         msg = self._src.deserialize(raw, t.msgtype)
         what = f"{self._fmt}: {t.name}"
         compressed = t.msgtype == COMPRESSED
-        rgb = decode_color(bytes(msg.data), what) if compressed else _image_to_rgb(msg, what)
+        size = (self._info.width, self._info.height)
+        if compressed:
+            data = bytes(msg.data)
+            check_image(image_header(data, what), what, self._limits, size=size)
+            rgb = decode_color(data, what)
+        else:
+            _check_raw_size(msg, what, size)
+            rgb = _image_to_rgb(msg, what)
         if rgb.shape[:2] != (self._info.height, self._info.width):
             raise ClipError(
                 f"{what}: a frame is {rgb.shape[1]}x{rgb.shape[0]}, the topic started at "
@@ -584,8 +594,10 @@ class BagClip(ClosingReader):
             data = bytes(msg.data)
             if "compresseddepth" in str(msg.format).lower():
                 data = data[12:]
+            check_image(image_header(data, what), what, self._limits, size=(t.width, t.height), depth=True)
             arr = decode_depth_png(data, what)
         else:
+            _check_raw_size(msg, what, (t.width, t.height))
             arr = _image_to_depth(msg, what)
         if arr.shape != (t.height, t.width):
             raise ClipError(
@@ -653,6 +665,15 @@ class BagClip(ClosingReader):
 
     def close(self) -> None:
         self._src.close()
+
+
+def _check_raw_size(msg: Any, what: str, size: tuple[int, int]) -> None:
+    """A raw Image must declare the topic's frame size (checked before its rows are converted)."""
+    if (int(msg.width), int(msg.height)) != size:
+        raise ClipError(
+            f"{what}: a frame is {int(msg.width)}x{int(msg.height)}, the topic started at "
+            f"{size[0]}x{size[1]}; the resolution must not change"
+        )
 
 
 def _rows(msg: Any, what: str, bytes_per_pixel: int) -> NDArray[np.uint8]:

@@ -92,18 +92,40 @@ class ReadLimits:
         bytes written when a zipped ROS 2 bag is unpacked to a scratch folder.
     max_entries : int
         Most entries a zip archive may list.
+    max_decoded_bytes : int
+        Most a clip may decode to: frames x (width x height x 3 for RGB, + width x height x 4 for depth
+        in metres), from the sizes the file declares, checked before any frame is decoded.
+    max_inflation_ratio : float
+        Largest ratio of decompressed to compressed bytes of a zip archive (all its entries) or a deflated
+        npz member, applied once it decompresses to more than ``inflation_floor_bytes``: real footage
+        deflates by a few, a decompression bomb by up to 1032.
+    inflation_floor_bytes : int
+        Archives and members decompressing to less than this are not ratio-checked.
     """
 
     max_frames: int = 100_000
     max_pixels_per_frame: int = 4096 * 4096
     max_uncompressed_bytes: int = 32 * 1024**3
     max_entries: int = 200_000
+    max_decoded_bytes: int = 32 * 1024**3
+    max_inflation_ratio: float = 100.0
+    inflation_floor_bytes: int = 256 * 1024**2
 
     def __post_init__(self) -> None:
-        for name in ("max_frames", "max_pixels_per_frame", "max_uncompressed_bytes", "max_entries"):
+        for name in (
+            "max_frames",
+            "max_pixels_per_frame",
+            "max_uncompressed_bytes",
+            "max_entries",
+            "max_decoded_bytes",
+            "inflation_floor_bytes",
+        ):
             value = getattr(self, name)
             if not isinstance(value, int) or value <= 0:
                 raise ParameterError(f"read limit {name}={value!r} must be a positive integer")
+        ratio = self.max_inflation_ratio
+        if not (isinstance(ratio, int | float) and math.isfinite(ratio) and ratio >= 1):
+            raise ParameterError(f"read limit max_inflation_ratio={ratio!r} must be a number of at least 1")
 
 
 @dataclass(frozen=True)

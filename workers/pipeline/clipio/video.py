@@ -29,9 +29,11 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.clipio._archive import Archive, common_root, visible
+from workers.pipeline.clipio._archive import ZIP_ERRORS, Archive, common_root, visible
 from workers.pipeline.clipio._common import (
+    check_decoded,
     check_frames,
+    check_image,
     check_size,
     decode_depth_png,
     image_header,
@@ -60,9 +62,10 @@ _LUMA_FIRST = frozenset(
 
 
 def _av_error_types() -> tuple[type[BaseException], ...]:
+    """What decoding a broken video raises: FFmpeg's errors, and those of a zip member it reads."""
     import av
 
-    return (av.error.FFmpegError, OSError, ValueError, EOFError)
+    return (av.error.FFmpegError, *ZIP_ERRORS)
 
 
 @dataclass
@@ -84,7 +87,13 @@ class _DepthSource:
 
 
 def _png_depth_source(
-    archive: Archive, names: list[str], scale: float, label: str, *, owns_archive: bool
+    archive: Archive,
+    names: list[str],
+    scale: float,
+    label: str,
+    limits: ReadLimits,
+    *,
+    owns_archive: bool,
 ) -> _DepthSource:
     h = image_header(archive.read(names[0], head=4096), f"video depth: {names[0]}")
     if h.kind != "png" or h.bit_depth != 16 or h.channels != 1:
@@ -93,11 +102,20 @@ def _png_depth_source(
             f"(got {h.kind}, {h.bit_depth}-bit, {h.channels} channel(s))"
         )
     width, height = h.width, h.height
+    check_size("video depth", width, height, limits)
+    for name in names[1:]:  # every header before any map is decoded
+        what = f"video depth: {name}"
+        check_image(
+            image_header(archive.read(name, head=4096), what), what, limits, size=(width, height), depth=True
+        )
     cap = width * height * 8 + (1 << 20)
 
     def slices(start: int, stop: int) -> Iterator[NDArray[np.float32]]:
         for name in names[start:stop]:
-            raw = decode_depth_png(archive.read(name, cap), f"video depth: {name}")
+            what = f"video depth: {name}"
+            data = archive.read(name, cap)
+            check_image(image_header(data, what), what, limits, size=(width, height), depth=True)
+            raw = decode_depth_png(data, what)
             if raw.shape != (height, width):
                 raise ClipError(
                     f"video: depth frame {name!r} is {raw.shape[1]}x{raw.shape[0]}; expected {width}x{height}"
@@ -127,7 +145,7 @@ def _open_depth_companion(
         names = visible(archive.names)
         if path.is_file() and any(n.removesuffix(".npy") == "depth" for n in names):
             archive.close()
-            npz = NpzDepth(path, overrides=overrides)
+            npz = NpzDepth(path, overrides=overrides, limits=limits)
             return _DepthSource(
                 f"{path.name}:depth",
                 npz.frames,
@@ -148,7 +166,7 @@ def _open_depth_companion(
             camera = read_camera_json(archive, root + "camera.json", "video depth")
         scale = camera_depth_scale(camera, overrides, DEFAULT_DEPTH_SCALE, "video")
         label = f"{path.name}:{'depth/' if sub else '*.png'}"
-        return _png_depth_source(archive, chosen, scale, label, owns_archive=True), camera
+        return _png_depth_source(archive, chosen, scale, label, limits, owns_archive=True), camera
     except Exception:
         archive.close()
         raise
@@ -191,12 +209,22 @@ class VideoClip(ClosingReader):
         else:
             src = str(self.path)
         try:
-            return av.open(src, mode="r", metadata_errors="ignore")
+            container = av.open(src, mode="r", metadata_errors="ignore")
         except _av_error_types() as exc:
             name = self._member or self.path.name
             raise ClipError(
                 f"video: {name} is not a readable video ({_msg(exc)}); upload the camera's original file"
             ) from exc
+        # The decoder refuses a picture over the pixel cap before allocating it (a stream that grows
+        # in the middle, past the size its header declared).
+        for stream in container.streams.video:
+            if stream.codec_context is None:
+                continue
+            stream.codec_context.options = {
+                **stream.codec_context.options,
+                "max_pixels": str(self._limits.max_pixels_per_frame),
+            }
+        return container
 
     def _setup(self, depth: str | Path | None) -> None:
         overrides, limits = self._overrides, self._limits
@@ -218,7 +246,7 @@ class VideoClip(ClosingReader):
             if dpng and depth is None:
                 scale = camera_depth_scale(camera, overrides, DEFAULT_DEPTH_SCALE, "video")
                 self._depth = _png_depth_source(
-                    self._archive, dpng, scale, root + "depth/", owns_archive=False
+                    self._archive, dpng, scale, root + "depth/", limits, owns_archive=False
                 )
             layout = "zip"
         if depth is not None:
@@ -230,6 +258,8 @@ class VideoClip(ClosingReader):
             if not container.streams.video:
                 raise ClipError(f"video: {self._member or self.path.name} has no video stream")
             stream = container.streams.video[0]
+            if stream.codec_context is None:
+                raise ClipError(f"video: {self._member or self.path.name} has no decodable video stream")
             width, height = int(stream.codec_context.width), int(stream.codec_context.height)
             check_size("video", width, height, limits)
             rate = stream.average_rate or stream.guessed_rate or stream.base_rate
@@ -254,6 +284,7 @@ class VideoClip(ClosingReader):
         finally:
             container.close()
         check_frames("video", count, limits)
+        check_decoded("video", count, width, height, self._depth is not None, limits)
         stamps: NDArray[np.float64] | None = None
         if tb is not None and len(pts) == count and len(set(pts)) == count:
             arr = np.sort(np.asarray(pts, dtype=np.int64))

@@ -1,0 +1,127 @@
+"""The fuzzer's seed corpus: one small valid clip of every format and layout the readers take.
+
+``python tests/fuzz/seeds.py FOLDER`` writes them (about 40 files, 1-60 KB each: eight 16x16 frames,
+the least a clip may hold, so the fuzzer mutates headers and structure rather than pixels).
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+# isort: off
+import eigenscope  # noqa: F401 - one BLAS/OpenCV thread, as in every entry point
+
+# isort: on
+import numpy as np
+
+FRAMES, HEIGHT, WIDTH = 8, 16, 16
+INTRINSICS = (20.0, 20.0, 7.5, 7.5)
+T0_NS = 1_700_000_000_000_000_000
+
+
+def _clip() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(7)
+    rgb = rng.integers(0, 255, (FRAMES, HEIGHT, WIDTH, 3), dtype=np.uint8)
+    depth = rng.integers(500, 1500, (FRAMES, HEIGHT, WIDTH), dtype=np.uint16)
+    return rgb, depth
+
+
+def write_seeds(folder: Path) -> list[Path]:
+    """Write the seed clips into ``folder``; returns their paths."""
+    from workers.pipeline.clipio import write_npz
+    from workers.pipeline.clipio import writers as w
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rgb, depth = _clip()
+    stamps = T0_NS + np.arange(FRAMES, dtype=np.int64) * 33_333_333
+    out: list[Path] = []
+    out.append(write_npz(folder / "plain.npz", rgb, fps=30.0))
+    out.append(
+        write_npz(folder / "depth.npz", rgb, fps=30.0, depth=depth, intrinsics=INTRINSICS, depth_scale=0.001)
+    )
+    out.append(
+        write_npz(
+            folder / "deflated.npz",
+            rgb,
+            fps=30.0,
+            depth=depth.astype(np.float32) / 1000,
+            timestamps=np.arange(FRAMES) / 30.0,
+            compress=True,
+        )
+    )
+    out.append(
+        w.write_zip_frames(folder / "frames-png.zip", rgb, depth=depth, fps=30.0, intrinsics=INTRINSICS)
+    )
+    out.append(
+        w.write_zip_frames(folder / "frames-jpg.zip", rgb, fps=30.0, image_format="jpg", root="take1/")
+    )
+    times = np.arange(FRAMES) / 30.0
+    out.append(
+        w.write_tum(
+            folder / "tum.zip",
+            rgb,
+            depth,
+            rgb_times_s=times,
+            depth_times_s=times + 0.004,
+            intrinsics=INTRINSICS,
+        )
+    )
+    for name, codec in (
+        ("h264.mp4", "libx264"),
+        ("ffv1.mkv", "ffv1"),
+        ("mjpeg.avi", "mjpeg"),
+        ("mpeg4.mov", "mpeg4"),
+    ):
+        out.append(w.write_video(folder / name, rgb, fps=30.0, codec=codec))
+    video = folder / "ffv1.mkv"
+    with zipfile.ZipFile(folder / "video-depth.zip", "w") as zf:
+        zf.write(video, "clip.mkv")
+        zf.writestr("camera.json", '{"fps": 30, "fx": 20, "fy": 20}')
+        import cv2
+
+        for i, d in enumerate(depth):
+            zf.writestr(f"depth/{i:03d}.png", bytes(cv2.imencode(".png", d)[1]))
+    out.append(folder / "video-depth.zip")
+    out.append(w.write_ros_bag(folder / "raw.bag", rgb, stamps_ns=stamps, intrinsics=INTRINSICS, depth=depth))
+    out.append(
+        w.write_ros_bag(
+            folder / "compressed.bag", rgb, stamps_ns=stamps, intrinsics=INTRINSICS, compressed=True
+        )
+    )
+    out.append(
+        w.write_ros_bag(
+            folder / "realsense.bag",
+            rgb,
+            stamps_ns=stamps,
+            intrinsics=INTRINSICS,
+            depth=depth,
+            layout="realsense-sdk",
+        )
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        for storage, suffix in (("mcap", ".mcap"), ("sqlite3", ".db3")):
+            bag = w.write_ros_bag(
+                Path(tmp) / f"bag-{storage}",
+                rgb,
+                stamps_ns=stamps,
+                intrinsics=INTRINSICS,
+                depth=depth,
+                version=2,
+                storage=storage,  # type: ignore[arg-type]
+            )
+            single = next(bag.glob(f"*{suffix}"))
+            target = folder / f"ros2{suffix}"
+            target.write_bytes(single.read_bytes())
+            out.append(target)
+    out.append(w.write_ros2_zip(folder / "ros2-folder.zip", rgb, stamps_ns=stamps, intrinsics=INTRINSICS))
+    return out
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        raise SystemExit("usage: python tests/fuzz/seeds.py FOLDER")
+    for path in write_seeds(Path(sys.argv[1])):
+        print(f"{path.stat().st_size:8d}  {path}")
