@@ -220,6 +220,25 @@ def truncated_mcap(d: Path) -> tuple[Path, dict[str, Any]]:
     return p, {}
 
 
+def db3_topic_without_name(d: Path) -> tuple[Path, dict[str, Any]]:
+    """A ROS 2 SQLite bag whose topic row has no name (found by the fuzzer)."""
+    import sqlite3
+
+    folder = w.write_ros_bag(
+        d / "b3", _rgb(), stamps_ns=_stamps(12), intrinsics=(50, 50, 20, 16), version=2, storage="sqlite3"
+    )
+    p = d / "noname.db3"
+    p.write_bytes(next(folder.glob("*.db3")).read_bytes())
+    with sqlite3.connect(p) as db:
+        (create,) = db.execute("SELECT sql FROM sqlite_master WHERE name = 'topics'").fetchone()
+        db.execute("ALTER TABLE topics RENAME TO topics_old")
+        db.execute(create.replace("NOT NULL", ""))
+        db.execute("INSERT INTO topics SELECT * FROM topics_old")
+        db.execute("DROP TABLE topics_old")
+        db.execute("UPDATE topics SET name = NULL")
+    return p, {}
+
+
 def corrupt_png_frame(d: Path) -> tuple[Path, dict[str, Any]]:
     p = d / "corrupt.zip"
     with zipfile.ZipFile(p, "w") as zf:
@@ -366,6 +385,7 @@ CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (truncated_bag, ClipError, "ros1-bag: cut.bag cannot be read"),
     (empty_ros2_bag, ClipError, "empty2 holds no messages"),
     (truncated_mcap, ClipError, "ros2-bag: cut.mcap cannot be read"),
+    (db3_topic_without_name, ClipError, "a connection has no topic name or message type"),
     (corrupt_png_frame, ClipError, "005.png: image data is corrupt"),
     (zip_without_layout, UnsupportedFormatError, "zip holds no clip layout"),
     (video_depth_count_mismatch, ClipError, "12 video frames but 9 depth maps"),

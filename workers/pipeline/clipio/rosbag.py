@@ -261,6 +261,10 @@ class BagClip(ClosingReader):
     def _topics(self) -> dict[str, _Topic]:
         topics: dict[str, _Topic] = {}
         for c in self._src.connections:
+            if not isinstance(c.topic, str) or not isinstance(c.msgtype, str):
+                raise ClipError(
+                    f"{self._fmt}: a connection has no topic name or message type; the bag is corrupt"
+                )
             t = topics.setdefault(c.topic, _Topic(c.topic, c.msgtype, 0, []))
             t.conns.append(c)
             t.count += int(getattr(c, "msgcount", 0) or 0)

@@ -1,0 +1,254 @@
+"""The detection policy on arrays (workers.pipeline.detection, camera, light): what makes a motion an
+object, its regime, and the evidence that drops a peak. Each case is built so that the evidence is
+there or is not, with the truth known."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from workers.pipeline.camera import CameraRing
+from workers.pipeline.detection import WindowEvidence, oscillation_verdict, regime_of
+from workers.pipeline.model import ObjectMeasurement
+from workers.pipeline.ringdown import Ringdown, fit_ringdown
+from workers.pipeline.tracking import follow_region, second_motion
+
+FPS = 30.0
+N = 256
+
+
+def _object(**changes) -> ObjectMeasurement:
+    base = {
+        "id": 1,
+        "eigenfrequency_hz": 5.0,
+        "eigenfrequency_sd_hz": 0.01,
+        "natural_frequency_hz": 5.0,
+        "damping_ratio": 0.02,
+        "damping_ratio_sd": 0.001,
+        "amplitude_px": 2.0,
+        "amplitude_m": None,
+        "amplitude_sd_m": None,
+        "depth_m": None,
+        "motion_direction": None,
+        "stiffness_n_per_m": None,
+        "stiffness_sd": None,
+        "mass_kg": None,
+        "mass_sd": None,
+        "pixel_count": 100,
+        "bbox_px": (0, 0, 10, 10),
+        "harmonics_hz": [],
+        "release_time_s": 0.0,
+        "snr_db": 20.0,
+        "detection_db": 44.0,
+        "concentration": 1.0,
+    }
+    return ObjectMeasurement(**{**base, **changes})
+
+
+BAND = (0.2, 14.7)
+
+
+def test_a_clear_ring_down_is_an_object():
+    assert oscillation_verdict(_object(), band_hz=BAND) is None
+
+
+def test_a_weak_steady_vibration_over_many_samples_is_an_object():
+    """-2 dB per sample, but one oscillation explains 95 % of the motion near the peak and stands 22 dB
+    above the noise over the window."""
+    weak = _object(snr_db=-2.0, detection_db=22.0, concentration=0.95)
+    assert oscillation_verdict(weak, band_hz=BAND) is None
+
+
+@pytest.mark.parametrize(
+    ("changes", "evidence"),
+    [
+        ({"snr_db": -3.0, "detection_db": 18.0, "concentration": 0.46}, "incoherent"),  # narrow-band noise
+        ({"snr_db": -3.0, "detection_db": 10.0, "concentration": 0.95}, "incoherent"),  # barely seen
+        ({"eigenfrequency_hz": 20.0}, "out_of_band"),
+        ({"eigenfrequency_hz": 0.05}, "out_of_band"),
+        ({"eigenfrequency_sd_hz": 1.3}, "uncertain"),  # a quarter of 5 Hz or more
+        ({"eigenfrequency_sd_hz": float("nan")}, "uncertain"),
+    ],
+)
+def test_what_is_not_an_object_says_why(changes, evidence):
+    verdict = oscillation_verdict(_object(**changes), band_hz=BAND)
+    assert verdict is not None
+    assert verdict.evidence == evidence
+    assert f"{_object(**changes).eigenfrequency_hz:.4g} Hz" in verdict.reason
+
+
+def _ringdown(amplitudes: list[float]) -> Ringdown:
+    times = np.linspace(0.5, 8.0, len(amplitudes))
+    return Ringdown(
+        times_s=times,
+        amplitude=np.asarray(amplitudes, np.float64),
+        frequency_hz=np.full(len(amplitudes), 5.0),
+        spectrogram_hz=np.zeros(1),
+        spectrogram_power=np.zeros((len(amplitudes), 1)),
+    )
+
+
+def test_regimes():
+    obj = _object()
+    assert regime_of(obj, decay=0.8, decay_sd=0.05) == "ring_down"
+    assert regime_of(obj, decay=0.02, decay_sd=0.05) == "steady"  # too little decay to be sure
+    assert regime_of(obj, decay=0.2, decay_sd=0.1) == "steady"  # not three standard deviations clear
+    obj.ringdown = _ringdown([1.0, 1.2, 1.45, 1.7, 2.0, 2.3])
+    assert regime_of(obj, decay=0.0, decay_sd=0.01) == "growing"
+    obj.ringdown = _ringdown([1.0, 1.02, 0.99, 1.01, 1.0, 0.98])
+    assert regime_of(obj, decay=0.0, decay_sd=0.01) == "steady"
+
+
+def test_the_fit_stays_in_the_band():
+    """A strong 32 Hz ring-down and a weak 45 Hz tone in one signal: asked for 40-60 Hz, the fit reports
+    the tone whatever it starts from, never the stronger motion outside the band."""
+    fps = 250.0
+    t = np.arange(251) / fps
+    x = np.exp(-0.5 * t) * np.cos(2 * np.pi * 32 * t) + 0.25 * np.cos(2 * np.pi * 45 * t + 0.4)
+    v = np.diff(x) + np.random.default_rng(0).normal(0, 0.02, 250)
+    for guess in (40.5, 45.0, 59.0):
+        fit = fit_ringdown(v, fps=fps, frequency_guess_hz=guess, band_hz=(40.0, 60.0))
+        assert 40.0 <= fit.frequency_hz <= 60.0
+    fit = fit_ringdown(v, fps=fps, frequency_guess_hz=45.0, band_hz=(40.0, 60.0))
+    assert fit.frequency_hz == pytest.approx(45.0, abs=0.05)
+    with pytest.raises(ValueError, match="band"):
+        fit_ringdown(v, fps=fps, band_hz=(200.0, 300.0))
+
+
+def test_concentration_tells_one_oscillation_from_narrow_band_noise():
+    rng = np.random.default_rng(1)
+    n = 512
+    t = np.arange(n + 1) / FPS
+    steady = np.diff(0.05 * np.sin(2 * np.pi * 7.0 * t)) + rng.normal(0, 0.1, n)
+    fit = fit_ringdown(steady, fps=FPS, frequency_guess_hz=7.0)
+    assert fit.snr_db < 0  # each sample mostly noise ...
+    assert fit.concentration > 0.8  # ... but near 7 Hz one oscillation explains it
+    assert fit.detection_db > 15
+    spectrum = np.fft.rfft(rng.standard_normal(4 * n))
+    freqs = np.fft.rfftfreq(4 * n, 1 / FPS)
+    spectrum[(freqs < 6.0) | (freqs > 8.0)] = 0
+    noise = np.diff(np.fft.irfft(spectrum)[: n + 1])
+    noisy = fit_ringdown(noise / noise.std(), fps=FPS, frequency_guess_hz=7.0)
+    assert noisy.concentration < 0.8
+
+
+def _flow_block(n: int, h: int, w: int) -> np.ndarray:
+    return np.zeros((n, h, w, 2), np.float32)
+
+
+def test_the_camera_is_removed_only_when_the_whole_border_moves():
+    h, w, n = 60, 80, 64
+    ring = CameraRing((h, w), every=1)
+    shake = 0.5 * np.sin(2 * np.pi * 3.0 * np.arange(n) / FPS).astype(np.float32)
+    everything = _flow_block(n, h, w)
+    everything[..., 0] = shake[:, None, None]
+    flat = everything.reshape(n, -1, 2)
+    camera = ring.motions(flat)
+    assert ring.moves_as_whole(flat, camera)
+    # A surface covering the right 55 % of the picture moves; the rest of the border stays put: its
+    # median is the surface's motion, but it is not the camera's.
+    surface = _flow_block(n, h, w)
+    surface[:, :, int(0.45 * w) :, 0] = shake[:, None, None]
+    flat = surface.reshape(n, -1, 2)
+    camera = ring.motions(flat)
+    assert float(np.abs(camera[:, 0]).max()) > 0.4  # the median follows the surface ...
+    assert not ring.moves_as_whole(flat, camera)  # ... and is not taken for the camera
+    assert ring.still_fraction(flat, camera) > 0.3
+
+
+def _evidence(**kw) -> WindowEvidence:
+    n = kw.pop("n", N)
+    freqs = np.fft.rfftfreq(n, 1 / FPS)
+    return WindowEvidence(frequencies_hz=freqs, nfft=n, **kw)
+
+
+def _blocks(n: int, seed: int = 0) -> np.ndarray:
+    """Brightness of 8 x 8 blocks over n + 1 frames: a textured still scene with sensor noise."""
+    rng = np.random.default_rng(seed)
+    level = rng.uniform(60, 200, (8, 8))
+    return (level[None] + rng.normal(0, 0.3, (n + 1, 8, 8))).astype(np.float32)
+
+
+def test_flicker_is_brightness_in_phase_along_rows_also_where_nothing_moves():
+    n = N
+    t = np.arange(n + 1) / FPS
+    base = _blocks(n)
+    flicker = base * (1 + 0.03 * np.sin(2 * np.pi * 10.0 * t))[:, None, None]
+    small = np.zeros((8, 8))
+    small[2:4, 2:4] = 1.0  # the region covers 4 of 64 blocks
+    why = _evidence(brightness=flicker.astype(np.float32)).flicker(10.0, 1.0, small)
+    assert why is not None
+    assert "illumination flicker" in why
+    assert "static background" in why
+    # A textured object moving at 10 Hz changes its blocks' brightness with signs set by its texture.
+    rng = np.random.default_rng(2)
+    moving = base.copy()
+    signs = rng.choice([-1.0, 1.0], (2, 2)) * rng.uniform(0.5, 3.0, (2, 2))
+    moving[:, 2:4, 2:4] += (np.sin(2 * np.pi * 10.0 * t)[:, None, None] * signs[None]).astype(np.float32)
+    assert _evidence(brightness=moving).flicker(10.0, 1.0, small) is None
+
+
+def test_keyframe_pulses_are_whole_picture_changes_at_a_period():
+    n = N
+    rng = np.random.default_rng(3)
+    change = rng.uniform(0.9, 1.1, (n, 8, 8)).astype(np.float32)
+    change[9::10] += 5.0  # every 10th frame the whole picture jumps
+    evidence = _evidence(frame_change=change)
+    assert evidence.keyframe_period() == 10
+    assert evidence.keyframes(6.0, 1.0, FPS) is not None  # 2 x 3 Hz
+    assert evidence.keyframes(5.0, 1.0, FPS) is None  # between the comb's teeth
+    # A fast vibration makes the change pulse where it moves, not everywhere.
+    local = rng.uniform(0.9, 1.1, (n, 8, 8)).astype(np.float32)
+    local[9::10, :2, :2] += 5.0
+    assert _evidence(frame_change=local).keyframe_period() is None
+
+
+def test_the_camera_evidence_needs_the_region_to_move_no_more_than_the_border():
+    n = N
+    t = np.arange(n) / FPS
+    border = np.zeros((n, 2), np.float32)
+    border[:, 0] = 0.4 * np.sin(2 * np.pi * 8.0 * t)
+    evidence = _evidence(border_px=border, camera_removed=True)
+    camera_power = float((np.abs(np.fft.rfft(border[:, 0] - border[:, 0].mean())) ** 2).max())
+    assert evidence.camera(8.0, 1.0, region_power=0.01 * camera_power, ring_power=None, fps=FPS)
+    assert evidence.camera(8.0, 1.0, region_power=5.0 * camera_power, ring_power=None, fps=FPS) is None
+    assert evidence.camera(5.0, 1.0, region_power=0.01 * camera_power, ring_power=None, fps=FPS) is None
+
+
+def test_a_second_motion_in_a_region_is_measured():
+    """Two patches of one region ring at 10.0 and 10.6 Hz (unresolved in 64 samples): rank two near the
+    peak. One object whose two halves move in anti-phase (a fork's tines): rank one."""
+    n, h, w = 64, 8, 16
+    t = np.arange(n) / FPS
+    flow = np.zeros((n, h, w, 2), np.float32)
+    flow[:, :, :8, 0] = np.sin(2 * np.pi * 10.0 * t)[:, None, None]
+    flow[:, :, 8:, 0] = 0.6 * np.sin(2 * np.pi * 10.6 * t + 1.0)[:, None, None]
+    flow += np.random.default_rng(4).normal(0, 0.01, flow.shape).astype(np.float32)
+    mask = np.ones((h, w), bool)
+    assert second_motion(flow, mask, frequency_hz=10.0, fps=FPS) > 0.2
+    tines = np.zeros((n, h, w, 2), np.float32)
+    tines[:, :, :8, 0] = np.sin(2 * np.pi * 10.0 * t)[:, None, None]
+    tines[:, :, 8:, 0] = -np.sin(2 * np.pi * 10.0 * t)[:, None, None]
+    tines += np.random.default_rng(5).normal(0, 0.01, tines.shape).astype(np.float32)
+    assert second_motion(tines, mask, frequency_hz=10.0, fps=FPS) < 0.05
+
+
+def test_a_region_is_followed_through_the_flow():
+    """A blob swinging 12 px in a flow field that moves it exactly: its path is recovered, while the
+    flow at its starting pixels sees it only while it is there."""
+    n, h, w = 60, 40, 80
+    truth_x = 12.0 * np.sin(2 * np.pi * np.arange(n + 1) / 30.0)
+    flow = np.zeros((n, h, w, 2), np.float32)
+    for k in range(n):
+        x0 = 40 + truth_x[k]
+        cols = np.arange(w)
+        inside = np.abs(cols - x0) <= 6
+        flow[k, 15:25, inside, 0] = truth_x[k + 1] - truth_x[k]
+    seed = np.zeros((h, w), bool)
+    seed[17:23, 37:43] = True
+    path = follow_region(flow, seed, ref_index=0)
+    assert path.shape == (n + 1, 2)
+    assert np.abs(path[:, 0] - (truth_x - truth_x[0])).max() < 1.0
+    assert math.isclose(float(np.abs(path[:, 1]).max()), 0.0, abs_tol=1e-3)
