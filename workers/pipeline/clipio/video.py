@@ -339,7 +339,18 @@ class VideoClip(ClosingReader):
             container_fps=declared,
             size_bytes=self.path.stat().st_size,
             depth_source=self._depth.label if self._depth is not None else None,
-            notes=(f"layout: {layout}", *timing.notes),
+            notes=(
+                f"layout: {layout}",
+                *timing.notes,
+                *(
+                    (
+                        f"the file name says {hint:g} fps: if the clip was filmed at that rate, "
+                        f"give --fps {hint:g}",
+                    )
+                    if hint is not None and declared is not None and abs(hint / declared - 1) > 0.05
+                    else ()
+                ),
+            ),
             capture_fps_hint=hint,
             capture_fps_hint_source="the file name" if hint is not None else None,
         )
