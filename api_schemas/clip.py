@@ -42,3 +42,12 @@ class ClipInfoModel(BaseModel):
     filename: str | None = Field(default=None, description="Name of the uploaded file.")
     size_bytes: int
     created_at: datetime
+
+
+class ClipList(BaseModel):
+    """A page of clips, newest first."""
+
+    model_config = ConfigDict(title="ClipList")
+
+    items: list[ClipInfoModel]
+    next_cursor: str | None = None

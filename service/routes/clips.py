@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Request, Response
+from fastapi import APIRouter, Header, Path, Query, Request, Response
 from starlette.concurrency import run_in_threadpool
 
-from api_schemas import ClipInfoModel
+from api_schemas import ClipInfoModel, ClipList
 from service import clips
 from service.deps import ContextDep, TenantDep
 from service.openapi import UPLOAD_REQUEST_BODY, problem_responses
@@ -25,20 +25,62 @@ ClipId = Annotated[str, Path(min_length=1, max_length=64, description="Clip id f
     description=(
         "Upload a clip as multipart/form-data, field `file`. The body is streamed to storage and the clip is "
         "validated before the response: 413 over the size cap, 415 for a format Eigenscope does not read, "
-        "422 with the reader's message for a malformed clip."
+        "422 with the reader's message for a malformed clip. With an `Idempotency-Key` header a retried "
+        "upload of the same content returns the same clip (`Idempotent-Replayed: true`); the key reused for "
+        "other content is a 422."
     ),
     responses={
         **problem_responses(401, 413, 415, 422, 429, 503, 507),
-        201: {"headers": {"Location": {"description": "URL of the clip", "schema": {"type": "string"}}}},
+        201: {
+            "headers": {
+                "Location": {"description": "URL of the clip", "schema": {"type": "string"}},
+                "Idempotent-Replayed": {
+                    "description": "`true` when the clip was uploaded before with this Idempotency-Key",
+                    "schema": {"type": "string"},
+                },
+            }
+        },
     },
     openapi_extra=UPLOAD_REQUEST_BODY,
 )
 async def create_clip(
-    request: Request, response: Response, ctx: ContextDep, tenant: TenantDep
+    request: Request,
+    response: Response,
+    ctx: ContextDep,
+    tenant: TenantDep,
+    idempotency_key: Annotated[
+        str | None,
+        Header(
+            alias="Idempotency-Key",
+            min_length=1,
+            max_length=255,
+            description="Client-chosen key that makes retries of this upload safe.",
+        ),
+    ] = None,
 ) -> ClipInfoModel:
-    clip = await clips.upload_clip(ctx, request, tenant)
+    clip, created = await clips.upload_clip(ctx, request, tenant, idempotency_key=idempotency_key)
     response.headers["Location"] = f"{request.scope.get('root_path', '')}/v1/clips/{clip.id}"
+    if not created:
+        response.headers["Idempotent-Replayed"] = "true"
     return clip
+
+
+@router.get(
+    "",
+    name="list_clips",
+    summary="List clips, newest first",
+    responses=problem_responses(401, 422, 503),
+)
+def list_clips(
+    ctx: ContextDep,
+    tenant: TenantDep,
+    limit: Annotated[int, Query(ge=1, le=100, description="Page size.")] = 20,
+    cursor: Annotated[
+        str | None, Query(max_length=256, description="`next_cursor` of the previous page.")
+    ] = None,
+) -> ClipList:
+    records, next_cursor = ctx.store.list_clips(limit=limit, cursor=cursor, owner=tenant)
+    return ClipList(items=[clips.clip_view(c) for c in records], next_cursor=next_cursor)
 
 
 @router.get(

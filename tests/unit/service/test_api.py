@@ -9,26 +9,9 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
 from service.settings import Settings
-
-
-class RecordingQueue:
-    def __init__(self) -> None:
-        self.published: list[str] = []
-        self.fail = False
-
-    def publish(self, job_id: str) -> None:
-        if self.fail:
-            raise ConnectionError("broker down")
-        self.published.append(job_id)
-
-    def ping(self) -> None:
-        if self.fail:
-            raise ConnectionError("broker down")
-
-    def close(self) -> None:
-        pass
+from tests.unit.service.helpers import RecordingQueue, make_client
+from tests.unit.service.helpers import upload as upload_response
 
 
 @pytest.fixture
@@ -38,15 +21,12 @@ def queue() -> RecordingQueue:
 
 @pytest.fixture
 def client(settings: Settings, queue: RecordingQueue) -> Iterator[TestClient]:
-    app = create_app(settings)
-    app.state.ctx.queue = queue
-    with TestClient(app) as c:
+    with make_client(settings, queue) as c:
         yield c
 
 
 def upload(client: TestClient, path: Path) -> dict:
-    with path.open("rb") as fh:
-        response = client.post("/v1/clips", files={"file": (path.name, fh)})
+    response = upload_response(client, path)
     assert response.status_code == 201, response.text
     return response.json()
 
