@@ -43,6 +43,7 @@ def run_job(self: Task, job_id: str) -> str:
         soft_time_limit_s=ctx.settings.task_soft_time_limit_s,
         timeout_errors=(SoftTimeLimitExceeded,),
         test_hooks=ctx.settings.test_hooks,
+        observer=ctx.metrics,
     )
     if outcome.retry_in_s is not None:
         try:

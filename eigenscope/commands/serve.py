@@ -5,16 +5,19 @@ job store in the data directory. With it set, ``eigenscope serve --no-worker`` r
 ``eigenscope worker`` processes run anywhere that shares the data directory and the database.
 
 The command supervises its children (uvicorn, a Celery worker): a worker that dies is restarted, and
-SIGINT/SIGTERM stop them all.
+SIGINT/SIGTERM stop them all. The children share one Prometheus multiprocess directory, so ``/metrics`` of
+any API process (``--api-workers N``) counts every request and every job of the service.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -174,8 +177,18 @@ def run(args: argparse.Namespace) -> int:
     if settings.embedded:
         broker_options(settings)
 
-    env = {**os.environ, **settings.child_environment()}
+    metrics_dir = tempfile.mkdtemp(prefix="eigenscope-metrics-")
+    try:
+        return _supervise(args, settings, metrics_dir)
+    finally:
+        shutil.rmtree(metrics_dir, ignore_errors=True)
+
+
+def _supervise(args: argparse.Namespace, settings: Settings, metrics_dir: str) -> int:
+    env = {**os.environ, **settings.child_environment(), "PROMETHEUS_MULTIPROC_DIR": metrics_dir}
     level = settings.log_level.lower()
+    # Uvicorn's own lines (its banner-like start-up notes) only when debugging; the app logs at `level`.
+    server_level = "debug" if level == "debug" else "warning"
     supervisor = Supervisor(env, grace_s=args.grace)
     signal.signal(signal.SIGTERM, supervisor.request_stop)
     signal.signal(signal.SIGINT, supervisor.request_stop)
@@ -190,7 +203,8 @@ def run(args: argparse.Namespace) -> int:
         "--port",
         str(args.port),
         "--log-level",
-        level,
+        server_level,
+        "--no-access-log",
         "--timeout-graceful-shutdown",
         str(max(int(args.grace) - 2, 1)),
     ]
