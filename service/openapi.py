@@ -5,7 +5,7 @@ FastAPI documents error models under ``application/json`` and adds its own ``HTT
 :func:`finalize_openapi` rewrites every 4xx/5xx response to ``application/problem+json`` with the
 ``Problem`` schema, so generated clients parse errors into one type. It also:
 
-- makes the bearer key optional (``security: [{}, {"ApiKey": []}]``) on the ``/v1`` routes, since a server
+- makes the bearer key optional for the whole document (``security: [{}, {"ApiKey": []}]``), since a server
   may run open, and sets ``security: []`` on the health and metrics routes, so generated clients need no
   key where none is asked for;
 - sets ``servers`` (the server the document is fetched from), the licence and a contact;
@@ -92,14 +92,17 @@ def finalize_openapi(spec: dict[str, Any]) -> dict[str, Any]:
 
 
 def _security(spec: dict[str, Any]) -> None:
+    """The optional key once for the document; the public routes ask for none. (Per-operation requirements
+    would make generators such as openapi-python-client demand an authenticated client for each call.)"""
+    spec["security"] = OPTIONAL_KEY
     for path, item in spec.get("paths", {}).items():
         for operation in item.values():
             if not isinstance(operation, dict):
                 continue
             if path in PUBLIC_PATHS:
                 operation["security"] = []
-            elif operation.get("security"):
-                operation["security"] = OPTIONAL_KEY
+            else:
+                operation.pop("security", None)
 
 
 def _refs(node: Any) -> set[str]:

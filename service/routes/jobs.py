@@ -219,10 +219,12 @@ def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantD
             "description": "The file, with its media type (`image/png` for images, `application/json` "
             "for `result.json`).",
             "headers": {"ETag": ETAG_HEADER},
+            # Listed as files (binary) whatever their type, the images first: generated clients then
+            # return the bytes of any artifact rather than parse result.json as a model.
             "content": {
                 "image/png": {"schema": {"type": "string", "format": "binary"}},
-                "application/json": {"schema": {"$ref": "#/components/schemas/AnalysisResult"}},
                 "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+                "application/json": {"schema": {"type": "string", "format": "binary"}},
             },
         },
         304: {
