@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Request, Security
+from fastapi import Depends, Header, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.context import ServiceContext
@@ -62,3 +62,14 @@ StoreDep = Annotated[Store, Depends(get_store)]
 StorageDep = Annotated[Storage, Depends(get_storage)]
 #: The caller's tenant id ("" when the service runs without keys).
 TenantDep = Annotated[str, Depends(get_tenant)]
+
+#: The ``Idempotency-Key`` header that makes a retried POST safe (None when not sent).
+IdempotencyKey = Annotated[
+    str | None,
+    Header(
+        alias="Idempotency-Key",
+        min_length=1,
+        max_length=255,
+        description="Client-chosen key that makes retries of this request safe.",
+    ),
+]

@@ -21,12 +21,12 @@ import secrets
 import socket
 import time
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from enum import Enum
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 from sqlalchemy import (
     JSON,
@@ -340,6 +340,24 @@ def _decode_clip_cursor(cursor: str) -> tuple[datetime, str]:
         ) from None
 
 
+_R = TypeVar("_R")
+
+
+def _winner_of_race(
+    exc: IntegrityError,
+    key: str | None,
+    lookup: Callable[[str, str | None, str], _R | None],
+    digest: str | None,
+    owner: str,
+) -> _R:
+    """What an insert that broke a unique constraint lost to: the record already made with the same
+    idempotency key (``lookup`` checks it was for the same request); else ``exc`` again."""
+    existing = lookup(key, digest, owner) if key is not None else None
+    if existing is None:
+        raise exc
+    return existing
+
+
 def _ended(values: dict[str, Any], now: float) -> dict[str, Any]:
     """``values`` of a move to a terminal status, plus: a job with a callback URL has its callback due."""
     has_callback = JobRow.callback_url.is_not(None)
@@ -539,13 +557,10 @@ class Store:
                     if used + size_bytes > max_stored_bytes:
                         raise storage_quota_error(used, size_bytes, max_stored_bytes, retry_after_s)
                 s.add(row)
-        except IntegrityError:
-            if idempotency_key is None:
-                raise
-            existing = self.clip_by_idempotency_key(idempotency_key, content_sha256, owner)
-            if existing is None:
-                raise
-            return existing, False
+        except IntegrityError as exc:
+            # Lost a race with a request carrying the same key: its clip, if it is the same content.
+            found = _winner_of_race(exc, idempotency_key, self.clip_by_idempotency_key, content_sha256, owner)
+            return found, False
         return ClipRecord.of(row), True
 
     def clip_by_idempotency_key(
@@ -686,14 +701,11 @@ class Store:
                             limit=max_active_jobs,
                         )
                 s.add(row)
-        except IntegrityError:
-            if idempotency_key is None:
-                raise
+        except IntegrityError as exc:
             # Lost a race with a request carrying the same key.
-            existing = self.job_by_idempotency_key(idempotency_key, request_hash, owner)
-            if existing is None:
-                raise
-            return existing, False
+            return _winner_of_race(
+                exc, idempotency_key, self.job_by_idempotency_key, request_hash, owner
+            ), False
         return JobRecord.of(row), True
 
     def job_by_idempotency_key(self, key: str, request_hash: str | None, owner: str = "") -> JobRecord | None:

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Header, Path, Query, Request, Response
+from fastapi import APIRouter, Path, Query, Request, Response
 from starlette.concurrency import run_in_threadpool
 
 from api_schemas import ClipInfoModel, ClipList
 from service import clips
-from service.deps import ContextDep, TenantDep
+from service.deps import ContextDep, IdempotencyKey, TenantDep
 from service.openapi import UPLOAD_REQUEST_BODY, problem_responses
 
 router = APIRouter(prefix="/v1/clips", tags=["clips"])
@@ -48,15 +48,7 @@ async def create_clip(
     response: Response,
     ctx: ContextDep,
     tenant: TenantDep,
-    idempotency_key: Annotated[
-        str | None,
-        Header(
-            alias="Idempotency-Key",
-            min_length=1,
-            max_length=255,
-            description="Client-chosen key that makes retries of this upload safe.",
-        ),
-    ] = None,
+    idempotency_key: IdempotencyKey = None,
 ) -> ClipInfoModel:
     clip, created = await clips.upload_clip(ctx, request, tenant, idempotency_key=idempotency_key)
     response.headers["Location"] = f"{request.scope.get('root_path', '')}/v1/clips/{clip.id}"

@@ -13,7 +13,7 @@ from starlette.concurrency import run_in_threadpool
 
 from api_schemas import JobCreate, JobList, JobModel, JobStatus
 from service import jobs
-from service.deps import ContextDep, TenantDep
+from service.deps import ContextDep, IdempotencyKey, TenantDep
 from service.openapi import ETAG_HEADER, problem_responses
 from service.store import TERMINAL
 
@@ -65,15 +65,7 @@ def create_job(
     response: Response,
     ctx: ContextDep,
     tenant: TenantDep,
-    idempotency_key: Annotated[
-        str | None,
-        Header(
-            alias="Idempotency-Key",
-            min_length=1,
-            max_length=255,
-            description="Client-chosen key that makes retries of this request safe.",
-        ),
-    ] = None,
+    idempotency_key: IdempotencyKey = None,
 ) -> JobModel:
     job, created = jobs.create_job(ctx, body, tenant=tenant, idempotency_key=idempotency_key)
     response.headers["Location"] = f"{_root(request)}/v1/jobs/{job.id}"

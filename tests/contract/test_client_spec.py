@@ -12,6 +12,8 @@ from typing import Any
 import eigenscope_client as ec
 import pytest
 
+from tests.unit.service.helpers import RESULT
+
 SPEC = json.loads((Path(__file__).resolve().parents[2] / "openapi" / "openapi.json").read_text())
 SCHEMAS: dict[str, Any] = SPEC["components"]["schemas"]
 
@@ -76,7 +78,7 @@ def test_a_server_document_reads_back_whole() -> None:
             "finished_at": "2026-01-01T00:00:02Z",
             "callback": {"url": "https://robot.lab/x", "status": "delivered", "attempts": 1},
             "result": {
-                "eigenfrequency_hz": 4.0,
+                **RESULT,
                 "objects": [
                     {
                         "id": 1,
@@ -88,15 +90,7 @@ def test_a_server_document_reads_back_whole() -> None:
                         "ringdown": {"times_s": [0.1], "amplitude_px": [2.0], "frequency_hz": [4.0]},
                     }
                 ],
-                "spectrum": {"frequencies_hz": [1.0], "power": [2.0]},
                 "quality": [{"code": "low_snr", "message": "m"}],
-                "method": "default",
-                "parameters": {},
-                "fps": 30.0,
-                "fps_source": "bundle",
-                "frames_used": [0, 64],
-                "frame_size_px": [160, 120],
-                "version": "0.1.0",
             },
         }
     ).model_dump(mode="json")

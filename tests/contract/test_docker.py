@@ -93,7 +93,9 @@ def _exposed_metric_names(tmp_path: Path) -> set[str]:
     for line in text.splitlines():
         if line.startswith("# TYPE "):
             _, _, name, kind = line.split()
-            suffixes = {"histogram": ("_bucket", "_count", "_sum"), "counter": ("", "_total")}.get(kind, ("",))
+            suffixes = {"histogram": ("_bucket", "_count", "_sum"), "counter": ("", "_total")}.get(
+                kind, ("",)
+            )
             names |= {name.removesuffix("_total") + suffix for suffix in suffixes}
             names.add(name)
     return names

@@ -8,9 +8,7 @@ import asyncio
 import base64
 import hashlib
 import hmac
-import http.server
 import json
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -33,52 +31,19 @@ from eigenscope_client import (
     UnsupportedMediaTypeError,
 )
 
+from tests.webhook_receiver import Receiver
+
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(300)]
 
 KEY = "client-test-key-0123456789"
 SECRET = "webhook-secret-0123456789"
 
 
-class Receiver:
-    """A webhook receiver on 127.0.0.1: answers 500 to the first delivery of each event, then 204."""
-
-    def __init__(self) -> None:
-        self.deliveries: list[tuple[dict[str, str], bytes]] = []
-        self.lock = threading.Lock()
-        receiver = self
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                body = self.rfile.read(int(self.headers.get("content-length", "0")))
-                headers = {k.lower(): v for k, v in self.headers.items()}
-                with receiver.lock:
-                    receiver.deliveries.append((headers, body))
-                    first = (
-                        sum(1 for d, _ in receiver.deliveries if d["webhook-id"] == headers["webhook-id"])
-                        == 1
-                    )
-                self.send_response(500 if first else 204)
-                self.send_header("content-length", "0")
-                self.end_headers()
-
-            def log_message(self, *args: Any) -> None:
-                pass
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.port = int(self.server.server_address[1])
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def of(self, job_id: str) -> list[tuple[dict[str, str], bytes]]:
-        with self.lock:
-            return [d for d in self.deliveries if d[0]["webhook-id"].startswith(job_id)]
-
-
 @pytest.fixture(scope="module")
 def receiver() -> Iterator[Receiver]:
-    r = Receiver()
+    r = Receiver.failing_first()
     yield r
-    r.server.shutdown()
-    r.server.server_close()
+    r.close()
 
 
 @pytest.fixture(scope="module")

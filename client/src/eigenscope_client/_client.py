@@ -57,17 +57,6 @@ OPERATIONS = {
     "readyz": "ready",
     "metrics": "metrics",
 }
-#: Image keys of ``result.artifacts`` -> file names, for :meth:`Client.download_artifact` by key.
-ARTIFACT_FILES = {
-    "mask": "mask.png",
-    "overlay": "overlay.png",
-    "frequency_map": "frequency_map.png",
-    "spectrum": "spectrum.png",
-    "displacement": "displacement.png",
-    "ringdown": "ringdown.png",
-    "result": "result.json",
-}
-
 JobProgress = Callable[[Job], None]
 
 
@@ -101,7 +90,8 @@ def _artifact_path(job: Job | str, name: str) -> str:
         if url is not None and "/v1/" in url:
             return url[url.index("/v1/") :]
     job_id = job.id if isinstance(job, Job) else job
-    filename = ARTIFACT_FILES.get(name, name)
+    # A key names its file: ``result`` is result.json, the images are PNGs.
+    filename = name if "." in name else ("result.json" if name == "result" else f"{name}.png")
     return f"/v1/jobs/{job_id}/artifacts/{filename}"
 
 
@@ -254,20 +244,66 @@ class _Protocol:
         doc = response.json()
         return Page([item(x) for x in doc.get("items", [])], doc.get("next_cursor"))
 
-    @staticmethod
-    def _next_wait(job: Job, deadline: float | None, poll_s: float) -> float:
-        if deadline is None:
-            return poll_s
-        left = deadline - time.monotonic()
-        if left <= 0:
-            raise WaitTimeoutError(f"job {job.id} still {job.status} when the wait ran out", job)
-        return min(poll_s, left)
 
-    @staticmethod
-    def _answered_early(started: float, asked_s: float, before: Job, after: Job) -> bool:
-        """A long-poll came back unchanged and unfinished well before its wait: a server that does not
-        long-poll. The caller then sleeps for Retry-After rather than ask again at once."""
-        return not after.done and after.etag == before.etag and time.monotonic() - started < asked_s / 2
+@dataclass
+class _Waiter:
+    """The long-poll loop of ``wait``, shared by both clients: the next request, and what its answer means."""
+
+    protocol: _Protocol
+    current: Job
+    deadline: float | None
+    poll_s: float
+    on_progress: JobProgress | None
+    asked_s: float = 0.0
+    started: float = 0.0
+
+    @classmethod
+    def begin(
+        cls,
+        protocol: _Protocol,
+        job: Job,
+        timeout: float | None,
+        poll_s: float,
+        on_progress: JobProgress | None,
+    ) -> _Waiter:
+        if on_progress is not None:
+            on_progress(job)
+        deadline = None if timeout is None else time.monotonic() + timeout
+        return cls(protocol, job, deadline, poll_s, on_progress)
+
+    def next_call(self) -> _Call:
+        """The next long-poll (``If-None-Match`` when progress is followed, so any change answers)."""
+        self.asked_s = self.poll_s
+        if self.deadline is not None:
+            left = self.deadline - time.monotonic()
+            if left <= 0:
+                raise WaitTimeoutError(
+                    f"job {self.current.id} still {self.current.status} when the wait ran out", self.current
+                )
+            self.asked_s = min(self.poll_s, left)
+        self.started = time.monotonic()
+        etag = self.current.etag if self.on_progress is not None else None
+        return self.protocol._get_job_call(self.current.id, wait=self.asked_s, etag=etag)
+
+    def take(self, response: httpx.Response) -> float:
+        """Read a long-poll's answer; returns the seconds to pause before the next one.
+
+        An answer that came back unchanged and unfinished well before its wait is from a server that does
+        not long-poll: the pause is then its Retry-After, rather than asking again at once.
+        """
+        if response.status_code == 304:
+            return 0.0
+        latest = _Protocol._job(response)
+        early = time.monotonic() - self.started < self.asked_s / 2
+        pause = (
+            (_retry_after(response) or 1.0)
+            if early and not latest.done and latest.etag == self.current.etag
+            else 0.0
+        )
+        if self.on_progress is not None and latest.etag != self.current.etag:
+            self.on_progress(latest)
+        self.current = latest
+        return pause
 
 
 class Client(_Protocol):
@@ -418,24 +454,13 @@ class Client(_Protocol):
         Raises :class:`WaitTimeoutError` when ``timeout`` seconds pass first. The job is returned whatever its
         end: call :meth:`Job.raise_for_status` to turn a failure into an exception.
         """
-        deadline = None if timeout is None else time.monotonic() + timeout
-        current = self.get_job(job if isinstance(job, str) else job.id)
-        if on_progress is not None:
-            on_progress(current)
-        while not current.done:
-            asked = self._next_wait(current, deadline, poll_s)
-            started = time.monotonic()
-            etag = current.etag if on_progress is not None else None
-            response = self._send(self._get_job_call(current.id, wait=asked, etag=etag))
-            if response.status_code == 304:
-                continue
-            latest = self._job(response)
-            if self._answered_early(started, asked, current, latest):
-                time.sleep(_retry_after(response) or 1.0)
-            if on_progress is not None and latest.etag != current.etag:
-                on_progress(latest)
-            current = latest
-        return current
+        first = self.get_job(job if isinstance(job, str) else job.id)
+        waiter = _Waiter.begin(self, first, timeout, poll_s, on_progress)
+        while not waiter.current.done:
+            pause = waiter.take(self._send(waiter.next_call()))
+            if pause:
+                time.sleep(pause)
+        return waiter.current
 
     def list_jobs(
         self,
@@ -636,24 +661,13 @@ class AsyncClient(_Protocol):
     ) -> Job:
         import anyio
 
-        deadline = None if timeout is None else time.monotonic() + timeout
-        current = await self.get_job(job if isinstance(job, str) else job.id)
-        if on_progress is not None:
-            on_progress(current)
-        while not current.done:
-            asked = self._next_wait(current, deadline, poll_s)
-            started = time.monotonic()
-            etag = current.etag if on_progress is not None else None
-            response = await self._send(self._get_job_call(current.id, wait=asked, etag=etag))
-            if response.status_code == 304:
-                continue
-            latest = self._job(response)
-            if self._answered_early(started, asked, current, latest):
-                await anyio.sleep(_retry_after(response) or 1.0)
-            if on_progress is not None and latest.etag != current.etag:
-                on_progress(latest)
-            current = latest
-        return current
+        first = await self.get_job(job if isinstance(job, str) else job.id)
+        waiter = _Waiter.begin(self, first, timeout, poll_s, on_progress)
+        while not waiter.current.done:
+            pause = waiter.take(await self._send(waiter.next_call()))
+            if pause:
+                await anyio.sleep(pause)
+        return waiter.current
 
     async def list_jobs(
         self,

@@ -3,13 +3,10 @@ receiver on this machine."""
 
 from __future__ import annotations
 
-import http.server
 import json
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import httpx
 import pytest
@@ -17,6 +14,7 @@ import pytest
 from service.settings import Settings
 from service.store import Store
 from service.webhooks import Dispatcher, allowed, retry_delay, sign, verify
+from tests.webhook_receiver import Receiver
 
 SECRET = "whsec_MfKQ9r8GKYqrTwjUPD8ILPZIo2LaLaSw"
 
@@ -72,39 +70,9 @@ def test_retry_delay_doubles_up_to_the_cap_and_honours_retry_after(tmp_path: Pat
     assert retry_delay(1, settings, "999") == 20
 
 
-class Receiver:
-    """An HTTP server on 127.0.0.1 that records deliveries and answers with the next planned status."""
-
-    def __init__(self, statuses: list[int]) -> None:
-        self.statuses = statuses
-        self.received: list[tuple[dict[str, str], bytes]] = []
-        receiver = self
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                body = self.rfile.read(int(self.headers.get("content-length", "0")))
-                receiver.received.append(({k.lower(): v for k, v in self.headers.items()}, body))
-                status = receiver.statuses.pop(0) if receiver.statuses else 204
-                self.send_response(status)
-                self.send_header("content-length", "0")
-                self.end_headers()
-
-            def log_message(self, *args: Any) -> None:
-                pass
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.port = int(self.server.server_address[1])
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-
 @pytest.fixture
 def receiver() -> Iterator[Receiver]:
-    r = Receiver([500, 503])
+    r = Receiver.scripted([500, 503])
     yield r
     r.close()
 
@@ -139,9 +107,9 @@ def test_dispatcher_retries_until_delivered_and_signs_each_try(
                 break
             time.sleep(0.06)
     assert outcomes == [False, False, True]  # 500, 503, then 204
-    assert len(receiver.received) == 3
+    assert len(receiver.deliveries) == 3
     ids = set()
-    for headers, body in receiver.received:
+    for headers, body in receiver.deliveries:
         assert verify(SECRET, headers, body)
         ids.add(headers["webhook-id"])
         doc = json.loads(body)
@@ -154,7 +122,7 @@ def test_dispatcher_retries_until_delivered_and_signs_each_try(
 
 
 def test_dispatcher_gives_up_after_max_attempts(store: Store, tmp_path: Path) -> None:
-    receiver = Receiver([500] * 10)
+    receiver = Receiver.scripted([500] * 10)
     try:
         settings = Settings(
             data_dir=tmp_path / "data",
@@ -180,7 +148,7 @@ def test_dispatcher_gives_up_after_max_attempts(store: Store, tmp_path: Path) ->
         2,
         "HTTP 500",
     )
-    assert len(receiver.received) == 2
+    assert len(receiver.deliveries) == 2
 
 
 def test_a_host_removed_from_the_allow_list_gets_nothing(
@@ -192,7 +160,7 @@ def test_a_host_removed_from_the_allow_list_gets_nothing(
     with httpx.Client() as client:
         (job,) = store.claim_due_callbacks(limit=5, lease_s=30)
         assert not dispatcher.deliver(client, job)
-    assert receiver.received == []
+    assert receiver.deliveries == []
     assert store.get_job(job_id).callback_status == "failed"
 
 

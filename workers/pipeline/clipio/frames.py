@@ -22,6 +22,7 @@ import json
 import math
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,8 +57,8 @@ _HEADER_BYTES = 64 * 1024
 _CAMERA_FIELDS = ("fps", "fx", "fy", "cx", "cy", "depth_scale")
 
 
-def read_camera_json(archive: Archive, name: str, fmt: str) -> dict[str, float]:
-    """Parse ``camera.json``: a JSON object of the numeric fields ``fps fx fy cx cy depth_scale``."""
+def read_json_object(archive: Archive, name: str, fmt: str, *, fields: str = "") -> dict[str, Any]:
+    """Parse a small JSON file of the clip that must hold one object (``fields`` names them in errors)."""
     raw = archive.read(name, max_bytes=1 << 20)
     try:
         data = json.loads(raw.decode("utf-8"))
@@ -66,7 +67,13 @@ def read_camera_json(archive: Archive, name: str, fmt: str) -> dict[str, float]:
             f"{fmt}: {name} is not valid JSON ({exc}); fix it or give the values as flags"
         ) from exc
     if not isinstance(data, dict):
-        raise ClipError(f"{fmt}: {name} must be a JSON object with fields {', '.join(_CAMERA_FIELDS)}")
+        raise ClipError(f"{fmt}: {name} must be a JSON object" + (f" with fields {fields}" if fields else ""))
+    return data
+
+
+def read_camera_json(archive: Archive, name: str, fmt: str) -> dict[str, float]:
+    """Parse ``camera.json``: a JSON object of the numeric fields ``fps fx fy cx cy depth_scale``."""
+    data = read_json_object(archive, name, fmt, fields=", ".join(_CAMERA_FIELDS))
     out: dict[str, float] = {}
     for key in _CAMERA_FIELDS:
         if key not in data or data[key] is None:

@@ -37,6 +37,7 @@ from workers.pipeline.clipio._common import (
     associate_nearest,
     check_frames,
     check_size,
+    frame_window,
     pairing_tolerance,
     resolve_timing,
 )
@@ -574,12 +575,7 @@ class K4aClip(ClosingReader):
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
         """Yield frames ``start <= index < stop``; see :class:`~workers.pipeline.clipio.types.Frame`."""
-        info = self._info
-        stop = info.frames if stop is None else min(stop, info.frames)
-        if not 0 <= start <= stop:
-            raise ClipError(
-                f"{FORMAT}: frame range [{start}, {stop}) is outside the clip's {info.frames} frames"
-            )
+        stop = frame_window(FORMAT, start, stop, self._info.frames)
         if start == stop:
             return
         wanted = {p: i for i, p in enumerate(self._color_pts) if start <= i < stop}

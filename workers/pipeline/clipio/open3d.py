@@ -19,7 +19,6 @@ streamed one at a time by :class:`~workers.pipeline.clipio.frames.FramesClip`.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -32,7 +31,7 @@ from workers.pipeline.clipio._common import (
     natural_key,
     resolve_timing,
 )
-from workers.pipeline.clipio.frames import COLOR_EXTS, FramesClip, _size_of
+from workers.pipeline.clipio.frames import COLOR_EXTS, FramesClip, _size_of, read_json_object
 from workers.pipeline.clipio.types import ClipInfo, ClipOverrides, Intrinsics, ReadLimits
 from workers.pipeline.errors import ClipError
 
@@ -46,19 +45,6 @@ _HEADER_BYTES = 64 * 1024
 def is_open3d_layout(relative_names: list[str]) -> bool:
     """True when names (relative to the dataset's root) hold Open3D's ``color/`` frames."""
     return any(n.startswith("color/") and n.lower().endswith(COLOR_EXTS) for n in relative_names)
-
-
-def _json_object(archive: Archive, name: str) -> dict[str, Any]:
-    raw = archive.read(name, max_bytes=1 << 20)
-    try:
-        data = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise ClipError(
-            f"{FORMAT}: {name} is not valid JSON ({exc}); fix it or give the values as flags"
-        ) from exc
-    if not isinstance(data, dict):
-        raise ClipError(f"{FORMAT}: {name} must hold a JSON object")
-    return data
 
 
 def _number(data: dict[str, Any], key: str, name: str) -> float | None:
@@ -156,12 +142,14 @@ class Open3dClip(FramesClip):
         intrinsics: Intrinsics | None = None
         for name in INTRINSIC_FILES:
             if name in rel:
-                intrinsics = read_intrinsic(_json_object(self._archive, rel[name]), name, width, height)
+                intrinsics = read_intrinsic(
+                    read_json_object(self._archive, rel[name], FORMAT), name, width, height
+                )
                 streams.append(name)
                 break
         config: dict[str, Any] = {}
         if "config.json" in rel:
-            config = _json_object(self._archive, rel["config.json"])
+            config = read_json_object(self._archive, rel["config.json"], FORMAT)
             streams.append("config.json")
         file_fps = _number(config, "fps", "config.json")
         if file_fps is not None and file_fps <= 0:
