@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from workers.pipeline.analysis import Analysis
+    from workers.pipeline.model import Analysis
 
 #: A reply that has not come by then counts as a failure (the process is killed and replaced).
 REPLY_TIMEOUT_S = 10.0

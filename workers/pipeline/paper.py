@@ -21,8 +21,8 @@ import numpy as np
 from workers.pipeline.segmentation import upsample_labels
 
 if TYPE_CHECKING:
-    from workers.pipeline.analysis import Analysis, AnalysisConfig, Excitation, Progress
     from workers.pipeline.clipio.types import ClipReader
+    from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, Progress
 
 
 def analyze_paper(
@@ -35,25 +35,19 @@ def analyze_paper(
     """Run the paper's recipe on ``reader``; see the module docstring. Returns an :class:`Analysis`."""
     import cv2
 
-    from workers.pipeline.analysis import (
-        Analysis,
-        ObjectMeasurement,
-        QualityNote,
-        _band,
-        _bbox,
-        _object_depth,
-        _plan,
-        _Stopwatch,
-        _stream,
-    )
+    from workers.pipeline.measure import bounding_box
+    from workers.pipeline.metric import object_depth
+    from workers.pipeline.model import Analysis, ObjectMeasurement, QualityNote, Stopwatch
+    from workers.pipeline.stream import stream_frames
+    from workers.pipeline.window import analysis_band, plan_analysis
 
-    watch = _Stopwatch()
+    watch = Stopwatch()
     info = reader.info
-    plan = _plan(info, config)  # the paper's recipe: the given (or first) window, every frame
-    buffers = _stream(reader, plan.start, plan.stop, plan.grid, plan.flow, progress, magnitude=True)
+    plan = plan_analysis(info, config)  # the paper's recipe: the given (or first) window, every frame
+    buffers = stream_frames(reader, plan.start, plan.stop, plan.grid, plan.flow, progress, magnitude=True)
     watch.stream_lap(buffers)
     n = buffers.count
-    band = _band(config, plan.fps, n)
+    band = analysis_band(config, plan.fps, n)
     mags = buffers.flow[..., 0].reshape(n, -1)
     spectra = np.abs(np.fft.rfft(mags, axis=0)) ** 2
     freqs = np.fft.rfftfreq(n, d=1.0 / plan.fps).astype(np.float64)
@@ -85,7 +79,7 @@ def analyze_paper(
         speed = mags[:, mask.ravel()].mean(axis=1) * plan.pixel_scale  # px/frame, input pixels
         v_max = float(speed.max()) * plan.fps  # px/s
         x_px = v_max / (4 * f) if f > 0 else 0.0
-        depth = _object_depth(buffers.depth, mask) or config.depth_m
+        depth = object_depth(buffers.depth, mask) or config.depth_m
         omega = 2 * math.pi * f
         x_m = stiff = mass = None
         reasons: list[str] = []
@@ -120,7 +114,7 @@ def analyze_paper(
                 mass_kg=mass,
                 mass_sd=None,
                 pixel_count=int((labels == 1).sum()),
-                bbox_px=_bbox(labels == 1),
+                bbox_px=bounding_box(labels == 1),
                 harmonics_hz=[],
                 release_time_s=None,
                 snr_db=None,

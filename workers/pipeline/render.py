@@ -38,7 +38,7 @@ from workers.pipeline import _drawing_process
 from workers.pipeline._agg import add_strings, cache_mark, caching_canvas, load_added, save_added
 
 if TYPE_CHECKING:
-    from workers.pipeline.analysis import Analysis, ObjectMeasurement
+    from workers.pipeline.model import Analysis, ObjectMeasurement
 
 #: Resolution of every plot; sizes are given in pixels.
 DPI = 100

@@ -4,7 +4,6 @@ noise floor, grouped into cleaned connected regions and labelled one object per 
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -12,13 +11,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.spectrum import (
+from workers.pipeline.peaks import (
     Peak,
-    PixelSpectra,
+    explained,
+    fold_aliased_harmonics,
     interpolate_peak,
     noise_floor,
     topographic_prominence,
 )
+from workers.pipeline.spectra import PixelSpectra
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -294,7 +295,7 @@ def local_peaks(
             continue
         peak_bin = int(idx[j])
         f = (int(idx[0]) + interpolate_peak(ratio, j)) * bin_hz
-        if _explained(f, [*known, *found], bin_hz=bin_hz, tolerance=harmonic_tolerance, fps=spectra.fps):
+        if explained(f, [*known, *found], bin_hz=bin_hz, tolerance=harmonic_tolerance, fps=spectra.fps):
             continue
         found.append(
             Peak(
@@ -306,71 +307,6 @@ def local_peaks(
             )
         )
     return found
-
-
-def fold_aliased_harmonics(
-    peaks: list[Peak], *, fps: float, bin_hz: float, tolerance: float = 0.01, max_order: int = 5
-) -> list[Peak]:
-    """Fold peaks that are overtones of a stronger peak seen through aliasing into that peak.
-
-    An overtone n f above the Nyquist rate shows at |n f - m fps|, which is no integer multiple of f, so
-    a harmonic test on the spectrum alone keeps it as a peak of its own. Each peak (strongest first) that
-    lies within ``tolerance`` (relative, or one bin) of such a folded overtone of an earlier peak is
-    appended to that peak's ``harmonics_hz`` instead.
-
-    Parameters
-    ----------
-    peaks : list of Peak
-        Strongest first.
-    fps : float
-        Sampling rate of the spectra, Hz.
-    bin_hz : float
-    tolerance : float
-    max_order : int
-        Highest overtone considered.
-
-    Returns
-    -------
-    list of Peak
-        The peaks kept, in order (copies where harmonics were added).
-    """
-    kept: list[Peak] = []
-    for peak in peaks:
-        f = peak.frequency_hz
-        parent = None
-        for i, base in enumerate(kept):
-            for order in range(2, max_order + 1):
-                multiple = order * base.frequency_hz
-                folded = abs(multiple - fps * round(multiple / fps))
-                if folded != multiple and abs(f - folded) <= max(tolerance * f, 1.01 * bin_hz):
-                    parent = i
-                    break
-            if parent is not None:
-                break
-        if parent is None:
-            kept.append(peak)
-        else:
-            base = kept[parent]
-            kept[parent] = dataclasses.replace(base, harmonics_hz=sorted([*base.harmonics_hz, f]))
-    return kept
-
-
-def _explained(
-    frequency_hz: float, peaks: list[Peak], *, bin_hz: float, tolerance: float, fps: float
-) -> bool:
-    """Whether a frequency is one of ``peaks``, one of their harmonics, or an integer multiple of one,
-    possibly folded back below the Nyquist rate (an overtone above fps / 2 shows at |n f - m fps|)."""
-    for peak in peaks:
-        for f in (peak.frequency_hz, *peak.harmonics_hz):
-            if abs(frequency_hz - f) <= max(1.5, peak.width_bins) * bin_hz:
-                return True
-        slack = max(tolerance * frequency_hz, 1.01 * bin_hz)
-        for order in range(2, 33):
-            multiple = order * peak.frequency_hz
-            folded = abs(multiple - fps * round(multiple / fps))
-            if abs(frequency_hz - folded) <= slack:
-                return True
-    return False
 
 
 def _label(
@@ -612,88 +548,3 @@ def exclude_background_surfaces(
             )
         )
     return out, exclusions
-
-
-@dataclass(frozen=True)
-class RejectedPeak:
-    """A spectral peak that is not an object."""
-
-    frequency_hz: float
-    reason: str
-
-
-def reject_artefacts(
-    seg: Segmentation,
-    spectra: PixelSpectra,
-    *,
-    band_hz: tuple[float, float],
-    background_snr: float = 2.5,
-    relative_snr: float = 0.05,
-    max_area_fraction: float = 0.5,
-) -> tuple[Segmentation, list[RejectedPeak]]:
-    """Drop peaks that are a property of the whole picture rather than of an object.
-
-    Lighting flicker, codec keyframes and residual camera shake move (or seem to move) the static
-    background too: a peak whose band stands ``background_snr`` above the pixels' own noise over the
-    median background pixel, and there at least ``relative_snr`` of its strength over its own region
-    (an object's motion leaks faintly into the background through flow smoothing; an artefact is as
-    strong there as anywhere), or whose region covers more than ``max_area_fraction`` of the frame, is
-    reported and removed; the remaining objects are relabelled 1, 2, ...
-
-    Returns
-    -------
-    Segmentation
-    list of RejectedPeak
-    """
-    if not seg.peaks:
-        return seg, []
-    freqs = spectra.frequencies_hz
-    pixel_noise = spectra.band_median(band_hz) + np.float32(1e-20)
-    background = (seg.labels == 0).ravel()
-    h, w = seg.labels.shape
-    keep: list[int] = []
-    rejected: list[RejectedPeak] = []
-    for i, peak in enumerate(seg.peaks):
-        sel = band_mask(freqs, peak, bin_hz=spectra.bin_hz, band_bins=max(1.5, peak.width_bins))
-        bins = max(int(sel.sum()), 1)
-        area = float((seg.labels == i + 1).sum()) / (h * w)
-        snr_bg = snr_obj = float("nan")
-        region = (seg.labels == i + 1).ravel()
-        if background.sum() >= 16 and region.any():
-            bp = seg.band_power[i].ravel()
-            snr = bp / (pixel_noise * bins)
-            snr_bg = float(np.median(snr[background]))
-            snr_obj = float(np.median(snr[region]))
-        if area > max_area_fraction:
-            rejected.append(
-                RejectedPeak(
-                    peak.frequency_hz,
-                    f"{peak.frequency_hz:.4g} Hz moves {area * 100:.0f} % of the picture: camera motion or "
-                    "a global effect, not an object",
-                )
-            )
-        elif snr_bg > background_snr and snr_bg > relative_snr * snr_obj:
-            rejected.append(
-                RejectedPeak(
-                    peak.frequency_hz,
-                    f"{peak.frequency_hz:.4g} Hz is present over the static background as well "
-                    f"({10 * np.log10(snr_bg):.1f} dB above its noise): lighting flicker, codec keyframes "
-                    "or camera shake, not an object",
-                )
-            )
-        else:
-            keep.append(i)
-    if len(keep) == len(seg.peaks):
-        return seg, rejected
-    labels = np.zeros_like(seg.labels)
-    for new, old in enumerate(keep, start=1):
-        labels[seg.labels == old + 1] = new
-    return (
-        Segmentation(
-            labels=labels,
-            peaks=[seg.peaks[i] for i in keep],
-            band_power=seg.band_power[keep],
-            noise_power=seg.noise_power[keep],
-        ),
-        rejected,
-    )

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.errors import ParameterError
-from workers.pipeline.spectrum import Peak, find_peaks, fold_harmonics, noise_floor
+from workers.pipeline.peaks import Peak, find_peaks, fold_harmonics, noise_floor
 
 #: Floats held by the survey's segment buffer (flow of every survey pixel over one Welch segment).
 SURVEY_BUFFER_FLOATS = 8_000_000

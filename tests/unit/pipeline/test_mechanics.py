@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from workers.pipeline.mechanics import _tracking_shares, stiffness_and_mass
+from workers.pipeline.mechanics import stiffness_and_mass
+from workers.pipeline.registration import _tracking_shares
 
 
 def test_step_release_gives_k_from_force_over_amplitude_and_m_from_omega():
@@ -78,7 +79,7 @@ def test_registration_ignores_static_background_inside_the_outline(affine):
     the strip pulls it 3 % low here.)"""
     import cv2
 
-    from workers.pipeline.mechanics import register_translation
+    from workers.pipeline.registration import register_translation
 
     rng = np.random.default_rng(7)
     h, w, s = 160, 200, 4  # rendered at s times the size and area-averaged, like a camera
@@ -133,7 +134,7 @@ def test_masked_fit_measures_translation_and_scale_to_hundredths_of_a_pixel():
     10 % off, and an affine fit that recovers a 2 % scale change and the centroid's shift."""
     import cv2
 
-    from workers.pipeline.mechanics import _MaskedFit
+    from workers.pipeline.registration import MaskedFit
 
     rng = np.random.default_rng(3)
     h, w, s = 200, 240, 4
@@ -155,7 +156,7 @@ def test_masked_fit_measures_translation_and_scale_to_hundredths_of_a_pixel():
     mask = np.zeros((h, w), bool)
     mask[64:146, 74:176] = True
     reference = frame(0.0, 0.0)
-    translation = _MaskedFit(reference, mask)
+    translation = MaskedFit(reference, mask)
     for dx, dy in [(0.37, -0.21), (3.6, 1.15), (-7.25, 0.5), (0.0, 0.0)]:
         found = translation(frame(dx, dy), np.array([0.9 * dx, 0.9 * dy]))
         assert found is not None
@@ -164,7 +165,7 @@ def test_masked_fit_measures_translation_and_scale_to_hundredths_of_a_pixel():
         assert np.allclose(warp[:, :2], np.eye(2))
         assert np.abs(warp[:, 2] - (dx, dy)).max() < 0.04, (dx, dy, warp[:, 2])
 
-    affine = _MaskedFit(reference, mask, affine=True, max_iterations=25)
+    affine = MaskedFit(reference, mask, affine=True, max_iterations=25)
     found = affine(frame(2.0, -1.0, scale=1.02), np.array([2.0, -1.0]))
     assert found is not None
     _, warp = found
@@ -173,7 +174,7 @@ def test_masked_fit_measures_translation_and_scale_to_hundredths_of_a_pixel():
     moved = warp[:, :2] @ c + warp[:, 2]
     assert np.abs(moved - c - (2.0, -1.0)).max() < 0.05
 
-    flat = _MaskedFit(reference, mask)
+    flat = MaskedFit(reference, mask)
     assert flat(np.full((h, w), 128, np.uint8), np.zeros(2)) is None
     with pytest.raises(np.linalg.LinAlgError):
-        _MaskedFit(np.full((h, w), 128, np.uint8), mask)
+        MaskedFit(np.full((h, w), 128, np.uint8), mask)

@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 from scipy import ndimage, optimize
 
+from workers.pipeline.fft import RfftPlans
+from workers.pipeline.lstsq import least_squares
+from workers.pipeline.peaks import noise_floor
 from workers.pipeline.segmentation import _fill_holes
-from workers.pipeline.spectrum import RfftPlans, _least_squares, median_rows, noise_floor, pixel_spectra
+from workers.pipeline.spectra import median_rows, pixel_spectra
 
 
 @pytest.mark.parametrize("bins", [1, 2, 3, 124, 125])
@@ -72,7 +75,7 @@ def test_least_squares_matches_scipy_on_a_damped_sine():
 
         x0 = np.array([omega * 1.02, sigma * 2])
         lower, upper = np.array([1e-4, 0.0]), np.array([math.pi, 1.0])
-        ours = _least_squares(residual, x0, lower=lower, upper=upper)
+        ours = least_squares(residual, x0, lower=lower, upper=upper)
         ref = optimize.least_squares(residual, x0, bounds=(lower, upper))
         assert ours.cost <= ref.cost * (1 + 1e-9)
         np.testing.assert_allclose(ours.x, ref.x, rtol=1e-5, atol=1e-8)
@@ -81,7 +84,7 @@ def test_least_squares_matches_scipy_on_a_damped_sine():
 
 
 def test_least_squares_stays_in_bounds():
-    sol = _least_squares(
+    sol = least_squares(
         lambda p: np.array([p[0] + 5.0, p[1] - 3.0]),
         np.array([0.5, 0.5]),
         lower=np.array([0.0, 0.0]),

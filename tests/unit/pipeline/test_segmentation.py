@@ -8,8 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from workers.pipeline.segmentation import fold_aliased_harmonics, local_peaks
-from workers.pipeline.spectrum import Peak, PixelSpectra, find_peaks, noise_floor, whitened_spectrum
+from workers.pipeline.peaks import Peak, find_peaks, fold_aliased_harmonics, noise_floor
+from workers.pipeline.segmentation import local_peaks
+from workers.pipeline.spectra import PixelSpectra, whitened_spectrum
 
 FPS, N = 30.0, 128
 H, W = 120, 160

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from workers.pipeline.spectrum import find_peaks, fit_ringdown, interpolate_peak
+from workers.pipeline.peaks import find_peaks, interpolate_peak
+from workers.pipeline.ringdown import fit_ringdown
 
 
 def damped_velocity(f_hz, zeta, fps, n, *, amplitude=5.0, phase=0.3, noise=0.0, rng=None):
@@ -92,7 +93,7 @@ def test_fast_length_is_scipys_next_fast_len_for_real_transforms():
     must be the same as scipy's, so spectra keep their frequency grid."""
     from scipy.fft import next_fast_len
 
-    from workers.pipeline.spectrum import fast_length
+    from workers.pipeline.fft import fast_length
 
     assert [fast_length(n) for n in range(1, 3000)] == [next_fast_len(n, real=True) for n in range(1, 3000)]
     with pytest.raises(ValueError, match="positive"):
@@ -107,7 +108,7 @@ def test_spectra_import_fftw_without_scipy_and_leave_scipy_importable():
 
     code = (
         "import sys, numpy as np\n"
-        "from workers.pipeline.spectrum import pixel_spectra\n"
+        "from workers.pipeline.spectra import pixel_spectra\n"
         "flow = np.random.default_rng(0).normal(size=(64, 8, 8, 2)).astype(np.float32)\n"
         "s = pixel_spectra(flow, fps=30.0)\n"
         "assert s.power.shape[1] == 64, s.power.shape\n"

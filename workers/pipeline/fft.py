@@ -1,0 +1,167 @@
+"""FFT plumbing: FFTW plans built once per shape and reused, the fast transform length, and the FFT
+library's import (pyfftw without its scipy interfaces).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from workers.pipeline.spectra import BandSummary
+
+
+@functools.cache
+def _fftw() -> Any:
+    """``pyfftw`` with its builders, imported on first use, or None where pyfftw is missing (numpy is only
+    a fallback for exotic platforms).
+
+    Importing pyfftw also loads its ``interfaces`` package, which imports scipy.fftpack and so scipy.fft
+    when scipy is installed: 0.2 to 0.4 s of CPU in every analysis, for interfaces this project does not
+    use. scipy.fftpack is marked absent for the length of the import (pyfftw then skips those
+    interfaces) unless something has loaded it already; nothing else in an analysis imports it.
+    """
+    import sys
+
+    hide = "scipy.fftpack" not in sys.modules
+    if hide:
+        sys.modules["scipy.fftpack"] = None  # type: ignore[assignment]
+    try:
+        import pyfftw.builders
+    except ImportError:  # pragma: no cover
+        return None
+    finally:
+        if hide and sys.modules.get("scipy.fftpack", False) is None:
+            del sys.modules["scipy.fftpack"]
+    return pyfftw
+
+
+def warm_up() -> None:
+    """Import what the spectra need, so a thread can do it while frames are still being decoded."""
+    _fftw()
+
+
+class RfftPlans:
+    """Per-pixel power spectra by FFTW, with plans built once per shape and reused.
+
+    Flow arrives frame by frame, so it is stored frame-major (N, P): cheap to write, but a transform
+    along axis 0 strides through memory and runs ~10x slower than along a contiguous axis. Pixels are
+    therefore processed in blocks of ``block`` columns: each block is transposed into an aligned,
+    time-contiguous (block, nfft) buffer that fits in cache, transformed along its last axis, and its
+    power written back. Blocks are split between ``threads`` workers, each with its own plan and buffer.
+    """
+
+    def __init__(self, *, threads: int = 2, block: int = 2048) -> None:
+        self.threads = max(1, threads)
+        self.block = block
+        self._plans: dict[tuple[int, int], list[tuple[Any, NDArray[np.float32]]]] = {}
+
+    def _workers(self, nfft: int) -> list[tuple[Any, NDArray[np.float32]]]:
+        key = (nfft, self.block)
+        plans = self._plans.get(key)
+        if plans is None:
+            plans = []
+            pyfftw = _fftw()
+            for _ in range(self.threads):
+                buf = pyfftw.empty_aligned((self.block, nfft), dtype="float32")
+                plan = pyfftw.builders.rfft(
+                    buf, axis=1, threads=1, planner_effort="FFTW_ESTIMATE", avoid_copy=True
+                )
+                plans.append((plan, buf))
+            self._plans[key] = plans
+        return plans
+
+    def power(
+        self,
+        data: NDArray[np.float32],
+        *,
+        nfft: int,
+        pairs: int = 2,
+        summary: BandSummary | None = None,
+    ) -> NDArray[np.float32]:
+        """Mean-removed power spectra of every column, summed over groups of ``pairs`` adjacent columns.
+
+        Parameters
+        ----------
+        data : ndarray of float32, shape (N, C)
+            Time along axis 0; C = P * pairs columns (e.g. interleaved u, v flow of P pixels).
+        nfft : int
+            Transform length (>= N; zero-padded).
+        pairs : int
+            Columns summed into one spectrum (2 for the two flow components of a pixel).
+        summary : BandSummary, optional
+            Also write each spectrum's median, maximum and the maximum's position over the summary's
+            bins into its arrays, taken per block while the block's spectra lie contiguous in cache (a
+            separate pass would first transpose all of them).
+
+        Returns
+        -------
+        ndarray of float32, shape (nfft // 2 + 1, C // pairs)
+        """
+        n, cols = data.shape
+        if cols % pairs:
+            raise ValueError(f"{cols} columns do not split into groups of {pairs}")
+        n_freq = nfft // 2 + 1
+        out = np.empty((n_freq, cols // pairs), np.float32)
+        if _fftw() is None:  # pragma: no cover
+            centred = data - data.mean(axis=0)
+            spec = np.abs(np.fft.rfft(centred, n=nfft, axis=0)) ** 2
+            summed: NDArray[np.float32] = spec.reshape(n_freq, -1, pairs).sum(axis=2).astype(np.float32)
+            if summary is not None:
+                summary.fill(np.ascontiguousarray(summed[summary.bins].T), 0)
+            return summed
+        block = self.block - self.block % pairs
+        starts = list(range(0, cols, block))
+        workers = self._workers(nfft)
+
+        def run(worker: int) -> None:
+            plan, buf = workers[worker]
+            for c in starts[worker :: len(workers)]:
+                w = min(block, cols - c)
+                buf[:w, :n] = data[:, c : c + w].T
+                buf[:w, n:] = 0.0
+                buf[:w, :n] -= buf[:w, :n].mean(axis=1, keepdims=True)
+                spec = plan()
+                pw = spec.real[:w] ** 2 + spec.imag[:w] ** 2
+                per_pixel = pw.reshape(w // pairs, pairs, n_freq).sum(axis=1)
+                out[:, c // pairs : (c + w) // pairs] = per_pixel.T
+                if summary is not None:
+                    summary.fill(np.ascontiguousarray(per_pixel[:, summary.bins]), c // pairs)
+
+        if len(workers) == 1 or len(starts) == 1:
+            run(0)
+        else:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(max_workers=len(workers), thread_name_prefix="fft") as pool:
+                list(pool.map(run, range(len(workers))))
+        return out
+
+
+@functools.lru_cache(maxsize=4)
+def shared_plans(threads: int = 2) -> RfftPlans:
+    """A process-wide plan cache, created on first use (not at import)."""
+    return RfftPlans(threads=threads)
+
+
+@functools.cache
+def fast_length(n: int) -> int:
+    """Smallest length >= n whose FFT is fast (a product of 2, 3 and 5, as ``scipy.fft.next_fast_len``
+    gives for real transforms): a prime n is many times slower."""
+    if n < 1:
+        raise ValueError(f"an FFT length must be positive, not {n}")
+    m = n
+    while True:
+        rest = m
+        for p in (2, 3, 5):
+            while rest % p == 0:
+                rest //= p
+        if rest == 1:
+            return m
+        m += 1
+
+
+__all__ = ["RfftPlans", "fast_length", "shared_plans", "warm_up"]

@@ -1,0 +1,326 @@
+"""The measuring pipeline's inputs and outputs as dataclasses: how the object was excited, the analysis
+options, and the result (objects, labels, spectra, quality notes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.errors import ParameterError
+from workers.pipeline.flow import FlowConfig
+from workers.pipeline.peaks import Peak
+from workers.pipeline.ringdown import Ringdown
+from workers.pipeline.segmentation import SegmentationConfig
+from workers.pipeline.survey import Survey
+
+if TYPE_CHECKING:
+    from workers.pipeline.stream import FrameBuffers
+
+Method = Literal["default", "paper"]
+#: progress(stage, fraction of the whole analysis in [0, 1])
+Progress = Callable[[str, float], None]
+
+DEFAULT_MAX_FRAMES = 256
+#: Memory budget of an automatically chosen window's buffers (flow maps, grey frames, depth, spectra).
+DEFAULT_WINDOW_MIB = 384.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class Excitation:
+    """How the object was excited.
+
+    Attributes
+    ----------
+    kind : ``"step_release"`` (value: held force F in N) or ``"impulse"`` (value: impulse J in N·s)
+    value : float
+    uncertainty : float
+        Standard uncertainty of ``value``.
+    object_id : int or None
+        The object it applies to, by id.
+    point_px : (x, y) or None
+        ... or by a point on it (input pixels).
+    box_px : (x, y, w, h) or None
+        ... or by a box around it (input pixels). With none of the three: the main (strongest) object.
+    """
+
+    kind: Literal["step_release", "impulse"]
+    value: float
+    uncertainty: float = 0.0
+    object_id: int | None = None
+    point_px: tuple[float, float] | None = None
+    box_px: tuple[float, float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("step_release", "impulse"):
+            raise ParameterError(f"excitation type {self.kind!r} is unknown; use step_release or impulse")
+        if not (math.isfinite(self.value) and self.value > 0):
+            raise ParameterError(f"excitation value {self.value} must be a positive finite number")
+        if not (math.isfinite(self.uncertainty) and self.uncertainty >= 0):
+            raise ParameterError("excitation uncertainty must be finite and >= 0")
+
+
+@dataclass(frozen=True, kw_only=True)
+class AnalysisConfig:
+    """Analysis options; defaults work without tuning.
+
+    Attributes
+    ----------
+    method : ``"default"`` or ``"paper"``
+        ``paper`` runs the seed recipe literally (flow magnitude, argmax bin, x ≈ Vmax / 4f) for comparison.
+    flow : FlowConfig or None
+        None picks the method's default (DIS at half resolution; Farnebäck at full resolution for paper).
+    frames : int or None
+        Analysis window length in frames (N + 1 frames give N flow maps). Default: min(clip, 256), or for
+        a longer clip the window a survey of the whole clip chooses (see ``auto_window``).
+    start_frame : int or None
+        First frame of the window; default 0 (or the survey's choice).
+    min_frequency_hz, max_frequency_hz : float or None
+        Band searched; default two cycles per window up to 0.98 x Nyquist.
+    depth_m : float or None
+        Object distance for clips without depth.
+    segmentation : SegmentationConfig
+    max_objects : int
+    auto_window : bool
+        When neither ``frames`` nor ``start_frame`` is given and the clip is longer than 256 frames, survey
+        the whole clip first (:mod:`workers.pipeline.survey`) and analyse the window where the strongest
+        ring-down is, long enough for about ten periods of its lowest frequency, every k-th frame when
+        the motion is far slower than the frame rate. False: the first 256 frames.
+    max_window_mib : float
+        Memory budget (MiB) of an automatically chosen window's buffers; bounds its length.
+    flow_threads : int or None
+        Frame pairs whose flow is computed at once; None keeps the flow's own setting (two). One runs
+        the flow as the paper's recipe did, a pair at a time.
+    """
+
+    method: Method = "default"
+    flow: FlowConfig | None = None
+    frames: int | None = None
+    start_frame: int | None = None
+    min_frequency_hz: float | None = None
+    max_frequency_hz: float | None = None
+    depth_m: float | None = None
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    max_objects: int = 8
+    auto_window: bool = True
+    max_window_mib: float = DEFAULT_WINDOW_MIB
+    flow_threads: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_window_mib) and self.max_window_mib > 0):
+            raise ParameterError(f"max_window_mib={self.max_window_mib} must be a positive number of MiB")
+        if self.flow_threads is not None and self.flow_threads < 1:
+            raise ParameterError(f"flow_threads={self.flow_threads} must be at least 1")
+
+    def resolved_flow(self) -> FlowConfig:
+        if self.flow is not None:
+            flow = self.flow
+        elif self.method == "paper":
+            flow = FlowConfig(method="farneback", scale=1.0)
+        else:
+            flow = FlowConfig()
+        if self.flow_threads is not None:
+            flow = dataclasses.replace(flow, threads=self.flow_threads)
+        return flow
+
+    def describe(self) -> dict[str, Any]:
+        """Every parameter, defaults included, as JSON-ready data."""
+        fl = self.resolved_flow()
+        return {
+            "method": self.method,
+            "flow": fl.method,
+            "flow_scale": fl.scale if fl.scale is not None else "auto",
+            "dis_preset": fl.dis_preset if fl.method == "dis" else None,
+            "flow_threads": fl.threads,
+            "frames": self.frames,
+            "start_frame": self.start_frame or 0,
+            "min_frequency_hz": self.min_frequency_hz,
+            "max_frequency_hz": self.max_frequency_hz,
+            "depth_m": self.depth_m,
+            "segmentation": {
+                "noise_factor": self.segmentation.noise_factor,
+                "relative_level": self.segmentation.relative_level,
+                "purity": self.segmentation.purity,
+                "band_bins": self.segmentation.band_bins,
+                "min_area_fraction": self.segmentation.min_area_fraction,
+            },
+            "max_objects": self.max_objects,
+            "auto_window": self.auto_window,
+            "max_window_mib": self.max_window_mib,
+        }
+
+
+@dataclass(frozen=True)
+class RejectedPeak:
+    """A spectral peak that is not an object."""
+
+    frequency_hz: float
+    reason: str
+
+
+@dataclass(frozen=True)
+class QualityNote:
+    """A reason why a result may be unreliable."""
+
+    code: str
+    message: str
+    severity: Literal["info", "warning", "error"] = "warning"
+
+
+@dataclass
+class ObjectMeasurement:
+    """Everything measured for one object. Frequencies in Hz, lengths in metres unless ``_px``."""
+
+    id: int
+    eigenfrequency_hz: float
+    eigenfrequency_sd_hz: float | None
+    natural_frequency_hz: float
+    damping_ratio: float | None
+    damping_ratio_sd: float | None
+    amplitude_px: float | None
+    amplitude_m: float | None
+    amplitude_sd_m: float | None
+    depth_m: float | None
+    motion_direction: tuple[float, float, float] | None
+    stiffness_n_per_m: float | None
+    stiffness_sd: float | None
+    mass_kg: float | None
+    mass_sd: float | None
+    pixel_count: int
+    bbox_px: tuple[int, int, int, int]
+    harmonics_hz: list[float]
+    release_time_s: float | None
+    snr_db: float | None
+    null_reasons: list[str] = field(default_factory=list)
+    #: How the amplitude was measured: ``registration`` (rigid body, sub-pixel) or ``flow``.
+    amplitude_source: str = "flow"
+    #: What else was seen: excluded pixels, out-of-plane motion, ...
+    notes: list[str] = field(default_factory=list)
+    #: Sliding-window ring-down of the motion after release (times relative to the window start).
+    ringdown: Ringdown | None = None
+    #: Fraction of the object's pixels at the sensor's limits (0 or 255) in the first frame.
+    saturated_fraction: float = 0.0
+    #: Seconds of motion after release that were fitted.
+    fitted_duration_s: float = 0.0
+    #: Displacement of the object along its axis, input pixels, per frame of the window (for plots).
+    displacement_px: NDArray[np.float64] | None = None
+    #: Fitted model displacement at the same frames (NaN before release), input pixels.
+    model_displacement_px: NDArray[np.float64] | None = None
+
+    @property
+    def angular_frequency_rad_s(self) -> float:
+        return 2 * math.pi * self.natural_frequency_hz
+
+
+@dataclass
+class Analysis:
+    """The outcome of :func:`analyze`.
+
+    Attributes
+    ----------
+    objects : list of ObjectMeasurement
+        Strongest first; ``objects[i].id == i + 1`` is its value in ``labels``.
+    labels : ndarray of uint16, shape (H, W)
+        Object label per input pixel, 0 = background.
+    frequencies_hz, power : ndarray of float64, shape (F,)
+        Summed motion spectrum.
+    frequency_map_hz : ndarray of float32, shape (h, w)
+        Per-pixel dominant frequency on the flow grid; ``frequency_map_valid`` marks pixels above noise.
+    frame_rgb : ndarray of uint8, shape (H, W, 3)
+        A representative frame (the first of the window).
+    fps : float
+        The clip's frame rate.
+    fps_source : str
+    frames_used : (first, last)
+        Frame index range [first, last) analysed.
+    frame_step : int
+        Every ``frame_step``-th frame of that range was analysed (flow maps and spectra are sampled at
+        ``sample_rate_hz = fps / frame_step``).
+    window_survey : Survey or None
+        The survey of the whole clip that chose the window (None when the window was given or the clip
+        is short).
+    band_hz : (low, high)
+    quality : list of QualityNote
+    timings_s : dict
+        Seconds per stage, adding up to the analysis's time: ``setup`` or ``survey``, ``decode`` and
+        ``flow`` (the stream of frames: the reader's CPU time reading and decoding them, and the rest of
+        the stream's time, the optical flow), ``spectrum``, ``segmentation``, ``mechanics``.
+    parameters : dict
+    method : str
+    """
+
+    objects: list[ObjectMeasurement]
+    labels: NDArray[np.uint16]
+    frequencies_hz: NDArray[np.float64]
+    power: NDArray[np.float64]
+    frequency_map_hz: NDArray[np.float32]
+    frequency_map_valid: NDArray[np.bool_]
+    frame_rgb: NDArray[np.uint8]
+    fps: float
+    fps_source: str
+    frames_used: tuple[int, int]
+    band_hz: tuple[float, float]
+    quality: list[QualityNote]
+    timings_s: dict[str, float]
+    parameters: dict[str, Any]
+    method: str
+    peaks: list[Peak] = field(default_factory=list)
+    #: What the summed spectrum would be over static background (same frequencies), for the noise floor.
+    noise_power: NDArray[np.float64] | None = None
+    #: Peaks that were not objects (flicker, keyframes, camera motion), with the reason.
+    rejected_peaks: list[RejectedPeak] = field(default_factory=list)
+    #: Ring-down fit SNR (dB) of each region dropped because its motion did not ring down coherently.
+    incoherent_snr_db: list[float] = field(default_factory=list)
+    frame_step: int = 1
+    window_survey: Survey | None = None
+
+    @property
+    def eigenfrequency_hz(self) -> float | None:
+        return self.objects[0].eigenfrequency_hz if self.objects else None
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Rate of the analysed samples (flow maps, spectra, displacement), Hz."""
+        return self.fps / self.frame_step
+
+
+class Stopwatch:
+    """Seconds per stage of an analysis (``Analysis.timings_s``), each lap adding to its stage."""
+
+    def __init__(self) -> None:
+        self.times: dict[str, float] = {}
+        self._t = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.times[name] = self.times.get(name, 0.0) + now - self._t
+        self._t = now
+
+    def stream_lap(self, buffers: FrameBuffers) -> None:
+        """The lap of the frame stream, as ``decode`` (the reader's share) and ``flow`` (the rest)."""
+        now = time.perf_counter()
+        self.times["decode"] = buffers.decode_s
+        self.times["flow"] = now - self._t - buffers.decode_s
+        self._t = now
+
+
+__all__ = [
+    "DEFAULT_MAX_FRAMES",
+    "DEFAULT_WINDOW_MIB",
+    "Analysis",
+    "AnalysisConfig",
+    "Excitation",
+    "Method",
+    "ObjectMeasurement",
+    "Progress",
+    "QualityNote",
+    "RejectedPeak",
+    "Stopwatch",
+]

@@ -1,0 +1,320 @@
+"""Peaks of spectra: position to a fraction of a bin, prominence and height above a noise floor, width,
+and the harmonics and folded-back overtones that belong to a stronger peak rather than to an object of
+their own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class Peak:
+    """A spectral peak.
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Interpolated peak position.
+    bin : int
+        Index of the maximum bin.
+    power : float
+        Peak power.
+    prominence_db : float
+        Height above the key saddle (topographic prominence), dB.
+    snr_db : float
+        Height above the background's noise spectrum, dB (inf when no noise spectrum was given).
+    harmonics_hz : list of float
+        Integer multiples of this peak found in the spectrum (not separate objects).
+    """
+
+    frequency_hz: float
+    bin: int
+    power: float
+    prominence_db: float
+    snr_db: float = float("inf")
+    harmonics_hz: list[float] = field(default_factory=list)
+    width_bins: float = 1.0
+    """Half of the peak's full width at half power, in bins."""
+
+
+def interpolate_peak(power: NDArray[np.floating[Any]], k: int) -> float:
+    """Sub-bin peak offset by a parabola through the log power of bins k-1, k, k+1.
+
+    Returns
+    -------
+    float
+        Fractional bin index of the peak.
+    """
+    if k <= 0 or k >= len(power) - 1:
+        return float(k)
+    a, b, c = (math.log(max(float(x), 1e-30)) for x in power[k - 1 : k + 2])
+    denom = a - 2 * b + c
+    if denom >= 0:
+        return float(k)
+    return k + 0.5 * (a - c) / denom
+
+
+def noise_floor(power: NDArray[np.floating[Any]], *, width: int = 9) -> NDArray[np.float64]:
+    """Running median of a spectrum: the floor against which peaks are judged.
+
+    Parameters
+    ----------
+    power : ndarray, shape (F,)
+    width : int
+        Median window in bins (odd).
+
+    Returns
+    -------
+    ndarray of float64, shape (F,)
+    """
+    width = max(3, width | 1)
+    values = np.asarray(power, np.float64)
+    padded = np.pad(values, width // 2, mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, width)
+    return np.asarray(np.median(windows, axis=1), np.float64)
+
+
+def topographic_prominence(power: NDArray[np.float64], k: int) -> float:
+    """Ratio of a peak to its key saddle: the higher of the lowest points between it and the nearest
+    higher sample on each side (or the end of the array).
+
+    Parameters
+    ----------
+    power : ndarray of float64, shape (F,)
+    k : int
+        Index of a local maximum.
+
+    Returns
+    -------
+    float
+        power[k] / saddle (>= 1).
+    """
+    height = power[k]
+    left = power[:k][::-1]
+    higher = np.flatnonzero(left > height)
+    left_min = (
+        float(left[: higher[0]].min())
+        if higher.size and higher[0] > 0
+        else (float(left.min()) if left.size and not higher.size else height)
+    )
+    right = power[k + 1 :]
+    higher = np.flatnonzero(right > height)
+    right_min = (
+        float(right[: higher[0]].min())
+        if higher.size and higher[0] > 0
+        else (float(right.min()) if right.size and not higher.size else height)
+    )
+    saddle = max(left_min, right_min, 1e-30)
+    return float(height / saddle)
+
+
+def _half_width(power: NDArray[np.float64], k: int) -> float:
+    """Half of the full width at half maximum of the peak at ``k``, in bins (linear interpolation)."""
+    half = power[k] / 2
+    left = k
+    while left > 0 and power[left - 1] > half:
+        left -= 1
+    right = k
+    while right < len(power) - 1 and power[right + 1] > half:
+        right += 1
+    lo = left - ((power[left] - half) / max(power[left] - power[left - 1], 1e-30) if left > 0 else 0.0)
+    hi = right + (
+        (power[right] - half) / max(power[right] - power[right + 1], 1e-30) if right < len(power) - 1 else 0.0
+    )
+    return float(max(hi - lo, 1.0) / 2)
+
+
+def find_peaks(
+    frequencies_hz: NDArray[np.float64],
+    power: NDArray[np.floating[Any]],
+    *,
+    band_hz: tuple[float, float],
+    noise: NDArray[np.floating[Any]] | None = None,
+    min_prominence_db: float = 6.0,
+    min_snr_db: float = 10.0,
+    max_peaks: int = 8,
+    harmonic_tolerance: float = 0.04,
+) -> list[Peak]:
+    """Peaks of a summed spectrum inside ``band_hz``, strongest first, harmonics folded in.
+
+    A peak must stand ``min_prominence_db`` above its key saddle inside the band (topographic
+    prominence: a broad, heavily damped peak on a sloping background still counts, a wiggle on a
+    plateau does not) and ``min_snr_db`` above the ``noise`` spectrum when one is given (the spectrum
+    a frame of static background would sum to). A peak at an integer multiple (2, 3, ...) of a stronger
+    peak, within ``harmonic_tolerance`` relative error (or one bin), is recorded as that peak's harmonic
+    instead of a peak of its own.
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray of float64, shape (F,)
+    power : ndarray, shape (F,)
+    band_hz : (low, high)
+    noise : ndarray, shape (F,), optional
+    min_prominence_db, min_snr_db : float
+    max_peaks : int
+    harmonic_tolerance : float
+
+    Returns
+    -------
+    list of Peak
+    """
+    values: NDArray[np.float64] = np.asarray(power, np.float64)
+    power = values
+    bin_hz = float(frequencies_hz[1] - frequencies_hz[0]) if len(frequencies_hz) > 1 else 1.0
+    lo, hi = band_hz
+    band = np.flatnonzero((frequencies_hz >= lo) & (frequencies_hz <= hi))
+    if band.size < 3:
+        return []
+    sub = power[band]
+    padded = np.concatenate(([-np.inf], sub, [-np.inf]))
+    local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
+    candidates: list[Peak] = []
+    for j in local:
+        k = int(band[j])
+        prom = 10 * math.log10(topographic_prominence(np.asarray(sub, np.float64), int(j)))
+        if prom < min_prominence_db:
+            continue
+        snr = float("inf")
+        if noise is not None:
+            snr = 10 * math.log10(power[k] / max(float(noise[k]), 1e-30))
+            if snr < min_snr_db:
+                continue
+        fk = interpolate_peak(power, k) * bin_hz
+        candidates.append(
+            Peak(
+                frequency_hz=fk,
+                bin=k,
+                power=float(power[k]),
+                prominence_db=prom,
+                snr_db=snr,
+                width_bins=_half_width(values, k),
+            )
+        )
+    candidates.sort(key=lambda p: -p.power)
+    return fold_harmonics(
+        candidates, bin_hz=bin_hz, max_peaks=max_peaks, harmonic_tolerance=harmonic_tolerance
+    )
+
+
+def fold_harmonics(
+    candidates: list[Peak], *, bin_hz: float, max_peaks: int = 8, harmonic_tolerance: float = 0.04
+) -> list[Peak]:
+    """Keep peaks in the given order (strongest first), folding integer multiples of a kept peak into
+    its ``harmonics_hz`` and dropping repeats of a kept peak (within its width or a bin and a half).
+
+    Parameters
+    ----------
+    candidates : list of Peak
+    bin_hz : float
+    max_peaks : int
+    harmonic_tolerance : float
+
+    Returns
+    -------
+    list of Peak
+    """
+    kept: list[Peak] = []
+    for peak in candidates:
+        if any(
+            abs(peak.frequency_hz - base.frequency_hz) <= max(1.5, base.width_bins) * bin_hz for base in kept
+        ):
+            continue
+        parent = None
+        for base in kept:
+            ratio = peak.frequency_hz / base.frequency_hz
+            order = round(ratio)
+            if order >= 2 and abs(peak.frequency_hz - order * base.frequency_hz) <= max(
+                harmonic_tolerance * peak.frequency_hz, 1.01 * bin_hz
+            ):
+                parent = base
+                break
+        if parent is not None:
+            if all(abs(h - peak.frequency_hz) > bin_hz for h in parent.harmonics_hz):
+                parent.harmonics_hz.append(peak.frequency_hz)
+        elif len(kept) < max_peaks:
+            kept.append(peak)
+    for peak in kept:
+        peak.harmonics_hz.sort()
+    return kept
+
+
+def fold_aliased_harmonics(
+    peaks: list[Peak], *, fps: float, bin_hz: float, tolerance: float = 0.01, max_order: int = 5
+) -> list[Peak]:
+    """Fold peaks that are overtones of a stronger peak seen through aliasing into that peak.
+
+    An overtone n f above the Nyquist rate shows at |n f - m fps|, which is no integer multiple of f, so
+    a harmonic test on the spectrum alone keeps it as a peak of its own. Each peak (strongest first) that
+    lies within ``tolerance`` (relative, or one bin) of such a folded overtone of an earlier peak is
+    appended to that peak's ``harmonics_hz`` instead.
+
+    Parameters
+    ----------
+    peaks : list of Peak
+        Strongest first.
+    fps : float
+        Sampling rate of the spectra, Hz.
+    bin_hz : float
+    tolerance : float
+    max_order : int
+        Highest overtone considered.
+
+    Returns
+    -------
+    list of Peak
+        The peaks kept, in order (copies where harmonics were added).
+    """
+    kept: list[Peak] = []
+    for peak in peaks:
+        f = peak.frequency_hz
+        parent = None
+        for i, base in enumerate(kept):
+            for order in range(2, max_order + 1):
+                multiple = order * base.frequency_hz
+                folded = abs(multiple - fps * round(multiple / fps))
+                if folded != multiple and abs(f - folded) <= max(tolerance * f, 1.01 * bin_hz):
+                    parent = i
+                    break
+            if parent is not None:
+                break
+        if parent is None:
+            kept.append(peak)
+        else:
+            base = kept[parent]
+            kept[parent] = dataclasses.replace(base, harmonics_hz=sorted([*base.harmonics_hz, f]))
+    return kept
+
+
+def explained(frequency_hz: float, peaks: list[Peak], *, bin_hz: float, tolerance: float, fps: float) -> bool:
+    """Whether a frequency is one of ``peaks``, one of their harmonics, or an integer multiple of one,
+    possibly folded back below the Nyquist rate (an overtone above fps / 2 shows at |n f - m fps|)."""
+    for peak in peaks:
+        for f in (peak.frequency_hz, *peak.harmonics_hz):
+            if abs(frequency_hz - f) <= max(1.5, peak.width_bins) * bin_hz:
+                return True
+        slack = max(tolerance * frequency_hz, 1.01 * bin_hz)
+        for order in range(2, 33):
+            multiple = order * peak.frequency_hz
+            folded = abs(multiple - fps * round(multiple / fps))
+            if abs(frequency_hz - folded) <= slack:
+                return True
+    return False
+
+
+__all__ = [
+    "Peak",
+    "explained",
+    "find_peaks",
+    "fold_aliased_harmonics",
+    "fold_harmonics",
+    "interpolate_peak",
+    "noise_floor",
+    "topographic_prominence",
+]

@@ -1,0 +1,290 @@
+"""The ring-down model: a damped oscillation fitted to an object's motion (frequency and damping far
+below one FFT bin), and its evolution over sliding windows.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.lstsq import least_squares
+from workers.pipeline.peaks import interpolate_peak
+
+
+@dataclass(frozen=True)
+class RingdownFit:
+    """A damped oscillation fitted to a velocity signal.
+
+    The displacement model is x(t) = C + A exp(-σ t) cos(ω_d t + φ) for t >= 0 (t from the first sample of
+    the fit), and the signal is its per-frame difference v_k = x_{k+1} - x_k, as optical flow measures.
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Damped frequency f_d = ω_d / 2π.
+    natural_frequency_hz : float
+        Undamped f_n = sqrt(ω_d² + σ²) / 2π.
+    damping_ratio : float
+        ζ = σ / ω_n.
+    amplitude : float
+        A, in the signal's units integrated (pixels for flow in pixels/frame).
+    phase_rad : float
+        φ at the first sample.
+    decay_per_s : float
+        σ.
+    start_index : int
+        First sample of the fitted window.
+    frequency_sd_hz, damping_sd, amplitude_sd : float
+        Standard uncertainties from the fit's Jacobian and residual variance.
+    residual_rms : float
+    snr_db : float
+        Signal power over residual power, dB.
+    """
+
+    frequency_hz: float
+    natural_frequency_hz: float
+    damping_ratio: float
+    amplitude: float
+    phase_rad: float
+    decay_per_s: float
+    start_index: int
+    frequency_sd_hz: float
+    damping_sd: float
+    amplitude_sd: float
+    residual_rms: float
+    snr_db: float
+
+    def displacement(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Model displacement (without the constant offset) at times ``t_s`` from the fit start."""
+        w = 2 * math.pi * self.frequency_hz
+        return np.asarray(self.amplitude * np.exp(-self.decay_per_s * t_s) * np.cos(w * t_s + self.phase_rad))
+
+
+def _basis(omega: float, sigma: float, k: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Columns: per-interval differences of e^{-σk}cos(ωk) and e^{-σk}sin(ωk) at frame positions k
+    (N + 1 values, in periods of the nominal rate from the fit start), and a constant drift per period."""
+    env = np.exp(-sigma * k)
+    c = env * np.cos(omega * k)
+    s = env * np.sin(omega * k)
+    return np.stack([np.diff(c), np.diff(s), np.diff(k)], axis=1)
+
+
+def _profile(
+    params: NDArray[np.float64], v: NDArray[np.float64], k: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    omega, sigma = float(params[0]), float(params[1])
+    basis = _basis(omega, sigma, k)
+    coef, *_ = np.linalg.lstsq(basis, v, rcond=None)
+    return v - basis @ coef, np.asarray(coef, np.float64)
+
+
+def _spectral_guess(v: NDArray[np.float64], f_guess_cycles: float | None) -> float:
+    """Angular frequency (rad/sample) of the strongest peak, zero-padded x16, parabolic refinement."""
+    n = len(v)
+    nfft = 1 << math.ceil(math.log2(max(16 * n, 64)))
+    spec = np.abs(np.fft.rfft(v - v.mean(), n=nfft)) ** 2
+    if f_guess_cycles is not None:
+        centre = f_guess_cycles * nfft
+        lo = max(1, int(centre - 1.5 * nfft / n))
+        hi = min(len(spec) - 1, int(centre + 1.5 * nfft / n) + 1)
+    else:
+        lo, hi = max(1, nfft // n), len(spec) - 1
+    k = lo + int(np.argmax(spec[lo:hi]))
+    return 2 * math.pi * interpolate_peak(spec, k) / nfft
+
+
+def fit_ringdown(
+    velocity: NDArray[np.floating[Any]],
+    *,
+    fps: float,
+    frequency_guess_hz: float | None = None,
+    start_index: int = 0,
+    frame_times_s: NDArray[np.float64] | None = None,
+) -> RingdownFit:
+    """Fit a damped oscillation to a per-frame velocity signal.
+
+    Variable projection: the two nonlinear parameters (ω, σ) are optimised by least squares while the
+    amplitude, phase and a constant velocity offset are solved linearly at each step.
+
+    Parameters
+    ----------
+    velocity : ndarray, shape (N,)
+        Per-frame displacement differences (e.g. the flow of the object projected on its motion axis).
+    fps : float
+    frequency_guess_hz : float, optional
+        Start value (e.g. the summed spectrum's peak); found from the signal's own spectrum otherwise.
+    start_index : int
+        Samples before this are ignored (still frames before release).
+    frame_times_s : ndarray of float64, shape (N + 1,), optional
+        Capture times of the frames that bound the samples (sample k spans frames k and k + 1). With
+        dropped frames or jitter the model is evaluated at these true times, so gaps do not bias the fit;
+        uniform at ``fps`` when omitted.
+
+    Returns
+    -------
+    RingdownFit
+    """
+    v = np.asarray(velocity, np.float64)[start_index:]
+    n = len(v)
+    if frame_times_s is None:
+        k_pos = np.arange(n + 1, dtype=np.float64)
+    else:
+        times = np.asarray(frame_times_s, np.float64)
+        k_pos = (times[start_index : start_index + n + 1] - times[start_index]) * fps
+    if n < 6:
+        from workers.pipeline.errors import AnalysisError
+
+        raise AnalysisError(f"only {n} moving frames after release; record at least 16 frames of motion")
+    guess = None if frequency_guess_hz is None else frequency_guess_hz / fps
+    omega0 = _spectral_guess(v, guess)
+    # Decay start value: from the envelope of the signal's two halves.
+    half = n // 2
+    e1 = np.sqrt(np.mean(v[:half] ** 2)) + 1e-12
+    e2 = np.sqrt(np.mean(v[half:] ** 2)) + 1e-12
+    sigma0 = max(1e-4, math.log(e1 / e2) / max(half, 1)) if e1 > e2 else 1e-3
+
+    def residual(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        return _profile(p, v, k_pos)[0]
+
+    best = None
+    for s0 in (sigma0, sigma0 * 0.3, sigma0 * 3):
+        sol = least_squares(
+            residual,
+            np.array([omega0, min(max(s0, 1e-5), 0.5)]),
+            lower=np.array([1e-4, 0.0]),
+            upper=np.array([math.pi, 1.0]),
+        )
+        if best is None or sol.cost < best.cost:
+            best = sol
+    assert best is not None
+    omega, sigma = float(best.x[0]), float(best.x[1])
+    res, coef = _profile(best.x, v, k_pos)
+    a_c, a_s = float(coef[0]), float(coef[1])
+    amplitude = math.hypot(a_c, a_s)
+    phase = math.atan2(-a_s, a_c)
+    dof = max(n - 5, 1)
+    # Residuals of real flow are not white: neighbouring samples share errors. Inflate the variance by
+    # the effective-sample-size factor (1 + ρ) / (1 - ρ) of the lag-1 autocorrelation ρ.
+    rho = float(res[1:] @ res[:-1]) / max(float(res @ res), 1e-30) if n > 2 else 0.0
+    rho = min(max(rho, 0.0), 0.9)
+    s2 = float(res @ res) / dof * (1 + rho) / (1 - rho)
+    jac = best.jac
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * s2
+        omega_sd, sigma_sd = (math.sqrt(max(float(x), 0.0)) for x in np.diag(cov))
+    except np.linalg.LinAlgError:
+        omega_sd, sigma_sd = float("nan"), float("nan")
+    basis = _basis(omega, sigma, k_pos)
+    try:
+        cov_lin = np.linalg.inv(basis.T @ basis) * s2
+        amp_sd = math.sqrt(max(float(cov_lin[0, 0] + cov_lin[1, 1]) / 2, 0.0))
+    except np.linalg.LinAlgError:
+        amp_sd = float("nan")
+    wn = math.hypot(omega, sigma)
+    zeta = sigma / wn
+    zeta_sd = sigma_sd / wn
+    signal_power = float(np.mean((v - res - coef[2] * np.diff(k_pos)) ** 2))
+    snr_db = 10 * math.log10(max(signal_power, 1e-30) / max(s2, 1e-30))
+    return RingdownFit(
+        frequency_hz=omega * fps / (2 * math.pi),
+        natural_frequency_hz=wn * fps / (2 * math.pi),
+        damping_ratio=zeta,
+        amplitude=amplitude,
+        phase_rad=phase,
+        decay_per_s=sigma * fps,
+        start_index=start_index,
+        frequency_sd_hz=omega_sd * fps / (2 * math.pi),
+        damping_sd=zeta_sd,
+        amplitude_sd=amp_sd,
+        residual_rms=math.sqrt(s2),
+        snr_db=snr_db,
+    )
+
+
+@dataclass(frozen=True)
+class Ringdown:
+    """How an object's oscillation evolves over the clip, from sliding windows.
+
+    Attributes
+    ----------
+    times_s : ndarray of float64, shape (W,)
+        Window centres, seconds from the analysed window's first frame.
+    amplitude : ndarray of float64, shape (W,)
+        Displacement amplitude at the object's frequency in each window (signal units integrated).
+    frequency_hz : ndarray of float64, shape (W,)
+        Strongest frequency in each window (zero-padded, interpolated).
+    spectrogram_hz : ndarray of float64, shape (F,)
+    spectrogram_power : ndarray of float64, shape (W, F)
+        Power of the velocity in each window.
+    """
+
+    times_s: NDArray[np.float64]
+    amplitude: NDArray[np.float64]
+    frequency_hz: NDArray[np.float64]
+    spectrogram_hz: NDArray[np.float64]
+    spectrogram_power: NDArray[np.float64]
+
+
+def sliding_ringdown(
+    velocity: NDArray[np.floating[Any]],
+    *,
+    fps: float,
+    frequency_hz: float,
+    window: int | None = None,
+) -> Ringdown:
+    """Ring-down analysis over sliding windows (a short-time spectrum of the object's motion).
+
+    Parameters
+    ----------
+    velocity : ndarray, shape (N,)
+        Per-frame displacement of the object.
+    fps : float
+    frequency_hz : float
+        The object's frequency; each window's amplitude is measured there.
+    window : int, optional
+        Window length in samples; default: four periods, at least 8 and at most N / 2.
+
+    Returns
+    -------
+    Ringdown
+    """
+    v = np.asarray(velocity, np.float64)
+    n = len(v)
+    period = fps / max(frequency_hz, 1e-9)
+    length = window or round(4 * period)
+    length = int(min(max(length, 8), max(n // 2, 8), n))
+    hop = max(1, length // 4)
+    starts = np.arange(0, n - length + 1, hop)
+    taper = np.hanning(length + 2)[1:-1]
+    nfft = max(64, 1 << math.ceil(math.log2(4 * length)))
+    freqs = np.fft.rfftfreq(nfft, d=1.0 / fps)
+    omega = 2 * math.pi * frequency_hz / fps
+    k = np.arange(length)
+    probe = np.exp(-1j * omega * k) * taper
+    gain = 2 * math.sin(omega / 2)  # per-frame difference of a unit sine
+    norm = float(taper.sum()) / 2
+    power = np.empty((len(starts), len(freqs)))
+    amp = np.empty(len(starts))
+    freq = np.empty(len(starts))
+    for i, s in enumerate(starts):
+        seg = v[s : s + length] - v[s : s + length].mean()
+        spec = np.abs(np.fft.rfft(seg * taper, n=nfft)) ** 2
+        power[i] = spec
+        kk = int(np.argmax(spec[1:])) + 1
+        freq[i] = interpolate_peak(spec, kk) * fps / nfft
+        amp[i] = abs(complex(seg @ probe)) / norm / max(gain, 1e-9)
+    times = (starts + length / 2) / fps
+    return Ringdown(
+        times_s=times.astype(np.float64),
+        amplitude=amp,
+        frequency_hz=freq,
+        spectrogram_hz=freqs.astype(np.float64),
+        spectrogram_power=power,
+    )
+
+
+__all__ = ["Ringdown", "RingdownFit", "fit_ringdown", "sliding_ringdown"]
