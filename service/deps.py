@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Header, Request, Security
+from fastapi import Depends, Header, Query, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.context import ServiceContext
@@ -73,3 +73,7 @@ IdempotencyKey = Annotated[
         description="Client-chosen key that makes retries of this request safe.",
     ),
 ]
+
+#: Paging of the list routes: the page size, and the ``next_cursor`` of the previous page.
+PageSize = Annotated[int, Query(ge=1, le=100, description="Page size.")]
+Cursor = Annotated[str | None, Query(max_length=256, description="`next_cursor` of the previous page.")]

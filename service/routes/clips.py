@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Query, Request, Response
+from fastapi import APIRouter, Path, Request, Response
 from starlette.concurrency import run_in_threadpool
 
 from api_schemas import ClipInfoModel, ClipList
 from service import clips
-from service.deps import ContextDep, IdempotencyKey, TenantDep
+from service.deps import ContextDep, Cursor, IdempotencyKey, PageSize, TenantDep
 from service.openapi import UPLOAD_REQUEST_BODY, problem_responses
 
 router = APIRouter(prefix="/v1/clips", tags=["clips"])
@@ -66,10 +66,8 @@ async def create_clip(
 def list_clips(
     ctx: ContextDep,
     tenant: TenantDep,
-    limit: Annotated[int, Query(ge=1, le=100, description="Page size.")] = 20,
-    cursor: Annotated[
-        str | None, Query(max_length=256, description="`next_cursor` of the previous page.")
-    ] = None,
+    limit: PageSize = 20,
+    cursor: Cursor = None,
 ) -> ClipList:
     records, next_cursor = ctx.store.list_clips(limit=limit, cursor=cursor, owner=tenant)
     return ClipList(items=[clips.clip_view(c) for c in records], next_cursor=next_cursor)

@@ -13,7 +13,7 @@ from starlette.concurrency import run_in_threadpool
 
 from api_schemas import JobCreate, JobList, JobModel, JobStatus
 from service import jobs
-from service.deps import ContextDep, IdempotencyKey, TenantDep
+from service.deps import ContextDep, Cursor, IdempotencyKey, PageSize, TenantDep
 from service.openapi import ETAG_HEADER, problem_responses
 from service.store import TERMINAL
 
@@ -87,10 +87,8 @@ def list_jobs(
     tenant: TenantDep,
     status: Annotated[list[JobStatus] | None, Query(description="Only jobs in these states.")] = None,
     clip_id: Annotated[str | None, Query(max_length=64, description="Only jobs of this clip.")] = None,
-    limit: Annotated[int, Query(ge=1, le=100, description="Page size.")] = 20,
-    cursor: Annotated[
-        str | None, Query(max_length=64, description="`next_cursor` of the previous page.")
-    ] = None,
+    limit: PageSize = 20,
+    cursor: Cursor = None,
 ) -> JobList:
     statuses = [s.value for s in status] if status else []
     return jobs.list_jobs(
