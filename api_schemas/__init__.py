@@ -4,9 +4,10 @@ This package is the only code both sides import. It holds the wire format: reque
 record, the analysis result and RFC 9457 problem details.
 """
 
-from api_schemas.clip import CameraIntrinsicsModel, ClipInfoModel
+from api_schemas.clip import CameraIntrinsicsModel, ClipInfoModel, ClipList
 from api_schemas.job import (
     AnalysisParameters,
+    CallbackState,
     Excitation,
     ExcitationSpec,
     ImpulseExcitation,
@@ -31,8 +32,10 @@ __all__ = [
     "AnalysisParameters",
     "AnalysisResult",
     "Artifacts",
+    "CallbackState",
     "CameraIntrinsicsModel",
     "ClipInfoModel",
+    "ClipList",
     "Excitation",
     "ExcitationSpec",
     "ImpulseExcitation",

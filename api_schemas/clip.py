@@ -24,7 +24,10 @@ class ClipInfoModel(BaseModel):
     model_config = ConfigDict(title="Clip", allow_inf_nan=False)
 
     id: str
-    format: str = Field(description="Detected container/layout, e.g. `npz`, `zip-frames`, `tum`, `video`.")
+    format: str = Field(
+        description="Detected container/layout: `npz`, `zip-frames`, `tum`, `open3d`, `k4a-mkv`, `video`, "
+        "`ros1-bag` or `ros2-bag`.",
+    )
     frames: int = Field(ge=0)
     fps: float | None = Field(description="Frame rate used for analysis, in Hz.")
     fps_source: str | None = Field(default=None, description="Where `fps` came from: bundle, container, ...")
@@ -39,3 +42,12 @@ class ClipInfoModel(BaseModel):
     filename: str | None = Field(default=None, description="Name of the uploaded file.")
     size_bytes: int
     created_at: datetime
+
+
+class ClipList(BaseModel):
+    """A page of clips, newest first."""
+
+    model_config = ConfigDict(title="ClipList")
+
+    items: list[ClipInfoModel]
+    next_cursor: str | None = None

@@ -98,6 +98,27 @@ class JobCreate(BaseModel):
         "`object_id`, `point_px` or `box_px`). Without it, stiffness and mass are null.",
     )
     parameters: AnalysisParameters = Field(default_factory=AnalysisParameters)
+    callback_url: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=2048,
+        description="http(s) URL told when the job ends (a signed POST, retried until it answers 2xx). Its "
+        "host must be on the server's allow-list.",
+    )
+
+
+class CallbackState(BaseModel):
+    """Delivery of a job's webhook."""
+
+    model_config = ConfigDict(title="Callback")
+
+    url: str
+    status: Literal["waiting", "pending", "delivered", "failed"] = Field(
+        description="`waiting` for the job to end, `pending` delivery (retrying), `delivered`, or `failed` "
+        "after every attempt."
+    )
+    attempts: int = Field(default=0, ge=0, description="Deliveries tried so far.")
+    last_error: str | None = Field(default=None, description="Why the last attempt failed.")
 
 
 class JobStatus(StrEnum):
@@ -126,6 +147,7 @@ class JobModel(BaseModel):
     finished_at: datetime | None = None
     error: Problem | None = None
     result: AnalysisResult | None = None
+    callback: CallbackState | None = None
 
 
 class JobList(BaseModel):

@@ -55,7 +55,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     sys.path.insert(0, str(ROOT))
-    from eigenscope.commands.submit import ApiClient, summarize
+    from eigenscope_client import Client, StepRelease
+
+    from eigenscope.commands.submit import ProgressBar, summarize
 
     data_dir = args.data_dir.resolve()
     data_dir.mkdir(parents=True, exist_ok=True)
@@ -88,26 +90,23 @@ def main(argv: list[str] | None = None) -> int:
         )  # fmt: skip
         truth = json.loads(clip.with_name("sample.truth.json").read_text())["objects"][0]
 
-        client = ApiClient(base)
-        try:
+        bar = ProgressBar(sys.stdout)
+        with Client(base) as client:
             started = time.monotonic()
-            uploaded = client.upload(clip)
-            print(f"demo: uploaded clip {uploaded['id']} ({uploaded['frames']} frames)", flush=True)
-            job = client.create_job(
-                {"clip_id": uploaded["id"], "excitation": {"type": "step_release", "force_n": 6.0}}
-            )
-            print(f"demo: job {job['id']} queued: {base}/v1/jobs/{job['id']}", flush=True)
-            job = client.wait(job["id"], timeout_s=600, show=True)
+            uploaded = client.upload_clip(clip)
+            print(f"demo: uploaded clip {uploaded.id} ({uploaded.frames} frames)", flush=True)
+            job = client.create_job(uploaded.id, excitation=StepRelease(force_n=6.0))
+            print(f"demo: job {job.id} queued: {base}/v1/jobs/{job.id}", flush=True)
+            job = client.wait(job, timeout=600, on_progress=bar.job)
+            bar.done()
             elapsed = time.monotonic() - started
-        finally:
-            client.close()
         print("\n".join(summarize(job, base)))
         print(
             f"truth: f = {truth['eigenfrequency_hz']:.4g} Hz, k = {truth['stiffness_n_per_m']:.4g} N/m, "
             f"m = {truth['mass_kg']:.4g} kg"
         )
         print(f"demo: upload to result in {elapsed:.2f} s")
-        if job["status"] != "succeeded":
+        if job.status != "succeeded":
             return 1
         if args.keep_serving:
             print(f"demo: still serving on {base} (API docs at {base}/docs); Ctrl-C to stop", flush=True)

@@ -8,15 +8,16 @@ pipeline: jobs are published to the workers by task name.
 from __future__ import annotations
 
 import logging
-import time
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI, Request, Response
+from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
 from service.bodies import BodyLimits
 from service.context import ServiceContext
+from service.logs import configure_logging
+from service.observability import RequestMiddleware
 from service.openapi import install_openapi
 from service.problems import install_problem_handlers
 from service.routes import clips, health, jobs, page
@@ -39,9 +40,18 @@ def _operation_id(route: APIRoute) -> str:
     return route.name
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    """Build the API for ``settings`` (from the environment when None)."""
+def create_app(settings: Settings | None = None, *, configure_log: bool | None = None) -> FastAPI:
+    """Build the API for ``settings`` (from the environment when None).
+
+    ``configure_log`` sets up the process's logging (:mod:`service.logs`); by default it does when the
+    settings come from the environment, as in the server processes (an app built for a test leaves the
+    test's logging alone).
+    """
+    if configure_log is None:
+        configure_log = settings is None
     settings = settings if settings is not None else Settings()
+    if configure_log:
+        configure_logging(settings.log_level, settings.log_format)
     ctx = ServiceContext.build(settings)
 
     @asynccontextmanager
@@ -89,20 +99,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_docs(app)
     install_openapi(app, version=API_VERSION, description=DESCRIPTION)
 
-    @app.middleware("http")
-    async def record_metrics(
-        request: Request, call_next: Callable[[Request], Awaitable[Response]]
-    ) -> Response:
-        start = time.perf_counter()
-        status = 500
-        try:
-            response = await call_next(request)
-            status = response.status_code
-            return response
-        finally:
-            route = request.scope.get("route")
-            template = getattr(route, "path", None) or "unmatched"
-            ctx.metrics.requests.labels(request.method, template, str(status)).inc()
-            ctx.metrics.latency.labels(request.method, template).observe(time.perf_counter() - start)
-
+    app.add_middleware(RequestMiddleware, metrics=ctx.metrics)
     return app

@@ -13,7 +13,7 @@ from starlette.requests import Request
 
 from api_schemas import ClipInfoModel
 from service.context import ServiceContext
-from service.errors import InsufficientStorageError, ServiceError, UnavailableError
+from service.errors import InsufficientStorageError, InvalidInputError, ServiceError, UnavailableError
 from service.multipart import receive_file
 from service.probing import probe_clip
 from service.retention import expiry
@@ -49,14 +49,35 @@ def display_name(filename: str | None) -> str:
     return name[-255:] or "clip"
 
 
-async def upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> ClipInfoModel:
+async def _replay(
+    ctx: ServiceContext, request: Request, existing: ClipRecord, idempotency_key: str
+) -> tuple[ClipInfoModel, bool]:
+    """A retried upload: its content (hashed as it arrives, then dropped) must be the first upload's."""
+    sink = await run_in_threadpool(ctx.storage.new_upload, ctx.settings.max_upload_bytes, hashing=True)
+    try:
+        await receive_file(request, sink)
+    finally:
+        sink.discard()
+    if sink.sha256 != existing.content_sha256:
+        raise InvalidInputError(
+            f"Idempotency-Key {idempotency_key!r} was already used to upload other content (clip "
+            f"{existing.id}); use a new key for a new upload",
+            code="idempotency-key-reused",
+        )
+    return clip_view(existing), False
+
+
+async def upload_clip(
+    ctx: ServiceContext, request: Request, tenant: str, *, idempotency_key: str | None = None
+) -> tuple[ClipInfoModel, bool]:
     """Stream the request's ``file`` field to storage, validate it in the probe, and record it.
 
-    Refused before the body is read: 503 when the database or the storage is unavailable, 429 when the
-    key's stored bytes are at their quota (or the declared size would pass it), 507 when the disk is too
-    full, 503 when ``max_uploads_in_flight`` uploads are being received already. A body that stalls is
-    answered 408 (see :mod:`service.bodies`). A refused or failed upload leaves neither a file nor a
-    record.
+    Returns ``(clip, created)``: with an ``idempotency_key`` this tenant already uploaded the same content
+    with, that clip and False. Refused before the body is read: 503 when the database or the storage is
+    unavailable, 429 when the key's stored bytes are at their quota (or the declared size would pass it),
+    507 when the disk is too full, 503 when ``max_uploads_in_flight`` uploads are being received already.
+    A body that stalls is answered 408 (see :mod:`service.bodies`). A refused or failed upload leaves
+    neither a file nor a record.
     """
     settings = ctx.settings
     if ctx.uploads_in_flight >= settings.max_uploads_in_flight:
@@ -68,13 +89,19 @@ async def upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cli
         )
     ctx.uploads_in_flight += 1  # one event loop: no other upload runs between the check and this
     try:
-        return await _upload_clip(ctx, request, tenant)
+        return await _upload_clip(ctx, request, tenant, idempotency_key)
     finally:
         ctx.uploads_in_flight -= 1
 
 
-async def _upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> ClipInfoModel:
+async def _upload_clip(
+    ctx: ServiceContext, request: Request, tenant: str, idempotency_key: str | None
+) -> tuple[ClipInfoModel, bool]:
     settings = ctx.settings
+    if idempotency_key is not None:
+        existing = await run_in_threadpool(ctx.store.clip_by_idempotency_key, idempotency_key, None, tenant)
+        if existing is not None:
+            return await _replay(ctx, request, existing, idempotency_key)
     quota = settings.max_stored_mb_per_key * 1024 * 1024
     used = (await run_in_threadpool(ctx.store.usage, tenant)).stored_bytes
     declared_text = request.headers.get("content-length")
@@ -85,7 +112,9 @@ async def _upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cl
         raise InsufficientStorageError(
             f"the server has less free storage than the {declared} bytes of this upload; try again later"
         )
-    sink = await run_in_threadpool(ctx.storage.new_upload, settings.max_upload_bytes)
+    sink = await run_in_threadpool(
+        ctx.storage.new_upload, settings.max_upload_bytes, hashing=idempotency_key is not None
+    )
     clip_id = new_id()
     kept = False
     try:
@@ -111,7 +140,7 @@ async def _upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cl
             raise
         relative = await run_in_threadpool(ctx.storage.keep_clip, sink, clip_id, received.filename)
         kept = True
-        record = await run_in_threadpool(
+        record, created = await run_in_threadpool(
             ctx.store.add_clip,
             clip_id=clip_id,
             filename=display_name(received.filename),
@@ -122,7 +151,12 @@ async def _upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cl
             expires_at=expiry(time.time(), settings.retention_s),
             max_stored_bytes=quota,
             retry_after_s=settings.quota_retry_after_s,
+            idempotency_key=idempotency_key,
+            content_sha256=sink.sha256,
         )
+        if not created:  # a concurrent request with the same key and content won the race
+            ctx.storage.delete_clip(clip_id)
+            return clip_view(record), False
     except BaseException as exc:
         if isinstance(exc, ServiceError):
             ctx.metrics.clips_rejected.labels(exc.code).inc()
@@ -132,7 +166,7 @@ async def _upload_clip(ctx: ServiceContext, request: Request, tenant: str) -> Cl
         raise
     ctx.metrics.uploaded_bytes.inc(sink.size)
     log.info("clip %s: %s, %d bytes, %r", record.id, info.get("format"), record.size_bytes, record.filename)
-    return clip_view(record)
+    return clip_view(record), True
 
 
 def delete_clip(ctx: ServiceContext, clip_id: str, tenant: str) -> None:

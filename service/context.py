@@ -7,6 +7,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from service.auth import FailedAuthLimiter, KeyRing
 from service.errors import UnavailableError
@@ -15,7 +16,8 @@ from service.queue import JobQueue
 from service.retention import cleanup
 from service.settings import Settings
 from service.storage import Storage
-from service.store import Store
+from service.store import JobRecord, Store
+from service.webhooks import Dispatcher
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +53,7 @@ class ServiceContext:
     metrics: Metrics
     keys: KeyRing = field(default_factory=lambda: KeyRing({}))
     auth_limiter: FailedAuthLimiter = field(default_factory=lambda: FailedAuthLimiter(20, 60.0))
+    webhooks: Dispatcher | None = None
     schema_ready: bool = False
     #: Uploads being received now (changed on the event loop only).
     uploads_in_flight: int = 0
@@ -71,6 +74,9 @@ class ServiceContext:
             metrics=Metrics(store),
             keys=KeyRing.from_settings(settings),
             auth_limiter=FailedAuthLimiter(settings.auth_failures_per_window, settings.auth_failure_window_s),
+            webhooks=Dispatcher(store, settings, _webhook_view(settings))
+            if settings.callback_hosts
+            else None,
         )
 
     def start(self) -> None:
@@ -90,9 +96,13 @@ class ServiceContext:
         self._stop.clear()
         self._sweeper = threading.Thread(target=self._sweep_loop, name="eigenscope-sweeper", daemon=True)
         self._sweeper.start()
+        if self.webhooks is not None:
+            self.webhooks.start()
 
     def stop(self) -> None:
         self._stop.set()
+        if self.webhooks is not None:
+            self.webhooks.stop()
         if self._sweeper is not None:
             self._sweeper.join(timeout=10)
             self._sweeper = None
@@ -170,3 +180,16 @@ class ServiceContext:
                 log.warning("sweeper pass failed", exc_info=True)
             if self._stop.wait(self.settings.sweep_interval_s):
                 return
+
+
+def _webhook_view(settings: Settings) -> Any:
+    """The job representation a webhook carries: the API's, with absolute links given a public URL."""
+    root = (settings.public_url or "").rstrip("/")
+
+    def render(job: JobRecord) -> dict[str, Any]:
+        from service.jobs import job_view  # here: service.jobs imports this module
+
+        view: dict[str, Any] = job_view(job, root_path=root).model_dump(mode="json")
+        return view
+
+    return render

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Request, Security
+from fastapi import Depends, Header, Query, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.auth import OPEN_TENANT
@@ -74,3 +74,18 @@ StoreDep = Annotated[Store, Depends(get_store)]
 StorageDep = Annotated[Storage, Depends(get_storage)]
 #: The caller's tenant id ("" when the service runs without keys).
 TenantDep = Annotated[str, Depends(get_tenant)]
+
+#: The ``Idempotency-Key`` header that makes a retried POST safe (None when not sent).
+IdempotencyKey = Annotated[
+    str | None,
+    Header(
+        alias="Idempotency-Key",
+        min_length=1,
+        max_length=255,
+        description="Client-chosen key that makes retries of this request safe.",
+    ),
+]
+
+#: Paging of the list routes: the page size, and the ``next_cursor`` of the previous page.
+PageSize = Annotated[int, Query(ge=1, le=100, description="Page size.")]
+Cursor = Annotated[str | None, Query(max_length=256, description="`next_cursor` of the previous page.")]

@@ -13,6 +13,7 @@ from service.context import ServiceContext
 from service.errors import InvalidInputError, NotFoundError
 from service.retention import expiry
 from service.store import ClipRecord, JobRecord, dumps_canonical
+from service.webhooks import check_callback_url
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +29,18 @@ def excitation_json(spec: Any) -> Any:
 
 def artifact_url(job_id: str, name: str, *, root_path: str = "") -> str:
     return f"{root_path}/v1/jobs/{job_id}/artifacts/{name}"
+
+
+def callback_view(job: JobRecord) -> dict[str, Any] | None:
+    """The state of a job's webhook, or None without one."""
+    if job.callback_url is None:
+        return None
+    return {
+        "url": job.callback_url,
+        "status": job.callback_status or "waiting",
+        "attempts": job.callback_attempts,
+        "last_error": job.callback_error,
+    }
 
 
 def job_view(job: JobRecord, *, root_path: str = "") -> JobModel:
@@ -56,8 +69,22 @@ def job_view(job: JobRecord, *, root_path: str = "") -> JobModel:
             "finished_at": job.finished_at,
             "error": job.error,
             "result": result,
+            "callback": callback_view(job),
         }
     )
+
+
+def etag_of(body: bytes) -> str:
+    """A strong entity tag of a representation's bytes."""
+    return '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
+
+
+def etag_matches(if_none_match: str | None, etag: str) -> bool:
+    """Whether an ``If-None-Match`` header names ``etag`` (weak comparison, as RFC 9110 has for GET)."""
+    if not if_none_match:
+        return False
+    tags = [t.strip() for t in if_none_match.split(",")]
+    return "*" in tags or etag in (t.removeprefix("W/") for t in tags)
 
 
 def _invalid(loc: Sequence[str], msg: str) -> InvalidInputError:
@@ -129,6 +156,8 @@ def create_job(
             errors=[{"loc": ["body", "clip_id"], "msg": "no such clip", "type": "value_error"}],
         )
     check_against_clip(body, clip)
+    if body.callback_url is not None:
+        check_callback_url(body.callback_url, ctx.settings)
     job, created = ctx.store.create_job(
         clip_id=body.clip_id,
         excitation=excitation_json(body.excitation),
@@ -139,6 +168,7 @@ def create_job(
         expires_at=expiry(time.time(), ctx.settings.retention_s),
         max_active_jobs=ctx.settings.max_active_jobs_per_key,
         retry_after_s=ctx.settings.quota_retry_after_s,
+        callback_url=body.callback_url,
     )
     if created:
         ctx.metrics.jobs_created.inc()
@@ -178,3 +208,10 @@ def artifact_file(ctx: ServiceContext, job_id: str, name: str, *, tenant: str) -
             code="artifact-not-found",
         )
     return ctx.storage.artifact_path(job_id, name)
+
+
+def delete_job(ctx: ServiceContext, job_id: str, tenant: str) -> None:
+    """Delete one of ``tenant``'s jobs and its artifacts (an active job is cancelled first)."""
+    ctx.store.delete_job(job_id, tenant)
+    ctx.storage.delete_job_outputs(job_id)
+    log.info("job %s: deleted", job_id)

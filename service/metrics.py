@@ -1,19 +1,33 @@
-"""Prometheus metrics of one app instance (own registry, no global state)."""
+"""Prometheus metrics of the API (own registry, no global state), correct with several API processes.
+
+With ``PROMETHEUS_MULTIPROC_DIR`` set (``eigenscope serve`` sets it for its API processes and its worker),
+every process writes its counters and histograms to files there and a scrape sums them all
+(``prometheus_client`` multiprocess mode): whichever process answers ``/metrics``, the numbers are the
+service's. Without it the metrics are this process's.
+
+``eigenscope_jobs{status}`` is read from the job store at scrape time; ``eigenscope_build_info`` names the
+version.
+"""
 
 from __future__ import annotations
 
 import logging
+import os
+import platform
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
-from prometheus_client.core import GaugeMetricFamily
+from prometheus_client.core import GaugeMetricFamily, InfoMetricFamily
 
 from service.store import Store
 
 log = logging.getLogger(__name__)
 
 JOB_STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
+#: The environment variable of prometheus_client's multiprocess mode.
+MULTIPROC_ENV = "PROMETHEUS_MULTIPROC_DIR"
 
 
 class _JobsCollector:
@@ -34,8 +48,60 @@ class _JobsCollector:
         yield family
 
 
+class BuildInfoCollector:
+    """``eigenscope_build_info{version, api_version, python, component}`` = 1."""
+
+    def __init__(self, component: str) -> None:
+        self.component = component
+
+    def collect(self) -> Iterator[Any]:
+        from eigenscope import __version__
+
+        family = InfoMetricFamily("eigenscope_build", "Version of the running Eigenscope")
+        family.add_metric(
+            [],
+            {
+                "version": __version__,
+                "api_version": "1",
+                "python": platform.python_version(),
+                "component": self.component,
+            },
+        )
+        yield family
+
+
+def forget_dead_processes(path: str) -> None:
+    """Drop the live gauges of processes of this machine that are gone (a killed worker process never
+    says so itself), so ``eigenscope_worker_processes`` counts the living."""
+    from prometheus_client import multiprocess
+
+    for entry in Path(path).glob("gauge_live*_*.db"):
+        pid_text = entry.stem.rsplit("_", 1)[-1]
+        if not pid_text.isdigit():
+            continue
+        try:
+            os.kill(int(pid_text), 0)
+        except ProcessLookupError:
+            multiprocess.mark_process_dead(int(pid_text), path)
+        except PermissionError:
+            continue
+
+
+def multiprocess_registry() -> CollectorRegistry | None:
+    """A registry summing every process's metric files, in multiprocess mode; else None."""
+    path = os.environ.get(MULTIPROC_ENV)
+    if not path:
+        return None
+    from prometheus_client import multiprocess
+
+    forget_dead_processes(path)
+    registry = CollectorRegistry(auto_describe=False)
+    multiprocess.MultiProcessCollector(registry, path=path)
+    return registry
+
+
 class Metrics:
-    """HTTP request metrics, upload and job counters, and job gauges."""
+    """HTTP request metrics, upload and job counters, job gauges and build info."""
 
     content_type = CONTENT_TYPE_LATEST
 
@@ -61,7 +127,23 @@ class Metrics:
             "eigenscope_clips_rejected", "Uploads rejected, by reason", ["code"], registry=self.registry
         )
         self.jobs_created = Counter("eigenscope_jobs_created", "Jobs created", registry=self.registry)
-        self.registry.register(_JobsCollector(store))
+        self._extra = [_JobsCollector(store), BuildInfoCollector("api")]
 
     def render(self) -> bytes:
-        return bytes(generate_latest(self.registry))
+        registry = multiprocess_registry()
+        if registry is None:
+            registry = CollectorRegistry(auto_describe=False)
+            registry.register(_Chain(self.registry))
+        for collector in self._extra:
+            registry.register(collector)
+        return bytes(generate_latest(registry))
+
+
+class _Chain:
+    """Another registry's metrics, as one collector."""
+
+    def __init__(self, registry: CollectorRegistry) -> None:
+        self.registry = registry
+
+    def collect(self) -> Iterator[Any]:
+        yield from self.registry.collect()

@@ -1,12 +1,22 @@
-"""The OpenAPI document: problem+json error responses, the streamed upload body, clean names.
+"""The OpenAPI document: problem+json error responses, the streamed upload body, clean names, and what
+client generators need.
 
 FastAPI documents error models under ``application/json`` and adds its own ``HTTPValidationError``;
 :func:`finalize_openapi` rewrites every 4xx/5xx response to ``application/problem+json`` with the
-``Problem`` schema, so generated clients parse errors into one type.
+``Problem`` schema, so generated clients parse errors into one type. It also:
+
+- makes the bearer key optional for the whole document (``security: [{}, {"ApiKey": []}]``), since a server
+  may run open, and sets ``security: []`` on the health and metrics routes, so generated clients need no
+  key where none is asked for;
+- sets ``servers`` (the server the document is fetched from), the licence and a contact;
+- drops ``default`` from the properties of request schemas (the default moves into the description):
+  generators such as openapi-typescript make a property with a default required, which a request may
+  leave out.
 """
 
 from __future__ import annotations
 
+import json
 from http import HTTPStatus
 from typing import Any
 
@@ -16,6 +26,19 @@ from fastapi.openapi.utils import get_openapi
 from api_schemas import Problem
 
 PROBLEM_REF = {"$ref": "#/components/schemas/Problem"}
+
+#: The ``ETag`` response header of jobs and artifacts.
+ETAG_HEADER: dict[str, Any] = {
+    "description": "Entity tag of the representation; send it back in `If-None-Match`",
+    "schema": {"type": "string"},
+}
+#: Routes any client may call without a key.
+PUBLIC_PATHS = ("/healthz", "/readyz", "/metrics")
+#: The key is optional: a server with no keys configured runs open.
+OPTIONAL_KEY: list[dict[str, list[str]]] = [{}, {"ApiKey": []}]
+SERVERS = [{"url": "/", "description": "The server this document is served by"}]
+LICENSE = {"name": "MIT", "identifier": "MIT"}
+CONTACT = {"name": "Eigenscope", "url": "https://eigenscope.dev"}
 
 #: Schema of the multipart upload body (the route reads the stream itself, so it is declared here).
 CLIP_UPLOAD_SCHEMA: dict[str, Any] = {
@@ -60,7 +83,71 @@ def finalize_openapi(spec: dict[str, Any]) -> dict[str, Any]:
                     response["description"] = "Unprocessable Content"
     schemas.pop("HTTPValidationError", None)
     schemas.pop("ValidationError", None)
-    return _rename_to_titles(spec)
+    _security(spec)
+    spec["servers"] = SERVERS
+    spec.setdefault("info", {}).update({"license": LICENSE, "contact": CONTACT})
+    spec = _rename_to_titles(spec)
+    _request_defaults_optional(spec)
+    return spec
+
+
+def _security(spec: dict[str, Any]) -> None:
+    """The optional key once for the document; the public routes ask for none. (Per-operation requirements
+    would make generators such as openapi-python-client demand an authenticated client for each call.)"""
+    spec["security"] = OPTIONAL_KEY
+    for path, item in spec.get("paths", {}).items():
+        for operation in item.values():
+            if not isinstance(operation, dict):
+                continue
+            if path in PUBLIC_PATHS:
+                operation["security"] = []
+            else:
+                operation.pop("security", None)
+
+
+def _refs(node: Any) -> set[str]:
+    prefix = "#/components/schemas/"
+    found: set[str] = set()
+    if isinstance(node, dict):
+        ref = node.get("$ref")
+        if isinstance(ref, str) and ref.startswith(prefix):
+            found.add(ref[len(prefix) :])
+        for value in node.values():
+            found |= _refs(value)
+    elif isinstance(node, list):
+        for value in node:
+            found |= _refs(value)
+    return found
+
+
+def request_schemas(spec: dict[str, Any]) -> set[str]:
+    """Names of the component schemas a request body uses, directly or through others."""
+    schemas = spec["components"]["schemas"]
+    todo: set[str] = set()
+    for item in spec.get("paths", {}).values():
+        for operation in item.values():
+            if isinstance(operation, dict) and "requestBody" in operation:
+                todo |= _refs(operation["requestBody"])
+    seen: set[str] = set()
+    while todo:
+        name = todo.pop()
+        if name in seen or name not in schemas:
+            continue
+        seen.add(name)
+        todo |= _refs(schemas[name])
+    return seen
+
+
+def _request_defaults_optional(spec: dict[str, Any]) -> None:
+    schemas = spec["components"]["schemas"]
+    for name in request_schemas(spec):
+        for prop in schemas[name].get("properties", {}).values():
+            if "default" not in prop:
+                continue
+            default = prop.pop("default")
+            if default is not None:
+                text = f"Default: `{json.dumps(default)}`."
+                prop["description"] = f"{prop['description']} {text}" if prop.get("description") else text
 
 
 def _rename_to_titles(spec: dict[str, Any]) -> dict[str, Any]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import uuid
 from typing import Any
 
 from service.settings import Settings
@@ -32,7 +33,11 @@ class JobQueue:
         """Send ``run_job(job_id)``; raises if the broker cannot take it."""
         from workers.celery_app import TASK_RUN_JOB
 
-        self.app.send_task(TASK_RUN_JOB, args=[job_id], queue=self.settings.queue, ignore_result=True)
+        # The task id starts with the job id, so Celery's own log lines name the job.
+        task_id = f"{job_id}-{uuid.uuid4().hex[:8]}"
+        self.app.send_task(
+            TASK_RUN_JOB, args=[job_id], queue=self.settings.queue, ignore_result=True, task_id=task_id
+        )
 
     def ping(self) -> None:
         """Raise unless the broker is reachable."""

@@ -9,7 +9,7 @@ PostgreSQL.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Self
+from typing import Any, Literal, Self
 
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -84,7 +84,49 @@ class Settings(BaseSettings):
     )
 
     retry_after_s: int = Field(default=1, ge=1, description="Suggested polling interval for clients.")
+    long_poll_max_s: float = Field(
+        default=60, gt=0, le=600, description="Longest `GET /v1/jobs/{id}?wait=` a request may wait, seconds."
+    )
     log_level: str = Field(default="INFO")
+    log_format: Literal["text", "json"] = Field(
+        default="text",
+        description="`text` (one readable line per record) or `json` (one JSON object a line).",
+    )
+    worker_metrics_port: int | None = Field(
+        default=None,
+        ge=0,
+        le=65535,
+        description="Port on which each `eigenscope worker` serves its own Prometheus /metrics (unset or 0: "
+        "none; `eigenscope serve` folds its worker's metrics into the API's /metrics).",
+    )
+    public_url: str | None = Field(
+        default=None,
+        max_length=512,
+        description="The API's public base URL, e.g. https://eigenscope.example.org: artifact links in "
+        "webhook payloads become absolute.",
+    )
+
+    # Webhooks ---------------------------------------------------------------------------------
+    callback_hosts: str | None = Field(
+        default=None,
+        description="Comma-separated hosts a job's `callback_url` may name: `robot.lab`, `*.example.org`, "
+        "`10.0.0.7:8080` (a port restricts to it). Unset: callbacks are refused.",
+    )
+    callback_secret: str | None = Field(
+        default=None,
+        repr=False,
+        description="HMAC-SHA256 key that signs webhook deliveries (Standard Webhooks; `whsec_<base64>` or "
+        "any string). Required with CALLBACK_HOSTS.",
+    )
+    callback_max_attempts: int = Field(default=8, ge=1, le=50, description="Deliveries tried per callback.")
+    callback_retry_base_s: float = Field(
+        default=2.0, gt=0, description="Delay before the first retry; doubled for each next one."
+    )
+    callback_retry_max_s: float = Field(default=600, gt=0, description="Longest delay between retries.")
+    callback_timeout_s: float = Field(default=10, gt=0, le=120, description="Time limit of one delivery.")
+    callback_poll_interval_s: float = Field(
+        default=0.25, gt=0, le=60, description="How often the API looks for callbacks to deliver."
+    )
 
     # Request bodies, connections and HTTP server limits ---------------------------------------
     max_json_body_kb: int = Field(
@@ -182,6 +224,10 @@ class Settings(BaseSettings):
         "api_keys_file",
         "published_host",
         "metrics_token",
+        "callback_hosts",
+        "callback_secret",
+        "public_url",
+        "worker_metrics_port",
         mode="before",
     )
     @classmethod
@@ -201,6 +247,11 @@ class Settings(BaseSettings):
             raise ValueError(
                 f"EIGENSCOPE_VISIBILITY_TIMEOUT_S={self.visibility_timeout_s} must exceed the hard time "
                 f"limit {self.task_hard_time_limit_s}, or a long job would be delivered twice"
+            )
+        if self.callback_hosts and not self.callback_secret:
+            raise ValueError(
+                "EIGENSCOPE_CALLBACK_HOSTS needs EIGENSCOPE_CALLBACK_SECRET: webhook deliveries are signed "
+                "(e.g. `python -c 'import secrets; print(secrets.token_urlsafe(32))'`)"
             )
         return self
 

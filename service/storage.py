@@ -11,6 +11,7 @@ Files are written to ``tmp/`` first and renamed into place, so a reader never se
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import shutil
@@ -49,10 +50,11 @@ def safe_suffix(filename: str | None) -> str:
 class UploadSink:
     """A file being uploaded into ``tmp/``: write chunks, then :meth:`commit` or :meth:`discard`."""
 
-    def __init__(self, path: Path, limit_bytes: int) -> None:
+    def __init__(self, path: Path, limit_bytes: int, *, hashing: bool = False) -> None:
         self.path = path
         self.limit_bytes = limit_bytes
         self.size = 0
+        self._hash = hashlib.sha256() if hashing else None
         self._fh: BinaryIO | None = path.open("xb")
 
     def write(self, chunk: bytes) -> None:
@@ -66,12 +68,19 @@ class UploadSink:
                 code="upload-too-large",
                 max_bytes=self.limit_bytes,
             )
+        if self._hash is not None:
+            self._hash.update(chunk)
         try:
             self._fh.write(chunk)
         except OSError as exc:
             if exc.errno == 28:  # ENOSPC
                 raise InsufficientStorageError("the server's storage is full; try again later") from exc
             raise
+
+    @property
+    def sha256(self) -> str | None:
+        """Hex SHA-256 of the bytes written (None unless made with ``hashing=True``)."""
+        return self._hash.hexdigest() if self._hash is not None else None
 
     def close(self) -> None:
         if self._fh is not None:
@@ -127,10 +136,11 @@ class Storage:
 
     # Clips -----------------------------------------------------------------------------------
 
-    def new_upload(self, limit_bytes: int) -> UploadSink:
-        """A new file in ``tmp/``; :class:`StorageUnavailableError` if the storage cannot be written."""
+    def new_upload(self, limit_bytes: int, *, hashing: bool = False) -> UploadSink:
+        """A new file in ``tmp/`` (hashed as it is written with ``hashing``); :class:`StorageUnavailableError`
+        if the storage cannot be written."""
         try:
-            return UploadSink(self.root / "tmp" / f"upload-{uuid.uuid4().hex}", limit_bytes)
+            return UploadSink(self.root / "tmp" / f"upload-{uuid.uuid4().hex}", limit_bytes, hashing=hashing)
         except OSError as exc:
             raise StorageUnavailableError(
                 f"the clip storage cannot be written ({exc.strerror or type(exc).__name__}); try again later"

@@ -22,12 +22,12 @@ import secrets
 import socket
 import time
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from enum import Enum
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 from sqlalchemy import (
     JSON,
@@ -35,8 +35,11 @@ from sqlalchemy import (
     DateTime,
     Engine,
     Float,
+    Index,
     Integer,
     String,
+    and_,
+    case,
     create_engine,
     delete,
     event,
@@ -96,6 +99,10 @@ class ClipRow(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     owner: Mapped[str] = mapped_column(String(64), default="", server_default="", index=True)
     expires_at: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
+    idempotency_key: Mapped[str | None] = mapped_column(String(255), nullable=True)
+    content_sha256: Mapped[str | None] = mapped_column(String(64), nullable=True)
+
+    __table_args__ = (Index("ix_eigenscope_clips_idempotency_key", "idempotency_key", unique=True),)
 
 
 class JobRow(Base):
@@ -125,17 +132,42 @@ class JobRow(Base):
     owner: Mapped[str] = mapped_column(String(64), default="", server_default="", index=True)
     expires_at: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
     output_bytes: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    callback_url: Mapped[str | None] = mapped_column(String(2048), nullable=True)
+    callback_status: Mapped[str | None] = mapped_column(
+        String(16), nullable=True, index=True, doc="pending, delivered or failed; None while the job runs."
+    )
+    callback_attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    callback_next_at: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
+    callback_lease_until: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
+    callback_error: Mapped[str | None] = mapped_column(String(500), nullable=True)
 
 
 #: Columns added after the first release: ``create_schema`` adds them to older tables.
 _ADDED_COLUMNS: dict[str, dict[str, str]] = {
-    "eigenscope_clips": {"owner": "VARCHAR(64) NOT NULL DEFAULT ''", "expires_at": "FLOAT"},
+    "eigenscope_clips": {
+        "owner": "VARCHAR(64) NOT NULL DEFAULT ''",
+        "expires_at": "FLOAT",
+        "idempotency_key": "VARCHAR(255)",
+        "content_sha256": "VARCHAR(64)",
+    },
     "eigenscope_jobs": {
         "owner": "VARCHAR(64) NOT NULL DEFAULT ''",
         "expires_at": "FLOAT",
         "output_bytes": "BIGINT NOT NULL DEFAULT 0",
+        "callback_url": "VARCHAR(2048)",
+        "callback_status": "VARCHAR(16)",
+        "callback_attempts": "INTEGER NOT NULL DEFAULT 0",
+        "callback_next_at": "FLOAT",
+        "callback_lease_until": "FLOAT",
+        "callback_error": "VARCHAR(500)",
     },
 }
+#: Indexes of added columns, created with them.
+_ADDED_INDEXES = (
+    "CREATE UNIQUE INDEX IF NOT EXISTS ix_eigenscope_clips_idempotency_key "
+    "ON eigenscope_clips (idempotency_key)",
+    "CREATE INDEX IF NOT EXISTS ix_eigenscope_jobs_callback_status ON eigenscope_jobs (callback_status)",
+)
 
 
 def _aware(value: datetime | None) -> datetime | None:
@@ -154,6 +186,7 @@ class ClipRecord:
     created_at: datetime
     owner: str = ""
     expires_at: float | None = None
+    content_sha256: str | None = None
 
     @classmethod
     def of(cls, row: ClipRow) -> ClipRecord:
@@ -168,6 +201,7 @@ class ClipRecord:
             created,
             row.owner or "",
             row.expires_at,
+            row.content_sha256,
         )
 
 
@@ -192,6 +226,11 @@ class JobRecord:
     owner: str = ""
     expires_at: float | None = None
     output_bytes: int = 0
+    enqueued_at: float | None = None
+    callback_url: str | None = None
+    callback_status: str | None = None
+    callback_attempts: int = 0
+    callback_error: str | None = None
 
     @classmethod
     def of(cls, row: JobRow) -> JobRecord:
@@ -217,6 +256,11 @@ class JobRecord:
             owner=row.owner or "",
             expires_at=row.expires_at,
             output_bytes=int(row.output_bytes or 0),
+            enqueued_at=row.enqueued_at,
+            callback_url=row.callback_url,
+            callback_status=row.callback_status,
+            callback_attempts=int(row.callback_attempts or 0),
+            callback_error=row.callback_error,
         )
 
 
@@ -279,6 +323,55 @@ def _decode_cursor(cursor: str) -> int:
         raise InvalidInputError(
             f"cursor {cursor!r} is not valid; pass the next_cursor of a previous page", code="invalid-cursor"
         ) from None
+
+
+def _encode_clip_cursor(created: datetime, clip_id: str) -> str:
+    raw = f"c{created.astimezone(UTC).isoformat()}|{clip_id}"
+    return base64.urlsafe_b64encode(raw.encode()).decode().rstrip("=")
+
+
+def _decode_clip_cursor(cursor: str) -> tuple[datetime, str]:
+    try:
+        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
+        stamp, sep, clip_id = raw[1:].partition("|")
+        if not raw.startswith("c") or not sep or not clip_id:
+            raise ValueError(raw)
+        created = datetime.fromisoformat(stamp)
+        if created.tzinfo is None:
+            raise ValueError(raw)
+        return created, clip_id
+    except (ValueError, binascii.Error, UnicodeDecodeError):
+        raise InvalidInputError(
+            f"cursor {cursor!r} is not valid; pass the next_cursor of a previous page", code="invalid-cursor"
+        ) from None
+
+
+_R = TypeVar("_R")
+
+
+def _winner_of_race(
+    exc: IntegrityError,
+    key: str | None,
+    lookup: Callable[[str, str | None, str], _R | None],
+    digest: str | None,
+    owner: str,
+) -> _R:
+    """What an insert that broke a unique constraint lost to: the record already made with the same
+    idempotency key (``lookup`` checks it was for the same request); else ``exc`` again."""
+    existing = lookup(key, digest, owner) if key is not None else None
+    if existing is None:
+        raise exc
+    return existing
+
+
+def _ended(values: dict[str, Any], now: float) -> dict[str, Any]:
+    """``values`` of a move to a terminal status, plus: a job with a callback URL has its callback due."""
+    has_callback = JobRow.callback_url.is_not(None)
+    return {
+        **values,
+        "callback_status": case((has_callback, "pending"), else_=None),
+        "callback_next_at": case((has_callback, now), else_=None),
+    }
 
 
 def _problem_worker_lost(attempts: int) -> dict[str, Any]:
@@ -383,6 +476,9 @@ class Store:
             with self.engine.begin() as conn:
                 for name, ddl in missing.items():
                     conn.exec_driver_sql(f"ALTER TABLE {table} ADD COLUMN {name} {ddl}")
+        with self.engine.begin() as conn:
+            for ddl in _ADDED_INDEXES:
+                conn.exec_driver_sql(ddl)
 
     def ping(self) -> None:
         """Raise if the database cannot be reached."""
@@ -448,8 +544,15 @@ class Store:
         expires_at: float | None = None,
         max_stored_bytes: int | None = None,
         retry_after_s: int | None = None,
-    ) -> ClipRecord:
-        """Record an uploaded clip; with ``max_stored_bytes`` refuse (429) if the owner would exceed it."""
+        idempotency_key: str | None = None,
+        content_sha256: str | None = None,
+    ) -> tuple[ClipRecord, bool]:
+        """Record an uploaded clip; returns ``(clip, created)``.
+
+        With ``max_stored_bytes`` refuse (429) if the owner would exceed it. With an ``idempotency_key``
+        that (this owner's) earlier upload of the same content already used, that clip is returned with
+        ``created=False``; used for other content it raises :class:`InvalidInputError`.
+        """
         row = ClipRow(
             id=clip_id,
             filename=filename,
@@ -459,15 +562,58 @@ class Store:
             created_at=utcnow(),
             owner=owner,
             expires_at=expires_at,
+            idempotency_key=_scoped_key(owner, idempotency_key),
+            content_sha256=content_sha256,
         )
-        with self._tx() as s:
-            if max_stored_bytes is not None:
-                self._lock_owner(s, owner)
-                used = self._usage(s, owner).stored_bytes
-                if used + size_bytes > max_stored_bytes:
-                    raise storage_quota_error(used, size_bytes, max_stored_bytes, retry_after_s)
-            s.add(row)
-        return ClipRecord.of(row)
+        try:
+            with self._tx() as s:
+                if max_stored_bytes is not None:
+                    self._lock_owner(s, owner)
+                    used = self._usage(s, owner).stored_bytes
+                    if used + size_bytes > max_stored_bytes:
+                        raise storage_quota_error(used, size_bytes, max_stored_bytes, retry_after_s)
+                s.add(row)
+        except IntegrityError as exc:
+            # Lost a race with a request carrying the same key: its clip, if it is the same content.
+            found = _winner_of_race(exc, idempotency_key, self.clip_by_idempotency_key, content_sha256, owner)
+            return found, False
+        return ClipRecord.of(row), True
+
+    def clip_by_idempotency_key(
+        self, key: str, content_sha256: str | None, owner: str = ""
+    ) -> ClipRecord | None:
+        """The clip ``owner`` uploaded with ``key``; raises :class:`InvalidInputError` if its content differs
+        from ``content_sha256`` (None: do not compare)."""
+        with self._tx(readonly=True) as s:
+            row = s.scalars(select(ClipRow).where(ClipRow.idempotency_key == _scoped_key(owner, key))).first()
+            if row is None:
+                return None
+            if content_sha256 is not None and row.content_sha256 != content_sha256:
+                raise InvalidInputError(
+                    f"Idempotency-Key {key!r} was already used to upload other content (clip {row.id}); "
+                    "use a new key for a new upload",
+                    code="idempotency-key-reused",
+                )
+            return ClipRecord.of(row)
+
+    def list_clips(
+        self, *, limit: int = 20, cursor: str | None = None, owner: str | None = ANY_OWNER
+    ) -> tuple[list[ClipRecord], str | None]:
+        """Clips newest first; returns the page and the cursor of the next page (None on the last)."""
+        query = select(ClipRow).order_by(ClipRow.created_at.desc(), ClipRow.id.desc()).limit(limit + 1)
+        if owner is not None:
+            query = query.where(ClipRow.owner == owner)
+        if cursor is not None:
+            created, clip_id = _decode_clip_cursor(cursor)
+            query = query.where(
+                (ClipRow.created_at < created) | (and_(ClipRow.created_at == created, ClipRow.id < clip_id))
+            )
+        with self._tx(readonly=True) as s:
+            rows = [ClipRecord.of(r) for r in s.scalars(query).all()]
+        if len(rows) > limit:
+            last = rows[limit - 1]
+            return rows[:limit], _encode_clip_cursor(last.created_at, last.id)
+        return rows, None
 
     def find_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord | None:
         """The clip, if it exists and belongs to ``owner`` (any owner when None)."""
@@ -516,6 +662,7 @@ class Store:
         expires_at: float | None = None,
         max_active_jobs: int | None = None,
         retry_after_s: int | None = None,
+        callback_url: str | None = None,
     ) -> tuple[JobRecord, bool]:
         """Insert a queued job on one of ``owner``'s clips; returns ``(job, created)``.
 
@@ -545,6 +692,8 @@ class Store:
             owner=owner,
             expires_at=expires_at,
             output_bytes=0,
+            callback_url=callback_url,
+            callback_attempts=0,
         )
         try:
             with self._tx() as s:
@@ -568,14 +717,11 @@ class Store:
                             limit=max_active_jobs,
                         )
                 s.add(row)
-        except IntegrityError:
-            if idempotency_key is None:
-                raise
+        except IntegrityError as exc:
             # Lost a race with a request carrying the same key.
-            existing = self.job_by_idempotency_key(idempotency_key, request_hash, owner)
-            if existing is None:
-                raise
-            return existing, False
+            return _winner_of_race(
+                exc, idempotency_key, self.job_by_idempotency_key, request_hash, owner
+            ), False
         return JobRecord.of(row), True
 
     def job_by_idempotency_key(self, key: str, request_hash: str | None, owner: str = "") -> JobRecord | None:
@@ -650,9 +796,26 @@ class Store:
                 "lease_owner": None,
                 "lease_until": None,
             }
-            if self._cas(job_id, job.status, values):
+            if self._cas(job_id, job.status, _ended(values, time.time())):
                 return self.get_job(job_id)
         raise ConflictError(f"job {job_id} is changing too fast to cancel; try again", code="job-busy")
+
+    def delete_job(self, job_id: str, owner: str | None = ANY_OWNER) -> JobRecord:
+        """Delete a job's record (a queued or running one is cancelled first); returns what it was.
+
+        A worker still running it stops at its next progress report (its writes no longer land), and a
+        callback not yet delivered is dropped with the record.
+        """
+        for _ in range(20):
+            job = self.get_job(job_id, owner)
+            if job.status in ACTIVE:
+                self.cancel_job(job_id, owner)
+                continue
+            with self._tx() as s:
+                res = s.execute(delete(JobRow).where(JobRow.id == job_id, JobRow.status.in_(TERMINAL)))
+                if res.rowcount:  # type: ignore[attr-defined]
+                    return job
+        raise ConflictError(f"job {job_id} is changing too fast to delete; try again", code="job-busy")
 
     def _cas(self, job_id: str, status: str, values: dict[str, Any]) -> bool:
         """Update the job if its status is still ``status``; bump the version. True if it landed."""
@@ -704,6 +867,7 @@ class Store:
                     "lease_owner": None,
                     "lease_until": None,
                 }
+                values = _ended(values, now)
             else:
                 values = {"status": "queued", "stage": "requeued", "lease_owner": None, "lease_until": None}
                 values["enqueued_at"] = now
@@ -756,6 +920,7 @@ class Store:
                     "lease_owner": None,
                     "lease_until": None,
                 }
+                values = _ended(values, now)
                 outcome = ClaimOutcome.EXHAUSTED
             else:
                 values = {
@@ -814,7 +979,7 @@ class Store:
             "lease_owner": None,
             "lease_until": None,
         }
-        return self._owned_update(job_id, owner, values)
+        return self._owned_update(job_id, owner, _ended(values, time.time()))
 
     def fail_job(self, job_id: str, owner: str, problem: dict[str, Any]) -> bool:
         values = {
@@ -825,7 +990,7 @@ class Store:
             "lease_owner": None,
             "lease_until": None,
         }
-        return self._owned_update(job_id, owner, values)
+        return self._owned_update(job_id, owner, _ended(values, time.time()))
 
     def release_job(self, job_id: str, owner: str, *, stage: str = "retrying") -> bool:
         """Give the job back to the queue (for a retry); the attempt stays counted."""
@@ -837,6 +1002,59 @@ class Store:
             "enqueued_at": time.time(),
         }
         return self._owned_update(job_id, owner, values)
+
+    # Callbacks ---------------------------------------------------------------------------------
+
+    def claim_due_callbacks(self, *, limit: int, lease_s: float) -> list[JobRecord]:
+        """Jobs whose callback is due, each leased to the caller for ``lease_s`` (several API processes
+        deliver without sending one callback twice at once)."""
+        now = time.time()
+        query = (
+            select(JobRow.id)
+            .where(
+                JobRow.callback_status == "pending",
+                JobRow.callback_next_at <= now,
+                (JobRow.callback_lease_until.is_(None)) | (JobRow.callback_lease_until < now),
+            )
+            .order_by(JobRow.callback_next_at)
+            .limit(limit)
+        )
+        with self._tx(readonly=True) as s:
+            due = list(s.scalars(query).all())
+        claimed = []
+        for job_id in due:
+            with self._tx() as s:
+                res = s.execute(
+                    update(JobRow)
+                    .where(
+                        JobRow.id == job_id,
+                        JobRow.callback_status == "pending",
+                        (JobRow.callback_lease_until.is_(None)) | (JobRow.callback_lease_until < now),
+                    )
+                    .values(
+                        callback_lease_until=now + lease_s, callback_attempts=JobRow.callback_attempts + 1
+                    )
+                )
+            if res.rowcount:  # type: ignore[attr-defined]
+                job = self.find_job(job_id)
+                if job is not None:
+                    claimed.append(job)
+        return claimed
+
+    def record_callback(self, job_id: str, *, status: str, next_at: float | None, error: str | None) -> None:
+        """The outcome of a delivery: ``delivered``, ``failed`` (given up) or ``pending`` again at
+        ``next_at``."""
+        with self._tx() as s:
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id)
+                .values(
+                    callback_status=status,
+                    callback_next_at=next_at,
+                    callback_lease_until=None,
+                    callback_error=None if error is None else error[:500],
+                )
+            )
 
     # Retention ---------------------------------------------------------------------------------
 

@@ -14,13 +14,16 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from celery import Celery
 
 from service.settings import Settings
 from service.storage import Storage
 from service.store import Store
+
+if TYPE_CHECKING:
+    from workers.metrics import WorkerMetrics
 
 #: The one task the API publishes: ``run_job(job_id)``.
 TASK_RUN_JOB = "eigenscope.run_job"
@@ -33,6 +36,7 @@ class WorkerContext:
     settings: Settings
     store: Store
     storage: Storage
+    metrics: WorkerMetrics
 
 
 class EigenscopeCelery(Celery):  # type: ignore[misc]
@@ -45,12 +49,14 @@ class EigenscopeCelery(Celery):  # type: ignore[misc]
     def context(self) -> WorkerContext:
         """The store and storage of this process (recreated after a fork)."""
         if self._context is None or self._context_pid != os.getpid():
+            from workers.metrics import WorkerMetrics
+
             settings = self.eigenscope_settings
             store = Store(
                 settings.effective_database_url, lease_s=settings.lease_s, max_attempts=settings.max_attempts
             )
             storage = Storage(settings.data_path)
-            self._context = WorkerContext(settings, store, storage)
+            self._context = WorkerContext(settings, store, storage, WorkerMetrics())
             self._context_pid = os.getpid()
         return self._context
 

@@ -30,7 +30,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -44,7 +44,8 @@ from api_schemas import (
     StepReleaseExcitation,
 )
 from service.errors import PROBLEM_BASE, UnavailableError, redact_paths
-from service.store import ClaimOutcome, ClipRecord, Store, lease_owner_token
+from service.logs import job_id_var
+from service.store import ClaimOutcome, ClipRecord, JobRecord, Store, lease_owner_token
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +92,57 @@ class Runner(Protocol):
         parameters: AnalysisParameters | None = ...,
         progress: ProgressCallback | None = ...,
     ) -> AnalysisResult: ...
+
+
+class JobObserver(Protocol):
+    """What a worker's metrics want to know about each delivery (see :mod:`workers.metrics`)."""
+
+    def started(self, job: JobRecord, *, queue_wait_s: float) -> None: ...
+
+    def finished(
+        self,
+        job: JobRecord,
+        *,
+        outcome: str,
+        duration_s: float,
+        failure: str | None,
+        timings_s: dict[str, float],
+    ) -> None: ...
+
+
+@dataclass
+class _Report:
+    """What one delivery did, for its observer."""
+
+    observer: JobObserver | None
+    job: JobRecord | None = None
+    started: float = 0.0
+    failure: str | None = None
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def claimed(self, job: JobRecord) -> None:
+        self.job, self.started = job, time.monotonic()
+        wait = max(time.time() - job.enqueued_at, 0.0) if job.enqueued_at else 0.0
+        log.info("job %s: attempt %d started after %.2f s in the queue", job.id, job.attempts, wait)
+        if self.observer is not None:
+            self.observer.started(job, queue_wait_s=wait)
+
+    def done(self, outcome: Outcome) -> Outcome:
+        if self.job is not None:
+            took = time.monotonic() - self.started
+            why = f" ({self.failure})" if self.failure else ""
+            log.info(
+                "job %s: attempt %d %s%s in %.2f s", self.job.id, self.job.attempts, outcome.status, why, took
+            )
+        if self.observer is not None and self.job is not None:
+            self.observer.finished(
+                self.job,
+                outcome=outcome.status,
+                duration_s=time.monotonic() - self.started,
+                failure=self.failure,
+                timings_s=self.timings_s,
+            )
+        return outcome
 
 
 class JobAbortedError(Exception):
@@ -238,6 +290,7 @@ def execute_job(
     timeout_errors: tuple[type[BaseException], ...] = (),
     test_hooks: bool = False,
     memory_budget_mb: int = 0,
+    observer: JobObserver | None = None,
 ) -> Outcome:
     """Run one delivery of job ``job_id``; see the module docstring.
 
@@ -255,7 +308,44 @@ def execute_job(
         production: without it no request can trigger a hook.
     memory_budget_mb : int
         Address-space cap of this process while the runner runs (``EIGENSCOPE_JOB_MEMORY_MB``; 0: none).
+    observer : JobObserver, optional
+        Told when the job is claimed and how the delivery ended (the worker's metrics).
+
+    Every log record of the delivery carries the job id (:data:`service.logs.job_id_var`).
     """
+    token = job_id_var.set(job_id)
+    report = _Report(observer)
+    try:
+        outcome = _execute(
+            store,
+            storage_root,
+            job_id,
+            runner=runner,
+            progress_interval_s=progress_interval_s,
+            soft_time_limit_s=soft_time_limit_s,
+            timeout_errors=timeout_errors,
+            test_hooks=test_hooks,
+            memory_budget_mb=memory_budget_mb,
+            report=report,
+        )
+        return report.done(outcome)
+    finally:
+        job_id_var.reset(token)
+
+
+def _execute(
+    store: Store,
+    storage_root: Path,
+    job_id: str,
+    *,
+    runner: Runner,
+    progress_interval_s: float,
+    soft_time_limit_s: float | None,
+    timeout_errors: tuple[type[BaseException], ...],
+    test_hooks: bool,
+    memory_budget_mb: int,
+    report: _Report,
+) -> Outcome:
     from service.storage import Storage, tree_bytes
 
     storage = Storage(storage_root)
@@ -269,8 +359,10 @@ def execute_job(
         return Outcome(claim.outcome.value)
     job = claim.job
     assert job is not None
+    report.claimed(job)
 
     def fail(p: dict[str, Any]) -> Outcome:
+        report.failure = str(p.get("code") or p.get("type", "")).rsplit("/", 1)[-1]
         store.fail_job(job_id, owner, p)
         return Outcome("failed")
 
@@ -305,6 +397,7 @@ def execute_job(
                     result = runner(
                         clip_path, workdir, excitation=excitation, parameters=parameters, progress=callback
                     )
+                report.timings_s = dict(result.timings_s)
                 if lease.lost.is_set() or not store.renew_lease(job_id, owner):
                     raise JobAbortedError(job_id)
                 output_bytes = tree_bytes(workdir)

@@ -44,6 +44,7 @@ def run_job(self: Task, job_id: str) -> str:
         timeout_errors=(SoftTimeLimitExceeded,),
         test_hooks=ctx.settings.test_hooks,
         memory_budget_mb=ctx.settings.job_memory_mb,
+        observer=ctx.metrics,
     )
     if outcome.retry_in_s is not None:
         try:

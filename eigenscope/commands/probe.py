@@ -19,11 +19,13 @@ def register(subparsers: Any) -> None:
         help="show what a clip holds (format, frames, fps and its source, depth, intrinsics)",
         description=(
             "Detect a clip's format from its content and print its metadata. Formats: .npz bundle, zip of "
-            "rgb/ (+depth/) frames, TUM RGB-D zip, video (mp4/avi/mkv/mov), ROS 1 .bag (rosbag record or "
-            "RealSense Viewer), ROS 2 .mcap/.db3 or zipped bag folder. Flags override the file's values."
+            "rgb/ (+depth/) frames, TUM RGB-D zip, Open3D RGB-D zip or folder (color/, depth/, "
+            "camera_intrinsic.json), Azure Kinect / Orbbec .mkv (colour and b16g depth tracks, "
+            "calibration.json), video (mp4/avi/mkv/mov), ROS 1 .bag (rosbag record or RealSense Viewer), "
+            "ROS 2 .mcap/.db3 or zipped bag folder. Flags override the file's values."
         ),
     )
-    p.add_argument("clip", help="clip file (or a bag/TUM/frames folder)")
+    p.add_argument("clip", help="clip file (or a bag/TUM/Open3D/frames folder)")
     p.add_argument("--fps", type=float, help="true recording frame rate, Hz (wins over the file)")
     p.add_argument("--fx", type=float, help="focal length x, pixels")
     p.add_argument("--fy", type=float, help="focal length y, pixels")

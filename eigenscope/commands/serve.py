@@ -5,16 +5,19 @@ job store in the data directory. With it set, ``eigenscope serve --no-worker`` r
 ``eigenscope worker`` processes run anywhere that shares the data directory and the database.
 
 The command supervises its children (uvicorn, a Celery worker): a worker that dies is restarted, and
-SIGINT/SIGTERM stop them all.
+SIGINT/SIGTERM stop them all. The children share one Prometheus multiprocess directory, so ``/metrics`` of
+any API process (``--api-workers N``) counts every request and every job of the service.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -189,7 +192,20 @@ def run(args: argparse.Namespace) -> int:
     digests = write_digest_file(ring, settings.data_path / "run") if ring.enabled else None
     if digests is not None:
         env["EIGENSCOPE_API_KEYS_FILE"] = str(digests)
+    metrics_dir = tempfile.mkdtemp(prefix="eigenscope-metrics-")
+    env["PROMETHEUS_MULTIPROC_DIR"] = metrics_dir
+    try:
+        return _supervise(args, settings, env)
+    finally:
+        shutil.rmtree(metrics_dir, ignore_errors=True)
+        if digests is not None:
+            digests.unlink(missing_ok=True)
+
+
+def _supervise(args: argparse.Namespace, settings: Settings, env: dict[str, str]) -> int:
     level = settings.log_level.lower()
+    # Uvicorn's own lines (its banner-like start-up notes) only when debugging; the app logs at `level`.
+    server_level = "debug" if level == "debug" else "warning"
     supervisor = Supervisor(env, grace_s=args.grace)
     signal.signal(signal.SIGTERM, supervisor.request_stop)
     signal.signal(signal.SIGINT, supervisor.request_stop)
@@ -204,7 +220,8 @@ def run(args: argparse.Namespace) -> int:
         "--port",
         str(args.port),
         "--log-level",
-        level,
+        server_level,
+        "--no-access-log",
         "--timeout-graceful-shutdown",
         str(max(int(args.grace) - 2, 1)),
         *uvicorn_limits(settings),
@@ -231,8 +248,6 @@ def run(args: argparse.Namespace) -> int:
         return supervisor.watch(restartable=("worker",))
     finally:
         supervisor.stop_all()
-        if digests is not None:
-            digests.unlink(missing_ok=True)
 
 
 def uvicorn_limits(settings: Settings) -> list[str]:

@@ -1,7 +1,9 @@
 """``eigenscope submit CLIP --server URL``: upload a clip, queue an analysis, optionally wait for it.
 
-Talks to a running ``eigenscope serve`` over HTTP only. With ``--wait`` it shows a progress bar and
-prints the result summary and the artifact URLs; exit status 1 if the job failed or was cancelled.
+Talks to a running ``eigenscope serve`` over HTTP through the Python client (``eigenscope_client``, the
+same one robot code uses). With ``--wait`` it shows the upload and the analysis as progress bars and prints
+the result summary and the artifact URLs (``--out DIR`` downloads them); exit status 1 if the job failed or
+was cancelled.
 """
 
 from __future__ import annotations
@@ -10,12 +12,13 @@ import argparse
 import json
 import os
 import sys
-import time
-import uuid
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from eigenscope.cli import UsageError
+
+if TYPE_CHECKING:
+    from eigenscope_client import Client, Job
 
 _PARAMS = ("fps", "fx", "fy", "cx", "cy", "depth_scale", "depth_m", "min_frequency_hz", "max_frequency_hz")
 
@@ -43,126 +46,62 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--start-frame", type=int, default=None)
     for name in _PARAMS:
         parser.add_argument(f"--{name.replace('_', '-')}", type=float, default=None)
+    parser.add_argument("--callback-url", default=None, help="URL the server tells when the job ends")
     parser.add_argument("--wait", action="store_true", help="wait for the result and print it")
     parser.add_argument("--timeout", type=float, default=3600.0, help="seconds to wait with --wait")
+    parser.add_argument("--out", type=Path, default=None, help="with --wait: download the artifacts here")
     parser.add_argument("--json", action="store_true", help="print the job as JSON on stdout")
     parser.set_defaults(handler=run)
 
 
-def build_job_request(args: argparse.Namespace, clip_id: str) -> dict[str, Any]:
-    """The ``POST /v1/jobs`` body for these options."""
-    excitation: dict[str, Any] | None = None
+def job_request(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments of ``Client.create_job`` for these options (excitation and parameters)."""
+    from eigenscope_client import Impulse, StepRelease
+
+    excitation: StepRelease | Impulse | None = None
     if args.force_n is not None:
-        excitation = {"type": "step_release", "force_n": args.force_n}
+        excitation = StepRelease(force_n=args.force_n)
     elif args.impulse_ns is not None:
-        excitation = {"type": "impulse", "impulse_ns": args.impulse_ns}
+        excitation = Impulse(impulse_ns=args.impulse_ns)
     parameters: dict[str, Any] = {}
     for name in ("method", "flow", "frames", "start_frame", *_PARAMS):
         value = getattr(args, name, None)
         if value is not None:
             parameters[name] = value
-    return {"clip_id": clip_id, "excitation": excitation, "parameters": parameters}
+    return {"excitation": excitation, "parameters": parameters, "callback_url": args.callback_url}
 
 
-class ApiClient:
-    """The few calls ``submit`` (and the demo) make, with problem+json errors turned into messages."""
+class ProgressBar:
+    """A bar on a terminal (redrawn in place); elsewhere a line each time the label changes."""
 
-    def __init__(self, server: str, *, timeout_s: float = 600.0, api_key: str | None = None) -> None:
-        import httpx
+    def __init__(self, stream: Any = None, width: int = 30) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.width = width
+        self.last = ""
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
 
-        self.base = server.rstrip("/")
-        if not self.base.startswith(("http://", "https://")):
-            raise UsageError(f"--server {server!r} must be an http:// or https:// URL")
-        timeout = httpx.Timeout(timeout_s, connect=10.0)
-        headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
-        self.http = httpx.Client(base_url=self.base, timeout=timeout, headers=headers)
+    def show(self, fraction: float, label: str) -> None:
+        fraction = min(max(fraction, 0.0), 1.0)
+        filled = round(fraction * self.width)
+        line = f"[{'#' * filled}{'.' * (self.width - filled)}] {fraction * 100:5.1f}% {label}"
+        if self.tty:
+            self.stream.write("\r" + line.ljust(len(self.last)))
+            self.stream.flush()
+        elif not self.last.endswith(label):
+            print(line, file=self.stream, flush=True)
+        self.last = line
 
-    def close(self) -> None:
-        self.http.close()
+    def upload(self, sent: int, total: int) -> None:
+        self.show(sent / total if total else 1.0, f"uploading {total / 1e6:.1f} MB")
 
-    def _request(self, method: str, url: str, **kwargs: Any) -> Any:
-        import httpx
+    def job(self, job: Job) -> None:
+        self.show(job.progress, f"{job.status}: {job.stage or ''}")
 
-        for attempt in range(4):
-            try:
-                response = self.http.request(method, url, **kwargs)
-                break
-            except (httpx.ConnectError, httpx.RemoteProtocolError) as exc:
-                if attempt == 3 or "files" in kwargs:
-                    raise UsageError(f"cannot reach {self.base}: {exc}") from exc
-                time.sleep(0.5 * (attempt + 1))
-            except httpx.HTTPError as exc:
-                raise UsageError(f"request to {self.base}{url} failed: {exc}") from exc
-        if response.status_code >= 400:
-            raise UsageError(_problem_message(response))
-        return response.json() if response.content else None
-
-    def upload(self, path: Path) -> dict[str, Any]:
-        if not path.is_file():
-            raise UsageError(f"{path}: no such file")
-        with path.open("rb") as fh:
-            result: dict[str, Any] = self._request(
-                "POST", "/v1/clips", files={"file": (path.name, fh, "application/octet-stream")}
-            )
-        return result
-
-    def create_job(self, body: dict[str, Any]) -> dict[str, Any]:
-        key = uuid.uuid4().hex  # makes the retries in _request safe
-        result: dict[str, Any] = self._request(
-            "POST", "/v1/jobs", json=body, headers={"Idempotency-Key": key}
-        )
-        return result
-
-    def get_job(self, job_id: str) -> dict[str, Any]:
-        result: dict[str, Any] = self._request("GET", f"/v1/jobs/{job_id}")
-        return result
-
-    def wait(self, job_id: str, *, timeout_s: float, show: bool) -> dict[str, Any]:
-        """Poll until the job finishes; draws a progress bar on stderr when ``show``."""
-        deadline = time.monotonic() + timeout_s
-        delay = 0.05
-        last_line = ""
-        while True:
-            job = self.get_job(job_id)
-            if show:
-                last_line = _draw_progress(job, last_line)
-            if job["status"] in ("succeeded", "failed", "cancelled"):
-                if show and sys.stderr.isatty():
-                    sys.stderr.write("\n")
-                return job
-            if time.monotonic() > deadline:
-                raise UsageError(f"job {job_id} still {job['status']} after {timeout_s:g} s; poll it later")
-            time.sleep(delay)
-            delay = min(delay * 1.5, 1.0)
-
-
-def _problem_message(response: Any) -> str:
-    try:
-        doc = response.json()
-    except ValueError:
-        doc = {}
-    detail = doc.get("detail") if isinstance(doc, dict) else None
-    title = doc.get("title") if isinstance(doc, dict) else None
-    title = title or response.reason_phrase
-    message = f"server answered {response.status_code} {title}: {detail or response.text[:200]}"
-    if response.status_code == 401:
-        message += " (pass --api-key KEY or set EIGENSCOPE_API_KEY)"
-    return message
-
-
-def _draw_progress(job: dict[str, Any], last_line: str) -> str:
-    """Redraw the bar on a terminal; elsewhere print a line when the stage changes. Returns the line."""
-    fraction = float(job.get("progress") or 0.0)
-    width = 30
-    filled = round(fraction * width)
-    state = f"{job['status']}: {job.get('stage') or ''}"
-    line = f"[{'#' * filled}{'.' * (width - filled)}] {fraction * 100:5.1f}% {state}"
-    if sys.stderr.isatty():
-        sys.stderr.write("\r" + line.ljust(len(last_line)))
-        sys.stderr.flush()
-    elif not last_line.endswith(state):
-        print(line, file=sys.stderr, flush=True)
-    return line
+    def done(self) -> None:
+        if self.tty and self.last:
+            self.stream.write("\n")
+            self.stream.flush()
+        self.last = ""
 
 
 def _fmt(value: Any, unit: str, digits: int = 4) -> str:
@@ -171,61 +110,100 @@ def _fmt(value: Any, unit: str, digits: int = 4) -> str:
     return f"{value:.{digits}g} {unit}".strip()
 
 
-def summarize(job: dict[str, Any], base: str) -> list[str]:
+def summarize(job: Job, base: str) -> list[str]:
     """Human-readable lines for a finished job."""
-    lines = [f"job {job['id']}: {job['status']} (attempts: {job.get('attempts')})"]
-    if job["status"] != "succeeded":
-        error = job.get("error") or {}
-        if error:
-            lines.append(f"error: {error.get('title')}: {error.get('detail')}")
+    lines = [f"job {job.id}: {job.status} (attempts: {job.attempts})"]
+    if job.status != "succeeded" or job.result is None:
+        if job.error is not None:
+            lines.append(f"error: {job.error.title}: {job.error.detail}")
         return lines
-    result = job.get("result") or {}
-    source = result.get("fps_source") or "unknown"
-    lines.append(f"frame rate: {_fmt(result.get('fps'), 'fps')} (from {source})")
-    lines.append(f"eigenfrequency: {_fmt(result.get('eigenfrequency_hz'), 'Hz')}")
-    for obj in result.get("objects", []):
+    result = job.result
+    lines.append(f"frame rate: {_fmt(result.fps, 'fps')} (from {result.fps_source or 'unknown'})")
+    lines.append(f"eigenfrequency: {_fmt(result.eigenfrequency_hz, 'Hz')}")
+    for obj in result.objects:
         lines.append(
-            f"object {obj.get('id')}: f = {_fmt(obj.get('eigenfrequency_hz'), 'Hz')} "
-            f"({str(obj.get('regime') or 'ring_down').replace('_', '-')}), "
-            f"damping ratio = {_fmt(obj.get('damping_ratio'), '')}, "
-            f"amplitude = {_fmt(obj.get('amplitude_m'), 'm')}, "
-            f"stiffness = {_fmt(obj.get('stiffness_n_per_m'), 'N/m')}, "
-            f"mass = {_fmt(obj.get('mass_kg'), 'kg')}"
+            f"object {obj.id}: f = {_fmt(obj.eigenfrequency_hz, 'Hz')} ({obj.regime.replace('_', '-')}), "
+            f"damping ratio = {_fmt(obj.damping_ratio, '')}, "
+            f"amplitude = {_fmt(obj.amplitude_m, 'm')}, "
+            f"stiffness = {_fmt(obj.stiffness_n_per_m, 'N/m')}, "
+            f"mass = {_fmt(obj.mass_kg, 'kg')}"
         )
-        for reason in obj.get("null_reasons") or []:
+        for reason in obj.null_reasons:
             lines.append(f"  note: {reason}")
-    for flag in result.get("quality", []):
-        lines.append(f"quality [{flag.get('severity')}] {flag.get('code')}: {flag.get('message')}")
-    artifacts = result.get("artifacts") or {}
-    if artifacts:
+    for flag in result.quality:
+        lines.append(f"quality [{flag.severity}] {flag.code}: {flag.message}")
+    if result.artifacts:
         lines.append("artifacts:")
-        for name, url in artifacts.items():
-            full = f"{base}{url}" if isinstance(url, str) and url.startswith("/") else url
-            lines.append(f"  {name}: {full}")
+        for name, url in result.artifacts.items():
+            lines.append(f"  {name}: {base}{url}" if url.startswith("/") else f"  {name}: {url}")
     return lines
 
 
-def run(args: argparse.Namespace) -> int:
-    client = ApiClient(args.server, api_key=args.api_key or os.environ.get("EIGENSCOPE_API_KEY") or None)
+def connect(server: str, api_key: str | None) -> Client:
+    """A client of ``server``; a missing client package or a bad URL is a one-line error."""
     try:
-        clip = client.upload(args.clip)
+        from eigenscope_client import Client
+    except ImportError as exc:  # the pipeline installed without the client distribution
+        raise UsageError(
+            f"the Python client is not installed ({exc}); install it with `pip install -e client/` from the "
+            "Eigenscope checkout (./run does)"
+        ) from None
+    try:
+        return Client(server, api_key=api_key or os.environ.get("EIGENSCOPE_API_KEY") or None)
+    except ValueError as exc:
+        raise UsageError(f"--server: {exc}") from None
+
+
+def explain(exc: Exception, server: str) -> UsageError:
+    """A client error as the one-line message the command prints."""
+    from eigenscope_client import APIError, AuthenticationError
+
+    if isinstance(exc, AuthenticationError):
+        return UsageError(f"server answered {exc} (pass --api-key KEY or set EIGENSCOPE_API_KEY)")
+    if isinstance(exc, APIError):
+        return UsageError(f"server answered {exc}")
+    return UsageError(f"{server}: {exc}")
+
+
+def run(args: argparse.Namespace) -> int:
+    from eigenscope_client import EigenscopeError
+
+    if args.out is not None and not args.wait:
+        raise UsageError("--out needs --wait: the artifacts exist once the job has succeeded")
+    if not args.clip.is_file():
+        raise UsageError(f"{args.clip}: no such file")
+    client = connect(args.server, args.api_key)
+    bar = ProgressBar()
+    show = not args.json
+    try:
+        clip = client.upload_clip(args.clip, progress=bar.upload if show else None)
+        bar.done()
         print(
-            f"uploaded {args.clip.name}: clip {clip['id']} ({clip['format']}, {clip['frames']} frames "
-            f"{clip['width']}x{clip['height']} @ {clip.get('fps')} fps, depth: {clip['has_depth']})",
+            f"uploaded {args.clip.name}: clip {clip.id} ({clip.format}, {clip.frames} frames "
+            f"{clip.width}x{clip.height} @ {clip.fps} fps, depth: {clip.has_depth})",
             file=sys.stderr,
         )
-        job = client.create_job(build_job_request(args, clip["id"]))
-        print(f"job {job['id']} queued: {client.base}/v1/jobs/{job['id']}", file=sys.stderr)
+        job = client.create_job(clip.id, **job_request(args))
+        print(f"job {job.id} queued: {client.base_url}/v1/jobs/{job.id}", file=sys.stderr)
         if args.wait:
-            job = client.wait(job["id"], timeout_s=args.timeout, show=not args.json)
-        if args.json:
-            print(json.dumps(job, indent=2))
-        elif args.wait:
-            print("\n".join(summarize(job, client.base)))
-        else:
-            print(job["id"])
+            job = client.wait(job, timeout=args.timeout, on_progress=bar.job if show else None)
+            bar.done()
+            if args.out is not None and job.succeeded and job.result is not None:
+                args.out.mkdir(parents=True, exist_ok=True)
+                for name in ("result", *job.result.artifacts):
+                    client.download_artifact(job, name, args.out)
+                print(f"downloaded the artifacts to {args.out}", file=sys.stderr)
+    except EigenscopeError as exc:
+        bar.done()
+        raise explain(exc, client.base_url) from None
     finally:
         client.close()
-    if args.wait and job["status"] != "succeeded":
+    if args.json:
+        print(json.dumps(job.raw, indent=2))
+    elif args.wait:
+        print("\n".join(summarize(job, client.base_url)))
+    else:
+        print(job.id)
+    if args.wait and job.status != "succeeded":
         return 1
     return 0

@@ -3,12 +3,18 @@
 Run any number of these, on any machines that share ``EIGENSCOPE_DATA_DIR`` (clips and artifacts) and
 ``EIGENSCOPE_DATABASE_URL`` (job store), with ``EIGENSCOPE_REDIS_URL`` pointing at the broker. Without
 ``EIGENSCOPE_REDIS_URL`` the worker uses the embedded broker in the data directory (this machine only).
+
+With ``--metrics-port`` (or ``EIGENSCOPE_WORKER_METRICS_PORT``) the worker serves its own Prometheus
+metrics there. Its log lines follow ``EIGENSCOPE_LOG_FORMAT`` and carry the id of the job they are about;
+Celery's banner and its warnings about running as root are not shown (``--log-level DEBUG`` shows them).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
+import tempfile
 from typing import Any
 
 from eigenscope.cli import UsageError
@@ -27,6 +33,13 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--pool", choices=("prefork", "solo"), default="prefork", help="Celery pool")
     parser.add_argument("--hostname", default=None, help="Celery node name (default: worker@<host>)")
     parser.add_argument("--loglevel", default=None, help="log level (default EIGENSCOPE_LOG_LEVEL or INFO)")
+    parser.add_argument(
+        "--metrics-port",
+        type=int,
+        default=None,
+        help="serve this worker's Prometheus /metrics on this port (default EIGENSCOPE_WORKER_METRICS_PORT; "
+        "0 or unset: none)",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -35,6 +48,7 @@ def celery_worker_argv(args: argparse.Namespace, *, queue: str, embedded: bool, 
     if args.concurrency < 1:
         raise UsageError(f"--concurrency={args.concurrency} must be at least 1")
     argv = [
+        *([] if loglevel == "DEBUG" else ["--quiet"]),  # the banner, unless debugging
         "worker",
         f"--concurrency={args.concurrency}",
         f"--pool={args.pool}",
@@ -51,19 +65,47 @@ def celery_worker_argv(args: argparse.Namespace, *, queue: str, embedded: bool, 
 
 def run(args: argparse.Namespace) -> int:
     from eigenscope.commands.serve import load_settings
+
+    settings = load_settings()
+    port = args.metrics_port if args.metrics_port is not None else settings.worker_metrics_port
+    own_metrics_dir = None
+    if port and not os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
+        # Before prometheus_client is imported: the pool processes write their metrics here.
+        own_metrics_dir = tempfile.mkdtemp(prefix="eigenscope-worker-metrics-")
+        os.environ["PROMETHEUS_MULTIPROC_DIR"] = own_metrics_dir
+    try:
+        return _run_worker(args, settings, port)
+    finally:
+        if own_metrics_dir is not None:
+            shutil.rmtree(own_metrics_dir, ignore_errors=True)
+
+
+def _run_worker(args: argparse.Namespace, settings: Any, port: int | None) -> int:
+    from celery import signals
+
+    from service.logs import configure_logging
     from service.storage import Storage
     from service.store import Store
     from workers.celery_app import create_celery
+    from workers.metrics import process_stopped, serve_metrics
 
-    settings = load_settings()
     if settings.background_niceness:
         os.nice(settings.background_niceness)  # an API on the same machine keeps answering promptly
+    loglevel = (args.loglevel or settings.log_level).upper()
+    configure_logging(loglevel, settings.log_format)
     Storage(settings.data_path).ensure()
     store = Store(settings.effective_database_url)
     store.create_schema()
     store.dispose()
     app = create_celery(settings)
-    loglevel = (args.loglevel or settings.log_level).upper()
+    # Celery leaves the logging as configured above; every pool process counts itself alive.
+    signals.setup_logging.connect(lambda **_: configure_logging(loglevel, settings.log_format), weak=False)
+    signals.worker_process_init.connect(lambda **_: app.context().metrics.process_started(), weak=False)
+    signals.worker_process_shutdown.connect(lambda **_: process_stopped(), weak=False)
+    if args.pool == "solo":
+        signals.worker_ready.connect(lambda **_: app.context().metrics.process_started(), weak=False)
+    if port:
+        serve_metrics(port)
     app.worker_main(
         celery_worker_argv(args, queue=settings.queue, embedded=settings.embedded, loglevel=loglevel)
     )

@@ -1,21 +1,35 @@
-"""``/v1/jobs``: create, poll, list and cancel analysis jobs; fetch their artifacts."""
+"""``/v1/jobs``: create, poll (or long-poll), list, cancel and delete analysis jobs; fetch their artifacts."""
 
 from __future__ import annotations
 
+import asyncio
 import mimetypes
+import time
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Path, Query, Request, Response
 from fastapi.responses import FileResponse
+from starlette.concurrency import run_in_threadpool
 
 from api_schemas import JobCreate, JobList, JobModel, JobStatus
 from service import jobs
-from service.deps import ContextDep, TenantDep
-from service.openapi import problem_responses
+from service.deps import ContextDep, Cursor, IdempotencyKey, PageSize, TenantDep
+from service.openapi import ETAG_HEADER, problem_responses
+from service.store import TERMINAL
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
 JobId = Annotated[str, Path(min_length=1, max_length=64, description="Job id from `create_job`.")]
+IfNoneMatch = Annotated[
+    str | None,
+    Header(
+        alias="If-None-Match",
+        max_length=1024,
+        description="The `ETag` of a representation the client holds: 304 while it is still current.",
+    ),
+]
+#: Fastest and slowest re-read of a job while a long-poll waits.
+_POLL_FIRST_S, _POLL_MAX_S = 0.05, 0.5
 
 
 def _root(request: Request) -> str:
@@ -51,15 +65,7 @@ def create_job(
     response: Response,
     ctx: ContextDep,
     tenant: TenantDep,
-    idempotency_key: Annotated[
-        str | None,
-        Header(
-            alias="Idempotency-Key",
-            min_length=1,
-            max_length=255,
-            description="Client-chosen key that makes retries of this request safe.",
-        ),
-    ] = None,
+    idempotency_key: IdempotencyKey = None,
 ) -> JobModel:
     job, created = jobs.create_job(ctx, body, tenant=tenant, idempotency_key=idempotency_key)
     response.headers["Location"] = f"{_root(request)}/v1/jobs/{job.id}"
@@ -81,10 +87,8 @@ def list_jobs(
     tenant: TenantDep,
     status: Annotated[list[JobStatus] | None, Query(description="Only jobs in these states.")] = None,
     clip_id: Annotated[str | None, Query(max_length=64, description="Only jobs of this clip.")] = None,
-    limit: Annotated[int, Query(ge=1, le=100, description="Page size.")] = 20,
-    cursor: Annotated[
-        str | None, Query(max_length=64, description="`next_cursor` of the previous page.")
-    ] = None,
+    limit: PageSize = 20,
+    cursor: Cursor = None,
 ) -> JobList:
     statuses = [s.value for s in status] if status else []
     return jobs.list_jobs(
@@ -99,15 +103,82 @@ def list_jobs(
 
 
 @router.get(
-    "/{job_id}", name="get_job", summary="Poll a job", responses=problem_responses(401, 404, 429, 503)
+    "/{job_id}",
+    name="get_job",
+    summary="Poll a job",
+    description=(
+        "The job, with its `ETag`. **Long-poll** with `wait=SECONDS`: the answer comes as soon as the job "
+        "has ended (or, with `If-None-Match`, as soon as it differs from that representation: new progress "
+        "or stage), or when the wait runs out (then the job as it is; waits above the server's cap, 60 s by "
+        "default, are cut to it). With `If-None-Match` naming the current representation the answer is "
+        "304 without a body."
+    ),
+    response_model=JobModel,
+    responses={
+        200: {
+            "headers": {
+                "ETag": ETAG_HEADER,
+                "Retry-After": {
+                    "description": "Seconds to wait before polling again (queued or running jobs)",
+                    "schema": {"type": "integer"},
+                },
+            }
+        },
+        304: {
+            "description": "Not Modified: the `If-None-Match` representation is current",
+            "headers": {"ETag": ETAG_HEADER},
+        },
+        **problem_responses(401, 404, 422, 429, 503),
+    },
 )
-def get_job(
-    job_id: JobId, request: Request, response: Response, ctx: ContextDep, tenant: TenantDep
-) -> JobModel:
-    job = ctx.store.get_job(job_id, tenant)
-    if job.status in ("queued", "running"):
-        response.headers["Retry-After"] = str(ctx.settings.retry_after_s)
-    return jobs.job_view(job, root_path=_root(request))
+async def get_job(
+    job_id: JobId,
+    request: Request,
+    ctx: ContextDep,
+    tenant: TenantDep,
+    wait: Annotated[
+        float | None,
+        Query(ge=0, description="Long-poll: wait up to this many seconds for the job to end or change."),
+    ] = None,
+    if_none_match: IfNoneMatch = None,
+) -> Response:
+    root = _root(request)
+    deadline = time.monotonic() + min(wait or 0.0, ctx.settings.long_poll_max_s)
+    interval = _POLL_FIRST_S
+    while True:
+        job = await run_in_threadpool(ctx.store.get_job, job_id, tenant)
+        body = jobs.job_view(job, root_path=root).model_dump_json().encode()
+        etag = jobs.etag_of(body)
+        current = jobs.etag_matches(if_none_match, etag)
+        left = deadline - time.monotonic()
+        if wait is None or job.status in TERMINAL or (if_none_match and not current) or left <= 0:
+            break
+        if await request.is_disconnected():
+            break
+        await asyncio.sleep(min(interval, left))
+        interval = min(interval * 1.5, _POLL_MAX_S)
+    headers = {"ETag": etag, "Cache-Control": "no-cache"}
+    if job.status not in TERMINAL:
+        headers["Retry-After"] = str(ctx.settings.retry_after_s)
+    if current:
+        return Response(status_code=304, headers=headers)
+    return Response(body, media_type="application/json", headers=headers)
+
+
+@router.delete(
+    "/{job_id}",
+    name="delete_job",
+    status_code=204,
+    summary="Delete a job",
+    description=(
+        "Delete the job's record and its artifacts. A queued or running job is cancelled first; a webhook "
+        "not yet delivered is dropped."
+    ),
+    responses=problem_responses(401, 404, 409, 429, 503),
+)
+async def delete_job(job_id: JobId, ctx: ContextDep, tenant: TenantDep) -> Response:
+    await run_in_threadpool(jobs.delete_job, ctx, job_id, tenant)
+    return Response(status_code=204)
 
 
 @router.post(
@@ -128,16 +199,27 @@ def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantD
     "/{job_id}/artifacts/{name}",
     name="get_job_artifact",
     summary="Download an artifact",
-    description="A file the analysis produced (`mask.png`, other images, `result.json`).",
+    description=(
+        "A file the analysis produced (`mask.png`, other images, `result.json`), with an `ETag`: with "
+        "`If-None-Match` naming it the answer is 304 without a body."
+    ),
     response_class=FileResponse,
     responses={
         200: {
             "description": "The file, with its media type (`image/png` for images, `application/json` "
             "for `result.json`).",
+            "headers": {"ETag": ETAG_HEADER},
+            # Listed as files (binary) whatever their type, the images first: generated clients then
+            # return the bytes of any artifact rather than parse result.json as a model.
             "content": {
                 "image/png": {"schema": {"type": "string", "format": "binary"}},
                 "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+                "application/json": {"schema": {"type": "string", "format": "binary"}},
             },
+        },
+        304: {
+            "description": "Not Modified: the `If-None-Match` file is current",
+            "headers": {"ETag": ETAG_HEADER},
         },
         **problem_responses(401, 404, 429, 503),
     },
@@ -147,7 +229,21 @@ def get_job_artifact(
     name: Annotated[str, Path(min_length=1, max_length=128, description="Artifact file name.")],
     ctx: ContextDep,
     tenant: TenantDep,
-) -> FileResponse:
+    if_none_match: IfNoneMatch = None,
+) -> Response:
     path = jobs.artifact_file(ctx, job_id, name, tenant=tenant)
+    stat = path.stat()
+    etag = jobs.etag_of(f"{job_id}/{path.name}/{stat.st_size}/{stat.st_mtime_ns}".encode())
+    # The files of a job never change once published; private: each key sees only its own.
+    headers = {"ETag": etag, "Cache-Control": "private, no-cache"}
+    if jobs.etag_matches(if_none_match, etag):
+        return Response(status_code=304, headers=headers)
     media_type = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
-    return FileResponse(path, media_type=media_type, filename=path.name, content_disposition_type="inline")
+    return FileResponse(
+        path,
+        media_type=media_type,
+        filename=path.name,
+        content_disposition_type="inline",
+        headers=headers,
+        stat_result=stat,
+    )

@@ -631,6 +631,7 @@
     const button = li.firstElementChild;
     const pct = progressPercent(job);
     setText(button.querySelector(".job-name"), jobTitle(job));
+    button.querySelector(".job-name").title = jobTitle(job);
     const badge = button.querySelector(".badge");
     setText(badge, statusLabel(job.status));
     badge.className = `badge badge-${job.status}`;
@@ -720,9 +721,23 @@
 
   // ---------------------------------------------------------------- result view
 
-  function selectJob(id, { focus }) {
+  // Every job has its own URL, jobs/<id> (relative: the service may live under a path prefix).
+  function jobUrl(id) {
+    return new URL(`jobs/${encodeURIComponent(id)}`, document.baseURI).href;
+  }
+
+  function jobIdInUrl() {
+    const match = window.location.pathname.match(/\/jobs\/([^/]+)\/?$/);
+    return match ? decodeURIComponent(match[1]) : null;
+  }
+
+  function selectJob(id, { focus, history = "push" }) {
     state.selectedId = id;
     state.shownKey = null;
+    const url = jobUrl(id);
+    if (history === "push" && window.location.href !== url) window.history.pushState({ job: id }, "", url);
+    else if (history === "replace") window.history.replaceState({ job: id }, "", url);
+    document.title = `Job ${shortId(id)} · Eigenscope`;
     renderJobs();
     const section = $("result");
     section.hidden = false;
@@ -777,6 +792,7 @@
         },
       }, "Cancel job"));
     }
+    actions.push(el("a", { href: jobUrl(job.id), class: "btn btn-small btn-ghost", "data-permalink": "" }, "Link to this job"));
     actions.push(authLink(`v1/jobs/${encodeURIComponent(job.id)}`, "Job JSON", { class: "btn btn-small btn-ghost" }));
     actions.push(el("a", { href: "docs", class: "btn btn-small btn-ghost" }, "API docs"));
     $("result-actions").replaceChildren(...actions);
@@ -916,36 +932,6 @@
   }
 
   // Colour a label image (pixel value = object id) so that the objects are visible.
-  async function colouriseMask(img) {
-    const palette = [[0, 0, 0], [31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40],
-      [148, 103, 189], [140, 86, 75], [227, 119, 194], [188, 189, 34], [23, 190, 207]];
-    const canvas = document.createElement("canvas");
-    canvas.width = img.naturalWidth;
-    canvas.height = img.naturalHeight;
-    const ctx = canvas.getContext("2d", { willReadFrequently: true });
-    ctx.drawImage(img, 0, 0);
-    const data = ctx.getImageData(0, 0, canvas.width, canvas.height);
-    const px = data.data;
-    let maxLabel = 0;
-    for (let i = 0; i < px.length; i += 4) maxLabel = Math.max(maxLabel, px[i]);
-    if (maxLabel === 0 || maxLabel > 64) return; // not a small label image: show it as it is
-    for (let i = 0; i < px.length; i += 4) {
-      const label = px[i];
-      const [r, g, b] = label === 0 ? [24, 28, 36] : palette[1 + ((label - 1) % (palette.length - 1))];
-      px[i] = r; px[i + 1] = g; px[i + 2] = b; px[i + 3] = 255;
-    }
-    ctx.putImageData(data, 0, 0);
-    const blob = await new Promise((resolve) => canvas.toBlob(resolve, "image/png"));
-    if (!blob) return;
-    const url = URL.createObjectURL(blob);
-    state.objectUrls.push(url);
-    await new Promise((resolve) => {
-      img.addEventListener("load", resolve, { once: true });
-      img.addEventListener("error", resolve, { once: true });
-      img.src = url;
-    });
-  }
-
   function imageFigure(entry, job) {
     const alt = IMAGE_INFO[entry.name] || `Result image ${entry.name} of job ${shortId(job.id)}`;
     const img = el("img", { alt, "data-artifact": entry.name, decoding: "async" });
@@ -961,11 +947,9 @@
         img.addEventListener("error", () => reject(new Error("not a readable image")), { once: true });
         img.src = objectUrl;
       }))
-      .then(async () => {
-        if (entry.name === "mask.png") {
-          img.classList.add("pixelated");
-          await colouriseMask(img);
-        }
+      .then(() => {
+        // mask.png is a palette image: the browser shows each object in its colour; keep its pixels sharp.
+        if (entry.name === "mask.png") img.classList.add("pixelated");
         img.dataset.loaded = "true";
       })
       .catch((err) => {
@@ -1071,6 +1055,20 @@
     initForm();
     $("jobs-refresh").addEventListener("click", () => refreshJobs());
     document.addEventListener("visibilitychange", () => { if (!document.hidden) refreshJobs(); });
+    window.addEventListener("popstate", () => {
+      const id = jobIdInUrl();
+      if (id) {
+        selectJob(id, { focus: false, history: "none" });
+      } else {
+        state.selectedId = null;
+        state.shownKey = null;
+        document.title = "Eigenscope";
+        $("result").hidden = true;
+        renderJobs();
+      }
+    });
+    const linked = jobIdInUrl();
+    if (linked) selectJob(linked, { focus: true, history: "replace" });
     refreshJobs();
   }
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 from pathlib import Path
@@ -140,3 +141,59 @@ def test_dockerfile() -> None:
     ignore = (DOCKER / "Dockerfile.dockerignore").read_text()
     assert ".venv" in ignore
     assert ".git" in ignore
+
+
+def _exposed_metric_names(tmp_path: Path) -> set[str]:
+    """Every sample name the API's and a worker's /metrics can show."""
+    from prometheus_client import generate_latest
+
+    from service.metrics import Metrics
+    from service.store import Store
+    from workers.metrics import WorkerMetrics
+
+    store = Store(f"sqlite:///{tmp_path / 'm.db'}")
+    store.create_schema()
+    try:
+        text = Metrics(store).render().decode() + generate_latest(WorkerMetrics().registry).decode()
+    finally:
+        store.dispose()
+    names: set[str] = set()
+    for line in text.splitlines():
+        if line.startswith("# TYPE "):
+            _, _, name, kind = line.split()
+            suffixes = {"histogram": ("_bucket", "_count", "_sum"), "counter": ("", "_total")}.get(
+                kind, ("",)
+            )
+            names |= {name.removesuffix("_total") + suffix for suffix in suffixes}
+            names.add(name)
+    return names
+
+
+def test_grafana_dashboard_shows_only_metrics_that_exist(tmp_path: Path) -> None:
+    dashboard = json.loads((DOCKER / "grafana-dashboard.json").read_text())
+    assert dashboard["__inputs"][0]["pluginId"] == "prometheus"
+    exposed = _exposed_metric_names(tmp_path)
+    used: set[str] = set()
+    for panel in dashboard["panels"]:
+        assert panel["datasource"]["uid"] == "${DS_PROMETHEUS}"
+        for target in panel["targets"]:
+            used |= set(re.findall(r"eigenscope_[a-z_]+", target["expr"]))
+    assert used, "the dashboard queries nothing"
+    assert used <= exposed, used - exposed
+    wanted = {
+        "eigenscope_job_duration_seconds_bucket",
+        "eigenscope_job_queue_wait_seconds_bucket",
+        "eigenscope_analysis_stage_seconds_bucket",
+        "eigenscope_job_failures_total",
+        "eigenscope_job_retries_total",
+        "eigenscope_worker_busy",
+        "eigenscope_worker_processes",
+        "eigenscope_build_info",
+    }
+    assert wanted <= used, wanted - used
+
+
+def test_workers_expose_their_own_metrics_in_compose(compose: dict[str, Any]) -> None:
+    env = compose["services"]["worker"]["environment"]
+    assert env["EIGENSCOPE_WORKER_METRICS_PORT"] == "9808"
+    assert env["EIGENSCOPE_REDIS_URL"].startswith("redis://redis:")

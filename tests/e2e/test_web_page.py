@@ -376,3 +376,100 @@ def test_the_page_works_with_api_keys(
     finally:
         context.close()
         service.stop()
+
+
+#: Horizontal overflow a page at phone width must not hide: every element with an overflow other than
+#: visible, and every table cell against its table's scroll box. Deliberate ellipses (the full text in a
+#: title) and text for screen readers only (.visually-hidden) are allowed.
+CLIPPED = """() => {
+    const found = [];
+    const root = document.documentElement;
+    if (root.scrollWidth > root.clientWidth) found.push(`page ${root.scrollWidth} > ${root.clientWidth}`);
+    for (const el of document.querySelectorAll("body *")) {
+        const style = getComputedStyle(el);
+        if (style.display === "none" || el.closest("[hidden], .visually-hidden")) continue;
+        if (style.textOverflow === "ellipsis" && el.title) continue;
+        const boxed = ["auto", "hidden", "scroll", "clip"].includes(style.overflowX);
+        if (boxed && el.scrollWidth > el.clientWidth + 1) {
+            found.push(`${el.tagName}.${el.className}: ${el.scrollWidth} > ${el.clientWidth}`);
+        }
+    }
+    for (const cell of document.querySelectorAll("table.quantities td, table.quantities th")) {
+        const box = cell.closest(".table-wrap").getBoundingClientRect();
+        const r = cell.getBoundingClientRect();
+        if (r.width && (r.right > box.right + 1 || r.left < box.left - 1)) {
+            found.push(`cell ${cell.className || cell.tagName}: ${r.left}-${r.right} outside the table`);
+        }
+    }
+    return found;
+}"""
+
+#: The colour (RGB) the browser shows at the first pixel of object 1 in the mask image.
+MASK_COLOUR = """async () => {
+    const img = document.querySelector('img[data-artifact="mask.png"]');
+    const canvas = document.createElement("canvas");
+    canvas.width = img.naturalWidth;
+    canvas.height = img.naturalHeight;
+    const ctx = canvas.getContext("2d");
+    ctx.drawImage(img, 0, 0);
+    const px = ctx.getImageData(0, 0, canvas.width, canvas.height).data;
+    const colours = new Set();
+    for (let i = 0; i < px.length; i += 4) colours.add(`${px[i]},${px[i + 1]},${px[i + 2]}`);
+    return [...colours];
+}"""
+
+
+def test_each_job_has_its_own_url_and_the_page_fits_a_phone(
+    browser: Any, live: h.LiveService, page_clip: tuple[Path, dict[str, Any]], artifacts_dir: Path
+) -> None:
+    from eigenscope_client import Client, StepRelease
+    from playwright.sync_api import expect
+
+    with Client(live.base_url) as client:
+        first = client.analyze(page_clip[0], excitation=StepRelease(force_n=5.0), timeout=180)
+        second = client.analyze(page_clip[0], timeout=180)
+    assert first.status == second.status == "succeeded"
+    context = browser.new_context(viewport={"width": 400, "height": 860}, device_scale_factor=1)
+    context.set_default_timeout(30_000)
+    page = context.new_page()
+    watch = Watch(page, live.base_url)
+    try:
+        # A bookmarked job URL opens straight on that job.
+        page.goto(f"{live.base_url}/jobs/{first.id}")
+        expect(page.locator("#result-title")).to_contain_text(first.id[:8])
+        expect(page.locator('#result [data-quantity="mass_kg"] td.unit-cell')).to_have_text("kg")
+        wait_for_images(page)
+        assert page.title() == f"Job {first.id[:8]} · Eigenscope"
+        assert page.evaluate(CLIPPED) == []
+        unit = page.locator('#result [data-quantity="stiffness_n_per_m"] td.unit-cell')
+        expect(unit).to_be_in_viewport()
+        # The mask is a palette image: the browser shows object 1 in its colour on black.
+        colours = page.evaluate(MASK_COLOUR)
+        assert "0,0,0" in colours
+        assert "255,127,14" in colours
+        page.screenshot(path=str(artifacts_dir / "page-400px.png"), full_page=True)
+        permalink = page.locator("#result-actions [data-permalink]")
+        expect(permalink).to_have_attribute("href", f"{live.base_url}/jobs/{first.id}")
+
+        # From the list, each job chosen gets its URL; Back walks through them to the list alone.
+        page.goto(f"{live.base_url}/")
+        expect(page.locator("#result")).to_be_hidden()
+        page.locator(f'button[data-job-id="{first.id}"]').click()
+        expect(page).to_have_url(f"{live.base_url}/jobs/{first.id}")
+        page.locator(f'button[data-job-id="{second.id}"]').click()
+        expect(page).to_have_url(f"{live.base_url}/jobs/{second.id}")
+        expect(page.locator("#result-title")).to_contain_text(second.id[:8])
+        page.go_back()
+        expect(page).to_have_url(f"{live.base_url}/jobs/{first.id}")
+        expect(page.locator("#result-title")).to_contain_text(first.id[:8])
+        page.go_back()
+        expect(page).to_have_url(f"{live.base_url}/")
+        expect(page.locator("#result")).to_be_hidden()
+
+        # A job that does not exist says so.
+        page.goto(f"{live.base_url}/jobs/no-such-job")
+        expect(page.locator("#result-body .problem")).to_contain_text("no job with id")
+        assert watch.errors == []
+        assert watch.foreign() == []
+    finally:
+        context.close()

@@ -206,12 +206,13 @@ def base_env(data_dir: Path, **settings: str) -> dict[str, str]:
     return env
 
 
-def start_embedded(tmp_path: Path, *, workers: int = 1, **settings: str) -> LiveService:
+def start_embedded(tmp_path: Path, *, workers: int = 1, api_workers: int = 1, **settings: str) -> LiveService:
     """``eigenscope serve`` with the embedded broker (and the job store given in ``settings``)."""
     data_dir = tmp_path / "data"
     port = free_port()
     env = base_env(data_dir, **settings)
     cmd = [sys.executable, "-m", "eigenscope", "serve", "--port", str(port), "--workers", str(workers)]
+    cmd += ["--api-workers", str(api_workers)]
     service = LiveService(f"http://127.0.0.1:{port}", data_dir, env)
     service.procs.append(Proc.start("serve", cmd, env=env, log_dir=tmp_path))
     try:

@@ -15,7 +15,7 @@ Sizes (pixels, width x height), fixed so that tests and clients can rely on them
 * ``spectrum.png`` - :data:`PLOT_SIZE_PX` (1000 x 600).
 * ``displacement.png`` and ``ringdown.png`` - one panel per object, :func:`panel_figure_size` (1000 x 600
   for one or two objects, taller for more).
-* ``mask.png`` - the frame size, one channel, 0 = background, i = object i.
+* ``mask.png`` - the frame size, a palette image: 0 = background, i = object i, shown in its colour.
 """
 
 from __future__ import annotations
@@ -776,27 +776,48 @@ def _wrap(text: str, width: int) -> str:
 
 
 def write_label_png(path: str | Path, labels: NDArray[np.integer]) -> Path:
-    """Write a label image as a single-channel PNG, atomically.
+    """Write a label image as a palette PNG, atomically: pixel values are the labels, and any image viewer
+    shows each object in its colour (:func:`object_color`) on black.
 
     Parameters
     ----------
     path : path-like
     labels : ndarray of int, shape (H, W)
-        0 background, i = object i. Written as 8-bit when every label fits, else 16-bit.
+        0 background, i = object i. Up to 255 objects: an 8-bit palette image (PNG colour type 3) whose
+        index is the label; beyond that a 16-bit grey image of the labels (PNG allows no larger palette).
 
     Returns
     -------
     Path
     """
-    import cv2
+    import struct
+    import zlib
 
     path = Path(path)
     top = int(labels.max()) if labels.size else 0
-    data = labels.astype(np.uint8 if top < 256 else np.uint16)
-    ok, buf = cv2.imencode(".png", data)
-    if not ok:  # pragma: no cover - OpenCV always encodes 2-D integer arrays
-        raise OSError(f"could not encode {path.name}")
-    _atomic_write_bytes(path, buf.tobytes())
+    if top >= 256:
+        import cv2
+
+        ok, buf = cv2.imencode(".png", labels.astype(np.uint16))
+        if not ok:  # pragma: no cover - OpenCV always encodes 2-D integer arrays
+            raise OSError(f"could not encode {path.name}")
+        _atomic_write_bytes(path, buf.tobytes())
+        return path
+    if labels.ndim != 2:
+        raise ValueError(f"labels must be 2-D (H, W), got shape {labels.shape}")
+    height, width = labels.shape
+    # One colour per possible label (index 0 black): viewers show objects beyond ``top`` consistently too.
+    palette = bytes([0, 0, 0]) + b"".join(bytes(object_color(i)) for i in range(1, 256))
+    rows = np.zeros((height, width + 1), np.uint8)  # filter type 0 (None) before each row
+    rows[:, 1:] = labels
+    body = zlib.compress(rows.tobytes(), 6)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 3, 0, 0, 0)  # 8-bit, colour type 3 (palette)
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"PLTE", palette) + chunk(b"IDAT", body)
+    _atomic_write_bytes(path, png + chunk(b"IEND", b""))
     return path
 
 

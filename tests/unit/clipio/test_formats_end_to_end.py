@@ -89,6 +89,22 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
         True,
     ),
     "video-zip-with-depth": (_video_with_npz_depth, True),
+    "open3d-zip": (
+        lambda d, c: (
+            w.write_open3d(
+                d / "o3d.zip", c.rgb, depth=c.depth, intrinsics=c.intrinsics, fps=FPS, image_format="png"
+            ),
+            {},
+        ),
+        True,
+    ),
+    "k4a-mkv-calibrated": (
+        lambda d, c: (
+            w.write_k4a_mkv(d / "k4a.mkv", c.rgb, depth=c.depth, fps=FPS, intrinsics=c.intrinsics),
+            {},
+        ),
+        False,
+    ),
     "ros1-realsense-ros": (
         lambda d, c: (
             w.write_ros_bag(

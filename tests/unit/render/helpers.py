@@ -10,9 +10,11 @@ from numpy.typing import NDArray
 
 
 def decode(path: Path) -> NDArray[np.uint8]:
-    """The PNG at ``path`` as RGB (or a single channel for the mask); fails if it does not decode."""
+    """The PNG at ``path`` as RGB, or the indices of a palette PNG (the mask); fails if it does not decode."""
     data = np.fromfile(str(path), np.uint8)
     assert data.size > 0, f"{path.name} is empty"
+    if data.size > 25 and bytes(data[:8]) == b"\x89PNG\r\n\x1a\n" and int(data[25]) == 3:
+        return palette_indices(path)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     assert img is not None, f"{path.name} does not decode as an image"
     if img.ndim == 3:
@@ -40,3 +42,12 @@ def colour_mask(img: NDArray[np.uint8], rgb: tuple[int, int, int], *, tol: int =
     diff = np.abs(img.astype(np.int16) - np.asarray(rgb, np.int16)[None, None, :])
     mask: NDArray[np.bool_] = (diff <= tol).all(axis=2)
     return mask
+
+
+def palette_indices(path: Path) -> NDArray[np.uint8]:
+    """The indices of a palette PNG (OpenCV would expand them to colours), read with Pillow."""
+    from PIL import Image
+
+    with Image.open(path) as img:
+        assert img.mode == "P", f"{path.name}: expected a palette image, got mode {img.mode}"
+        return np.asarray(img, dtype=np.uint8)

@@ -30,6 +30,7 @@ from workers.pipeline.render import (
     render_all,
     write_displacement_png,
     write_frequency_map_png,
+    write_label_png,
     write_overlay_png,
     write_ringdown_png,
     write_spectrum_png,
@@ -118,6 +119,40 @@ def test_one_object_every_image(one_object: Analysed, tmp_path: Path, texts: lis
     # Axes are labelled with units.
     for axis_label in ("frequency (Hz)", "time (s)", "dominant frequency (Hz)"):
         assert axis_label in texts
+
+
+def test_mask_is_a_palette_png_any_viewer_shows_in_colour(tmp_path: Path):
+    from PIL import Image
+
+    labels = np.zeros((40, 60), np.uint16)
+    labels[5:15, 5:25] = 1
+    labels[20:35, 30:55] = 2
+    path = write_label_png(tmp_path / "mask.png", labels)
+    with Image.open(path) as img:
+        assert img.mode == "P"
+        np.testing.assert_array_equal(np.asarray(img), labels)  # the pixel values are the label ids
+        palette = img.getpalette()
+    assert palette is not None
+    assert palette[:3] == [0, 0, 0]
+    assert tuple(palette[3:6]) == object_color(1)
+    assert tuple(palette[6:9]) == object_color(2)
+    # What a viewer shows: OpenCV (like any viewer) expands the palette to colours.
+    import cv2
+
+    shown = cv2.cvtColor(cv2.imread(str(path), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    assert tuple(int(v) for v in shown[10, 10]) == object_color(1)
+    assert tuple(int(v) for v in shown[30, 40]) == object_color(2)
+    assert tuple(int(v) for v in shown[0, 0]) == (0, 0, 0)
+
+
+def test_mask_of_more_than_255_objects_stays_exact_in_16_bits(tmp_path: Path):
+    import cv2
+
+    labels = np.arange(40 * 60, dtype=np.uint16).reshape(40, 60) % 700
+    path = write_label_png(tmp_path / "mask.png", labels)
+    back = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert back.dtype == np.uint16
+    np.testing.assert_array_equal(back, labels)
 
 
 def test_files_are_written_atomically_and_readable(one_object: Analysed, tmp_path: Path):

@@ -13,11 +13,11 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
 from service.auth import KeyConfigError, KeyRing, key_digest
 from service.errors import UnauthorizedError
 from service.retention import cleanup
 from service.settings import Settings
+from tests.unit.service.helpers import finish, make_client, upload
 
 KEY_A = "alpha-key-0123456789abcdef"
 KEY_B = "bravo-key-0123456789abcdef"
@@ -25,60 +25,11 @@ A = {"Authorization": f"Bearer {KEY_A}"}
 B = {"Authorization": f"Bearer {KEY_B}"}
 
 
-class RecordingQueue:
-    def __init__(self) -> None:
-        self.published: list[str] = []
-
-    def publish(self, job_id: str) -> None:
-        self.published.append(job_id)
-
-    def ping(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-def make_client(settings: Settings, queue: Any = None) -> TestClient:
-    """The app of ``settings`` publishing to ``queue`` (a :class:`RecordingQueue` by default)."""
-    app = create_app(settings)
-    app.state.ctx.queue = queue if queue is not None else RecordingQueue()
-    return TestClient(app)
-
-
 @pytest.fixture
 def keyed(tmp_path: Path) -> Iterator[TestClient]:
     settings = Settings(data_dir=tmp_path / "data", api_keys=f"{KEY_A}, {KEY_B}", max_active_jobs_per_key=2)
     with make_client(settings) as client:
         yield client
-
-
-def upload(client: TestClient, path: Path, headers: dict[str, str], name: str | None = None) -> Any:
-    with path.open("rb") as fh:
-        return client.post("/v1/clips", files={"file": (name or path.name, fh)}, headers=headers)
-
-
-def finish(client: TestClient, job_id: str, output: bytes = b"\x89PNG\r\n") -> None:
-    """Run a job by hand: claim it, write an artifact, complete it."""
-    ctx = client.app.state.ctx  # type: ignore[attr-defined]
-    assert ctx.store.claim_job(job_id, "me/1/x").job is not None
-    out = ctx.storage.job_dir(job_id)
-    out.mkdir(parents=True)
-    (out / "mask.png").write_bytes(output)
-    result = {
-        "eigenfrequency_hz": 4.0,
-        "objects": [],
-        "spectrum": {"frequencies_hz": [], "power": []},
-        "artifacts": {"mask": "mask.png"},
-        "method": "default",
-        "parameters": {},
-        "fps": 25.0,
-        "fps_source": "bundle",
-        "frames_used": [0, 16],
-        "frame_size_px": [48, 32],
-        "version": "test",
-    }
-    assert ctx.store.complete_job(job_id, "me/1/x", result, output_bytes=len(output))
 
 
 def test_keys_are_required_on_v1_but_not_on_health(keyed: TestClient) -> None:

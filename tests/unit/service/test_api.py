@@ -9,26 +9,9 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
 from service.settings import Settings
-
-
-class RecordingQueue:
-    def __init__(self) -> None:
-        self.published: list[str] = []
-        self.fail = False
-
-    def publish(self, job_id: str) -> None:
-        if self.fail:
-            raise ConnectionError("broker down")
-        self.published.append(job_id)
-
-    def ping(self) -> None:
-        if self.fail:
-            raise ConnectionError("broker down")
-
-    def close(self) -> None:
-        pass
+from tests.unit.service.helpers import RecordingQueue, finish, make_client
+from tests.unit.service.helpers import upload as upload_response
 
 
 @pytest.fixture
@@ -38,15 +21,12 @@ def queue() -> RecordingQueue:
 
 @pytest.fixture
 def client(settings: Settings, queue: RecordingQueue) -> Iterator[TestClient]:
-    app = create_app(settings)
-    app.state.ctx.queue = queue
-    with TestClient(app) as c:
+    with make_client(settings, queue) as c:
         yield c
 
 
 def upload(client: TestClient, path: Path) -> dict:
-    with path.open("rb") as fh:
-        response = client.post("/v1/clips", files={"file": (path.name, fh)})
+    response = upload_response(client, path)
     assert response.status_code == 201, response.text
     return response.json()
 
@@ -84,29 +64,7 @@ def test_job_create_publishes_and_rewrites_artifacts(
     assert job["attempts"] == 0
     assert job["progress"] == 0
     # Finish it by hand and check how the API serves the result.
-    ctx = client.app.state.ctx  # type: ignore[attr-defined]
-    claim = ctx.store.claim_job(job["id"], "me/1/x")
-    out = ctx.storage.job_dir(job["id"])
-    out.mkdir(parents=True)
-    (out / "mask.png").write_bytes(b"\x89PNG\r\n")
-    assert claim.job is not None
-    ctx.store.complete_job(
-        job["id"],
-        "me/1/x",
-        {
-            "eigenfrequency_hz": 4.0,
-            "objects": [],
-            "spectrum": {"frequencies_hz": [], "power": []},
-            "artifacts": {"mask": "mask.png"},
-            "method": "default",
-            "parameters": {},
-            "fps": 25.0,
-            "fps_source": "bundle",
-            "frames_used": [0, 16],
-            "frame_size_px": [48, 32],
-            "version": "test",
-        },
-    )
+    finish(client, job["id"])
     done = client.get(f"/v1/jobs/{job['id']}")
     assert "retry-after" not in done.headers
     url = done.json()["result"]["artifacts"]["mask"]

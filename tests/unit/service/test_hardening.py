@@ -19,7 +19,7 @@ from service.auth import FailedAuthLimiter
 from service.bodies import NonFiniteNumberError, strict_json_loads
 from service.errors import InvalidClipError, QuotaExceededError, redact_paths
 from service.settings import Settings
-from tests.unit.service.test_access import make_client
+from tests.unit.service.helpers import make_client
 
 KEY = "hardening-key-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {KEY}"}

@@ -74,6 +74,22 @@ def test_every_asset_the_page_references_is_served(client: TestClient) -> None:
         assert client.get(f"/{value}").status_code == 200, value
 
 
+def test_each_job_has_a_page_of_its_own(client: TestClient) -> None:
+    """``/jobs/{id}`` is the page with its base one level up, so its relative links reach the same files."""
+    root = client.get("/")
+    job = client.get("/jobs/0123abcd")
+    assert job.status_code == 200
+    assert job.headers["content-type"].startswith("text/html")
+    assert job.headers["content-security-policy"] == root.headers["content-security-policy"]
+    assert "base-uri 'self'" in job.headers["content-security-policy"]
+    assert '<base href="./">' in root.text
+    assert '<base href="../">' in job.text
+    assert job.text.replace('<base href="../">', '<base href="./">') == root.text
+    assert client.head("/jobs/0123abcd").status_code == 200
+    paths = client.get("/openapi.json").json()["paths"]
+    assert not any(p.startswith("/jobs") for p in paths)
+
+
 def test_missing_static_file_is_a_404_not_a_traceback(client: TestClient) -> None:
     assert client.get("/static/nope.js").status_code == 404
     assert client.get("/static/../app.py").status_code == 404

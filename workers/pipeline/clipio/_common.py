@@ -213,6 +213,15 @@ def check_image(
         )
 
 
+def frame_window(fmt: str, start: int, stop: int | None, frames: int) -> int:
+    """The end of the window ``[start, stop)`` of a clip of ``frames`` frames (``stop`` None: to the
+    end, beyond it: cut); a window outside the clip is a :class:`ClipError`."""
+    stop = frames if stop is None else min(stop, frames)
+    if not 0 <= start <= stop:
+        raise ClipError(f"{fmt}: frame range [{start}, {stop}) is outside the clip's {frames} frames")
+    return stop
+
+
 def natural_key(name: str) -> tuple[Any, ...]:
     """Sort key that orders ``frame2`` before ``frame10``."""
     return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))

@@ -6,6 +6,9 @@ format          recognised by
 ``npz``         zip whose top level holds ``rgb.npy``
 ``zip-frames``  zip (or folder) with ``rgb/*.png|jpg`` (optionally ``depth/*.png``, ``camera.json``)
 ``tum``         zip (or folder) with ``rgb.txt`` (TUM RGB-D layout), possibly in one top folder
+``open3d``      zip (or folder) with ``color/*.jpg|png`` (Open3D RGB-D layout: ``depth/``,
+                ``camera_intrinsic.json``, ``config.json``)
+``k4a-mkv``     Matroska with a K4A depth track (Azure Kinect / Orbbec Femto recording)
 ``video``       any file FFmpeg demuxes with a video stream; or a zip holding one video file
 ``ros1-bag``    ``#ROSBAG V2.0`` magic
 ``ros2-bag``    MCAP magic, SQLite magic (``.db3``), a bag folder or a zip with ``metadata.yaml`` /
@@ -19,16 +22,18 @@ import zipfile
 from pathlib import Path
 
 from workers.pipeline.clipio._archive import ZIP_ERRORS, Archive, common_root, visible
+from workers.pipeline.clipio.open3d import is_open3d_layout
 from workers.pipeline.clipio.types import ClipOverrides, ClipReader, ReadLimits
 from workers.pipeline.errors import ClipError, ParameterError, UnsupportedFormatError
 
-FORMATS = ("npz", "zip-frames", "tum", "video", "ros1-bag", "ros2-bag")
+FORMATS = ("npz", "zip-frames", "tum", "open3d", "k4a-mkv", "video", "ros1-bag", "ros2-bag")
 _SUPPORTED = (
-    "supported: .npz bundle, zip of rgb/ (+depth/) frames, TUM RGB-D zip, video (mp4/avi/mkv/mov), "
-    "ROS 1 .bag, ROS 2 .mcap/.db3 or zipped bag folder"
+    "supported: .npz bundle, zip of rgb/ (+depth/) frames, TUM RGB-D zip, Open3D RGB-D zip (color/, depth/), "
+    "Azure Kinect / Orbbec .mkv, video (mp4/avi/mkv/mov), ROS 1 .bag, ROS 2 .mcap/.db3 or zipped bag folder"
 )
 _VIDEO_EXTS = (".mp4", ".m4v", ".avi", ".mkv", ".mov", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts")
 _IMAGE_EXTS = (".png", ".jpg", ".jpeg")
+_EBML_MAGIC = b"\x1a\x45\xdf\xa3"
 
 
 def _zip_layout(names: list[str]) -> str | None:
@@ -47,6 +52,8 @@ def _zip_layout(names: list[str]) -> str | None:
         return "tum"
     if any(n.startswith("rgb/") and n.lower().endswith(_IMAGE_EXTS) for n in rel):
         return "zip-frames"
+    if is_open3d_layout(rel):
+        return "open3d"
     if any(n.lower().endswith(_VIDEO_EXTS) for n in rel):
         return "video"
     return None
@@ -77,7 +84,7 @@ def _container_kind(head: bytes) -> str | None:
         return "MP4/MOV"
     if head.startswith(b"RIFF") and head[8:12] == b"AVI ":
         return "AVI"
-    if head.startswith(b"\x1a\x45\xdf\xa3"):
+    if head.startswith(_EBML_MAGIC):
         return "Matroska/WebM"
     return None
 
@@ -88,12 +95,12 @@ def detect_format(path: str | Path) -> str:
     Parameters
     ----------
     path : path-like
-        A clip file, or a folder holding a ROS 2 bag, a TUM sequence or ``rgb/`` frames.
+        A clip file, or a folder holding a ROS 2 bag, a TUM sequence, an Open3D dataset or ``rgb/`` frames.
 
     Returns
     -------
     str
-        One of ``npz``, ``zip-frames``, ``tum``, ``video``, ``ros1-bag``, ``ros2-bag``.
+        One of :data:`FORMATS`.
 
     Raises
     ------
@@ -106,7 +113,7 @@ def detect_format(path: str | Path) -> str:
     if path.is_dir():
         names = [p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file()]
         layout = _zip_layout(names)
-        if layout in ("ros2-bag", "tum", "zip-frames"):
+        if layout in ("ros2-bag", "tum", "zip-frames", "open3d"):
             return layout
         raise UnsupportedFormatError(f"{path.name}/: folder holds no clip ({_SUPPORTED})")
     try:
@@ -161,6 +168,11 @@ def detect_format(path: str | Path) -> str:
         )
     why = _probe_video(path)
     if why is None:
+        if head.startswith(_EBML_MAGIC):
+            from workers.pipeline.clipio.mkv import is_k4a_recording
+
+            if is_k4a_recording(path):
+                return "k4a-mkv"
         return "video"
     container = _container_kind(head)
     if container is not None:
@@ -209,7 +221,9 @@ def open_clip(
         (H, W) or None, timestamp in seconds).
     """
     from workers.pipeline.clipio.frames import FramesClip
+    from workers.pipeline.clipio.mkv import K4aClip
     from workers.pipeline.clipio.npz import NpzClip
+    from workers.pipeline.clipio.open3d import Open3dClip
     from workers.pipeline.clipio.rosbag import BagClip
     from workers.pipeline.clipio.video import VideoClip
 
@@ -224,6 +238,10 @@ def open_clip(
         return NpzClip(path, overrides=overrides, limits=limits)
     if fmt in ("zip-frames", "tum"):
         return FramesClip(path, overrides=overrides, limits=limits)
+    if fmt == "open3d":
+        return Open3dClip(path, overrides=overrides, limits=limits)
+    if fmt == "k4a-mkv":
+        return K4aClip(path, overrides=overrides, limits=limits)
     if fmt == "video":
         archive = None
         if _is_zip(Path(path)):

@@ -22,6 +22,7 @@ import json
 import math
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -60,8 +61,8 @@ _SMALL_HEADER_BYTES = 1024
 _CAMERA_FIELDS = ("fps", "fx", "fy", "cx", "cy", "depth_scale")
 
 
-def read_camera_json(archive: Archive, name: str, fmt: str) -> dict[str, float]:
-    """Parse ``camera.json``: a JSON object of the numeric fields ``fps fx fy cx cy depth_scale``."""
+def read_json_object(archive: Archive, name: str, fmt: str, *, fields: str = "") -> dict[str, Any]:
+    """Parse a small JSON file of the clip that must hold one object (``fields`` names them in errors)."""
     raw = archive.read(name, max_bytes=1 << 20)
     try:
         data = json.loads(raw.decode("utf-8"))
@@ -70,7 +71,13 @@ def read_camera_json(archive: Archive, name: str, fmt: str) -> dict[str, float]:
             f"{fmt}: {name} is not valid JSON ({exc}); fix it or give the values as flags"
         ) from exc
     if not isinstance(data, dict):
-        raise ClipError(f"{fmt}: {name} must be a JSON object with fields {', '.join(_CAMERA_FIELDS)}")
+        raise ClipError(f"{fmt}: {name} must be a JSON object" + (f" with fields {fields}" if fields else ""))
+    return data
+
+
+def read_camera_json(archive: Archive, name: str, fmt: str) -> dict[str, float]:
+    """Parse ``camera.json``: a JSON object of the numeric fields ``fps fx fy cx cy depth_scale``."""
+    data = read_json_object(archive, name, fmt, fields=", ".join(_CAMERA_FIELDS))
     out: dict[str, float] = {}
     for key in _CAMERA_FIELDS:
         if key not in data or data[key] is None:
@@ -152,6 +159,9 @@ class FramesClip(ClosingReader):
         overrides = overrides or ClipOverrides()
         limits = limits or ReadLimits()
         self._archive = archive or Archive(self.path, "zip-frames", limits)
+        # Every frame's declared size is checked against these before it is decoded (subclasses too).
+        self._limits = limits
+        self._max_frame_bytes = limits.max_pixels_per_frame * 8 + (1 << 20)
         try:
             self._setup(overrides, limits)
         except Exception:
@@ -165,7 +175,6 @@ class FramesClip(ClosingReader):
         is_tum = "rgb.txt" in rel
         fmt = "tum" if is_tum else "zip-frames"
         self._fmt = self._archive.fmt = fmt
-        self._max_frame_bytes = limits.max_pixels_per_frame * 8 + (1 << 20)
         camera: dict[str, float] = {}
         if "camera.json" in rel:
             camera = read_camera_json(self._archive, rel["camera.json"], fmt)
@@ -263,7 +272,6 @@ class FramesClip(ClosingReader):
         depth_scale = camera_depth_scale(camera, overrides, default_scale, fmt)
         self._rgb_files = rgb_files
         self._depth_files = depth_files
-        self._limits = limits
         self._depth_scale = depth_scale
         streams = ["rgb/"] + (["depth/"] if depth_files else [])
         if is_tum:

@@ -1,8 +1,9 @@
 """Write a clip held in memory into each format the readers accept, with the formats' own writer libraries.
 
-Used to make sample and test clips: ``zipfile`` + OpenCV PNG/JPEG for frame zips and TUM, PyAV (or
-OpenCV) for video, ``rosbags`` writers for ROS 1 and ROS 2 bags. Arrays follow the clip conventions:
-``rgb`` uint8 (T, H, W, 3), ``depth`` uint16 (T, H, W) in units of ``depth_scale`` metres.
+Used to make sample and test clips: ``zipfile`` + OpenCV PNG/JPEG for frame zips, TUM and Open3D
+datasets, PyAV (or OpenCV) for video and Azure Kinect recordings, ``rosbags`` writers for ROS 1 and ROS 2
+bags. Arrays follow the clip conventions: ``rgb`` uint8 (T, H, W, 3), ``depth`` uint16 (T, H, W) in units
+of ``depth_scale`` metres.
 """
 
 from __future__ import annotations
@@ -188,6 +189,189 @@ def write_video(
                 out.mux(packet)
         for packet in stream.encode():
             out.mux(packet)
+    return path
+
+
+def write_open3d(
+    path: str | Path,
+    rgb: NDArray[np.uint8],
+    *,
+    depth: NDArray[np.uint16] | None = None,
+    intrinsics: Intr | None = None,
+    units_per_metre: float | None = None,
+    fps: float | None = None,
+    image_format: Literal["png", "jpg"] = "jpg",
+    intrinsic_name: str = "camera_intrinsic.json",
+    root: str = "",
+) -> Path:
+    """Write an Open3D RGB-D dataset: ``color/``, ``depth/``, ``camera_intrinsic.json``, ``config.json``.
+
+    ``path`` ending in ``.zip`` gives a zip archive, anything else a folder.
+
+    Parameters
+    ----------
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    depth : ndarray of uint16, shape (T, H, W), optional
+        Depth in units of ``1 / units_per_metre`` metres (Open3D's default 1000: millimetres).
+    intrinsics : (fx, fy, cx, cy), optional
+        Written as Open3D's column-major ``intrinsic_matrix``.
+    units_per_metre, fps : optional
+        Written to ``config.json`` as ``depth_scale`` and ``fps`` when given.
+    """
+    path = Path(path)
+    files: dict[str, bytes] = {}
+    for i, frame in enumerate(rgb):
+        encoded = _png(_bgr(frame)) if image_format == "png" else _jpg(_bgr(frame))
+        files[f"color/{i:06d}.{image_format}"] = encoded
+        if depth is not None:
+            files[f"depth/{i:06d}.png"] = _png(depth[i])
+    if intrinsics is not None:
+        fx, fy, cx, cy = intrinsics
+        doc = {"width": int(rgb.shape[2]), "height": int(rgb.shape[1])}
+        files[intrinsic_name] = json.dumps(
+            {**doc, "intrinsic_matrix": [fx, 0, 0, 0, fy, 0, cx, cy, 1]}
+        ).encode()
+    config: dict[str, float] = {}
+    if units_per_metre is not None:
+        config["depth_scale"] = units_per_metre
+    if fps is not None:
+        config["fps"] = fps
+    if config:
+        files["config.json"] = json.dumps(config).encode()
+    if path.suffix.lower() == ".zip":
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
+            for name, data in files.items():
+                zf.writestr(root + name, data)
+        return path
+    for name, data in files.items():
+        target = path / root / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data)
+    return path
+
+
+def write_k4a_mkv(
+    path: str | Path,
+    rgb: NDArray[np.uint8],
+    *,
+    depth: NDArray[np.uint16] | None,
+    fps: float,
+    intrinsics: Intr | None = None,
+    depth_mode: str = "NFOV_2X2BINNED",
+    depth_intrinsics: Intr | None = None,
+    translation_m: tuple[float, float, float] = (-0.032, -0.002, 0.004),
+    depth_delay_frames: float = 0.0,
+) -> Path:
+    """Write an Azure Kinect style recording: MJPEG ``COLOR`` track, ``b16g`` ``DEPTH`` track (millimetres),
+    K4A tags and, with ``intrinsics``, a ``calibration.json`` attachment.
+
+    With ``intrinsics`` the depth track is what the K4A depth camera of ``depth_mode`` would see:
+    ``depth`` (aligned to colour) is reprojected into a depth camera of ``depth_intrinsics`` (default: the
+    colour camera's focal length scaled to the mode's frame, centred) placed ``translation_m`` from the
+    colour camera. Without ``intrinsics`` the depth track holds ``depth`` as it is (colour size) and there
+    is no attachment.
+
+    FFmpeg's Matroska muxer writes raw 16-bit video without a FourCC; the header is patched to ``b16g``
+    (big-endian 16-bit grey), which is what ``k4arecorder`` writes and how FFmpeg reads K4A files back.
+
+    Parameters
+    ----------
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    depth : ndarray of uint16, shape (T, H, W), or None
+        Millimetres, aligned to the colour frames.
+    fps : float
+    intrinsics : (fx, fy, cx, cy), optional
+        The colour camera's, pixels.
+    depth_delay_frames : float
+        Depth frames are stamped this many frame periods after their colour frame.
+    """
+    import struct
+    from fractions import Fraction
+
+    import av
+
+    from workers.pipeline.clipio._common import align_depth_to_color
+    from workers.pipeline.clipio.mkv import DEPTH_MODES, calibration_json
+
+    path = Path(path)
+    frames, height, width = int(rgb.shape[0]), int(rgb.shape[1]), int(rgb.shape[2])
+    calibration: dict[str, Any] | None = None
+    maps: NDArray[np.uint16] | None = depth
+    if depth is not None and intrinsics is not None:
+        dw, dh = DEPTH_MODES[depth_mode][2]
+        if depth_intrinsics is None:
+            f = intrinsics[0] * dw / width
+            depth_intrinsics = (f, f, (dw - 1) / 2, (dh - 1) / 2)
+        rot = np.eye(3)
+        trans = np.asarray(translation_m, np.float64)
+        calibration = calibration_json(
+            color=intrinsics,
+            color_size=(width, height),
+            depth=depth_intrinsics,
+            depth_mode=depth_mode,
+            rotation=rot,
+            translation_m=trans,
+        )
+        maps = np.zeros((frames, dh, dw), np.uint16)
+        for i in range(frames):  # the colour view into the depth camera: the inverse of depth -> colour
+            view = align_depth_to_color(
+                depth[i].astype(np.float32) * np.float32(0.001), intrinsics, depth_intrinsics, (dh, dw),
+                rot.T, -rot.T @ trans,
+            )  # fmt: skip
+            maps[i] = np.where(np.isfinite(view), np.rint(view * 1000.0), 0).astype(np.uint16)
+    tick = Fraction(1, 1_000_000)
+    period_us = round(1_000_000 / fps)
+    with av.open(str(path), mode="w", format="matroska", options={"allow_raw_vfw": "1"}) as out:
+        out.metadata["title"] = "Azure Kinect"
+        out.metadata["K4A_DEPTH_DELAY_NS"] = str(round(depth_delay_frames * period_us * 1000))
+        color: Any = out.add_stream("mjpeg", rate=Fraction(fps).limit_denominator(1001))
+        color.width, color.height, color.pix_fmt = width, height, "yuvj422p"
+        color.options = {"qmin": "1", "qmax": "3"}
+        color.time_base = tick
+        color.metadata["title"] = "COLOR"
+        color.metadata["K4A_COLOR_TRACK"] = "1"
+        color.metadata["K4A_COLOR_MODE"] = f"MJPG_{height}P"
+        dstream: Any = None
+        if maps is not None:
+            dstream = out.add_stream("rawvideo", rate=Fraction(fps).limit_denominator(1001))
+            dstream.width, dstream.height, dstream.pix_fmt = (
+                int(maps.shape[2]),
+                int(maps.shape[1]),
+                "gray16be",
+            )
+            dstream.time_base = tick
+            dstream.metadata["title"] = "DEPTH"
+            dstream.metadata["K4A_DEPTH_TRACK"] = "2"
+            if calibration is not None:
+                dstream.metadata["K4A_DEPTH_MODE"] = depth_mode
+        if calibration is not None:
+            out.add_attachment(
+                "calibration.json", "application/octet-stream", json.dumps(calibration).encode()
+            )
+        for i in range(frames):
+            vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb[i]), format="rgb24")
+            vf.pts, vf.time_base = i * period_us, tick
+            for packet in color.encode(vf.reformat(format="yuvj422p")):
+                out.mux(packet)
+            if dstream is not None and maps is not None:
+                df = av.VideoFrame.from_ndarray(np.ascontiguousarray(maps[i]), format="gray16be")
+                df.pts, df.time_base = i * period_us + round(depth_delay_frames * period_us), tick
+                for packet in dstream.encode(df):
+                    out.mux(packet)
+        for stream in (color, dstream):
+            if stream is not None:
+                for packet in stream.encode():
+                    out.mux(packet)
+    if maps is not None:
+        dh, dw = int(maps.shape[1]), int(maps.shape[2])
+        data = path.read_bytes()
+        ffmpeg_header = struct.pack("<IiiHHI", 40, dw, -dh, 1, 16, 0)
+        if data.count(ffmpeg_header) != 1:
+            raise OSError(
+                f"{path.name}: the depth track's BITMAPINFOHEADER was not found once; cannot patch it"
+            )
+        k4a_header = struct.pack("<IiiHH4s", 40, dw, dh, 1, 16, b"b16g")
+        path.write_bytes(data.replace(ffmpeg_header, k4a_header))
     return path
 
 

@@ -1,0 +1,98 @@
+"""Python client of the Eigenscope HTTP API, for robot code and lab scripts.
+
+    from eigenscope_client import Client, StepRelease
+
+    with Client("http://127.0.0.1:8000") as es:
+        job = es.analyze("clip.npz", excitation=StepRelease(force_n=10)).raise_for_status()
+        print(job.result.eigenfrequency_hz, job.result.main.mass_kg)
+        es.download_artifact(job, "mask", "mask.png")
+
+:class:`Client` blocks; :class:`AsyncClient` has the same methods for ``async`` code. Every error is an
+:class:`EigenscopeError`; problem documents from the server become :class:`APIError` subclasses.
+"""
+
+from eigenscope_client._client import OPERATIONS, AsyncClient, Client
+from eigenscope_client._errors import (
+    APIError,
+    AuthenticationError,
+    BadRequestError,
+    ConflictError,
+    EigenscopeError,
+    InsufficientStorageError,
+    InvalidRequestError,
+    JobFailedError,
+    NotFoundError,
+    PayloadTooLargeError,
+    PermissionDeniedError,
+    RateLimitError,
+    ServerError,
+    ServiceUnavailableError,
+    TransportError,
+    UnsupportedMediaTypeError,
+    WaitTimeoutError,
+)
+from eigenscope_client._models import (
+    FINAL_STATUSES,
+    AnalysisParameters,
+    AnalysisResult,
+    Callback,
+    CameraIntrinsics,
+    Clip,
+    Excitation,
+    Impulse,
+    Job,
+    JobStatus,
+    ObjectResult,
+    Page,
+    Problem,
+    QualityFlag,
+    RejectedPeak,
+    Ringdown,
+    Spectrum,
+    StepRelease,
+)
+from eigenscope_client._upload import ProgressCallback
+from eigenscope_client._version import __version__
+
+__all__ = [
+    "FINAL_STATUSES",
+    "OPERATIONS",
+    "APIError",
+    "AnalysisParameters",
+    "AnalysisResult",
+    "AsyncClient",
+    "AuthenticationError",
+    "BadRequestError",
+    "Callback",
+    "CameraIntrinsics",
+    "Client",
+    "Clip",
+    "ConflictError",
+    "EigenscopeError",
+    "Excitation",
+    "Impulse",
+    "InsufficientStorageError",
+    "InvalidRequestError",
+    "Job",
+    "JobFailedError",
+    "JobStatus",
+    "NotFoundError",
+    "ObjectResult",
+    "Page",
+    "PayloadTooLargeError",
+    "PermissionDeniedError",
+    "Problem",
+    "ProgressCallback",
+    "QualityFlag",
+    "RateLimitError",
+    "RejectedPeak",
+    "Ringdown",
+    "ServerError",
+    "ServiceUnavailableError",
+    "Spectrum",
+    "StepRelease",
+    "TransportError",
+    "UnsupportedMediaTypeError",
+    "WaitTimeoutError",
+    "__version__",
+]
