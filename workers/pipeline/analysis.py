@@ -14,7 +14,7 @@ import dataclasses
 from collections.abc import Sequence
 
 from workers.pipeline.camera import CameraRing
-from workers.pipeline.clipio.types import ClipReader, Intrinsics
+from workers.pipeline.clipio.types import ClipInfo, ClipReader, Intrinsics
 from workers.pipeline.detection import (
     ARTEFACT_EVIDENCE,
     WindowEvidence,
@@ -57,7 +57,7 @@ from workers.pipeline.segmentation import (
 from workers.pipeline.spectra import PixelSpectra, pixel_spectra
 from workers.pipeline.stream import FrameBuffers, stream_frames
 from workers.pipeline.survey import Survey
-from workers.pipeline.window import analysis_band, plan_analysis, survey_notes
+from workers.pipeline.window import Plan, analysis_band, plan_analysis, survey_notes
 
 
 def analyze(
@@ -206,6 +206,46 @@ def _analyze_default(
     source, first, last = plan.source(reader)
     buffers = stream_frames(source, first, last, plan.grid, plan.flow, progress, keep_gray=True)
     watch.stream_lap(buffers)
+    return analyze_window(
+        buffers, plan, info, config=config, excitations=excitations, watch=watch, progress=progress
+    )
+
+
+def analyze_window(
+    buffers: FrameBuffers,
+    plan: Plan,
+    info: ClipInfo,
+    *,
+    config: AnalysisConfig,
+    excitations: Sequence[Excitation] = (),
+    watch: Stopwatch | None = None,
+    progress: Progress | None = None,
+) -> Analysis:
+    """Everything after the frame stream: the window's flow, depth and grey frames to the result.
+
+    Spectra, candidate peaks, segmentation, the evidence that drops artefacts, each object measured and
+    judged, and the quality notes. :func:`analyze` calls it on the frames it streamed; a live stream
+    (:mod:`workers.pipeline.live`) calls it on the flow it computed as the frames arrived.
+
+    Parameters
+    ----------
+    buffers : FrameBuffers
+        The window's buffers (see :func:`workers.pipeline.stream.stream_frames`).
+    plan : Plan
+        Which frames they are, their sample rate, the flow grid.
+    info : ClipInfo
+        The clip's metadata (frame size, rate and its source, intrinsics).
+    config : AnalysisConfig
+    excitations : sequence of Excitation
+    watch : Stopwatch, optional
+        Adds this function's stages to the stopwatch's laps (a new one when None).
+    progress : callable, optional
+
+    Returns
+    -------
+    Analysis
+    """
+    watch = watch or Stopwatch()
     n = buffers.count
     band = analysis_band(config, plan.fps, n)
     quality: list[QualityNote] = [*clip_notes(plan, buffers, info), *frame_notes(buffers)]
@@ -368,4 +408,5 @@ __all__ = [
     "ObjectMeasurement",
     "QualityNote",
     "analyze",
+    "analyze_window",
 ]

@@ -183,11 +183,15 @@ def object_quality_notes(
                 )
             )
         if obj.snr_db is not None and obj.snr_db < 6:
+            if obj.regime == "ring_down":
+                advice = "push harder, light the object better or film closer"
+            else:
+                advice = "light the object better, film closer or record longer"
             notes.append(
                 QualityNote(
                     "low_snr",
-                    f"{name}: the ring-down stands only {obj.snr_db:.1f} dB above the noise; "
-                    "push harder, light the object better or film closer",
+                    f"{name}: its oscillation stands only {obj.snr_db:.1f} dB above the noise in each frame "
+                    f"({obj.detection_db or 0:.0f} dB over the window); {advice}",
                 )
             )
         periods = f * obj.fitted_duration_s

@@ -537,3 +537,12 @@ def test_video_fraction_rate_declared(truth: Truth, tmp_path: Path) -> None:
     path = w.write_video(tmp_path / "c.mkv", truth.rgb, fps=float(Fraction(30000, 1001)), codec="ffv1")
     info, _, _, _ = read_all(path)
     assert info.fps == pytest.approx(29.97, rel=1e-3)
+
+
+def test_frame_names_sort_by_their_ascii_numbers():
+    """``²`` is a digit to Unicode but no number to int(): a name holding one sorts as text (the fuzzer
+    found an Open3D zip whose frame name held one)."""
+    from workers.pipeline.clipio._common import natural_key
+
+    names = ["f10.png", "f2.png", "f\u00b2x.png", "f1.png", "g\u0663.png"]
+    assert sorted(names, key=natural_key) == ["f1.png", "f2.png", "f10.png", "f\u00b2x.png", "g\u0663.png"]

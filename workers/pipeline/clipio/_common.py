@@ -223,8 +223,9 @@ def frame_window(fmt: str, start: int, stop: int | None, frames: int) -> int:
 
 
 def natural_key(name: str) -> tuple[Any, ...]:
-    """Sort key that orders ``frame2`` before ``frame10``."""
-    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))
+    """Sort key that orders ``frame2`` before ``frame10`` (ASCII digits only: ``²`` is a digit to Unicode
+    but no number to :func:`int`)."""
+    return tuple(int(p) if p.isascii() and p.isdigit() else p for p in re.split(r"([0-9]+)", name))
 
 
 # ---------------------------------------------------------------------------------------------- images
