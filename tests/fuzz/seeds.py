@@ -58,9 +58,7 @@ def write_seeds(folder: Path) -> list[Path]:
     out.append(
         w.write_zip_frames(folder / "frames-jpg.zip", rgb, fps=30.0, image_format="jpg", root="take1/")
     )
-    out.append(
-        w.write_open3d(folder / "open3d.zip", rgb, depth=depth, intrinsics=INTRINSICS, fps=30.0)
-    )
+    out.append(w.write_open3d(folder / "open3d.zip", rgb, depth=depth, intrinsics=INTRINSICS, fps=30.0))
     out.append(w.write_k4a_mkv(folder / "kinect.mkv", rgb, depth=depth, fps=30.0, intrinsics=INTRINSICS))
     times = np.arange(FRAMES) / 30.0
     out.append(
