@@ -17,6 +17,14 @@ from api_schemas.job import (
     StepReleaseExcitation,
 )
 from api_schemas.problem import Problem
+from api_schemas.stream import (
+    FrameHeader,
+    LiveEstimateModel,
+    ServerMessage,
+    StreamCreate,
+    StreamList,
+    StreamModel,
+)
 from api_schemas.result import (
     AnalysisResult,
     Artifacts,
@@ -33,16 +41,22 @@ __all__ = [
     "CameraIntrinsicsModel",
     "ClipInfoModel",
     "Excitation",
+    "FrameHeader",
     "ExcitationSpec",
     "ImpulseExcitation",
     "JobCreate",
     "JobList",
     "JobModel",
     "JobStatus",
+    "LiveEstimateModel",
     "ObjectResult",
     "Problem",
     "QualityFlag",
     "RingdownResult",
+    "ServerMessage",
     "Spectrum",
     "StepReleaseExcitation",
+    "StreamCreate",
+    "StreamList",
+    "StreamModel",
 ]

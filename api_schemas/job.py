@@ -126,6 +126,9 @@ class JobModel(BaseModel):
     finished_at: datetime | None = None
     error: Problem | None = None
     result: AnalysisResult | None = None
+    source: Literal["upload", "stream"] = Field(
+        default="upload", description="`stream`: the job a live stream ended as (see `/v1/streams`)."
+    )
 
 
 class JobList(BaseModel):

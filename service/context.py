@@ -16,6 +16,7 @@ from service.retention import cleanup
 from service.settings import Settings
 from service.storage import Storage
 from service.store import Store
+from service.stream_transport import StreamTransport, transport_for
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +50,7 @@ class ServiceContext:
     storage: Storage
     queue: JobQueue
     metrics: Metrics
+    stream_transport: StreamTransport
     keys: KeyRing = field(default_factory=lambda: KeyRing({}))
     schema_ready: bool = False
     _stop: threading.Event = field(default_factory=threading.Event)
@@ -66,6 +68,7 @@ class ServiceContext:
             storage=Storage(settings.data_path),
             queue=JobQueue(settings),
             metrics=Metrics(store),
+            stream_transport=transport_for(settings),
             keys=KeyRing.from_settings(settings),
         )
 
@@ -93,6 +96,7 @@ class ServiceContext:
             self._sweeper.join(timeout=10)
             self._sweeper = None
         self.queue.close()
+        self.stream_transport.close()
         self.store.dispose()
 
     def publish(self, job_id: str) -> bool:

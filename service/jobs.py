@@ -56,6 +56,7 @@ def job_view(job: JobRecord, *, root_path: str = "") -> JobModel:
             "finished_at": job.finished_at,
             "error": job.error,
             "result": result,
+            "source": job.source,
         }
     )
 

@@ -339,8 +339,10 @@ class LiveAnalysis:
                     if self._depth is None:
                         self._depth = np.full((self.config.window_frames, *self.grid), np.nan, np.float32)
                     h, w = self.grid
-                    d = depth_m if depth_m.shape == self.grid else cv2.resize(
-                        depth_m, (w, h), interpolation=cv2.INTER_NEAREST
+                    d = (
+                        depth_m
+                        if depth_m.shape == self.grid
+                        else cv2.resize(depth_m, (w, h), interpolation=cv2.INTER_NEAREST)
                     )
                     self._depth[slot] = d
                 elif self._depth is not None:
@@ -536,7 +538,9 @@ class LiveAnalysis:
         # The fit's standard error assumes many samples; an early estimate has few degrees of freedom.
         dof = max(samples - 5, 1)
         t_factor = (_T975[dof - 1] if dof <= len(_T975) else 1.959964) / 1.959964
-        floor = max(LIVE_FREQUENCY_REL_FLOOR, FREQUENCY_REL_FLOOR, FREQUENCY_LINEWIDTH_FLOOR * 2 * fit.damping_ratio)
+        floor = max(
+            LIVE_FREQUENCY_REL_FLOOR, FREQUENCY_REL_FLOOR, FREQUENCY_LINEWIDTH_FLOOR * 2 * fit.damping_ratio
+        )
         stat = fit.frequency_sd_hz if math.isfinite(fit.frequency_sd_hz) else f
         f_sd = math.hypot(stat * t_factor, floor * f)
         z_stat = fit.damping_sd if math.isfinite(fit.damping_sd) else 1.0
@@ -647,7 +651,9 @@ class LiveAnalysis:
 
     # The end -----------------------------------------------------------------------------------
 
-    def finish(self, *, analysis_config: AnalysisConfig | None = None, excitations: list[Excitation]) -> Analysis:
+    def finish(
+        self, *, analysis_config: AnalysisConfig | None = None, excitations: list[Excitation]
+    ) -> Analysis:
         """Wait for the last flow maps, then run the full analysis on the window's flow.
 
         Parameters
@@ -749,7 +755,9 @@ def _final_analysis(
     del uniform
     summed = spectra.power.sum(axis=1, dtype=np.float64)
     noise = background_spectrum(spectra)
-    strong = find_peaks(spectra.frequencies_hz, summed, band_hz=band, noise=noise, max_peaks=config.max_objects)
+    strong = find_peaks(
+        spectra.frequencies_hz, summed, band_hz=band, noise=noise, max_peaks=config.max_objects
+    )
     whitened, _ = whitened_spectrum(spectra, band_hz=band)
     weak = find_peaks(
         spectra.frequencies_hz,
