@@ -74,7 +74,7 @@ class StreamTransport(Protocol):
 def transport_for(settings: Settings) -> StreamTransport:
     """The transport of these settings: Redis when ``redis_url`` is set, else the local one."""
     if settings.redis_url:
-        return RedisTransport(settings.redis_url, window=settings.stream_window)
+        return RedisTransport(settings.redis_url, window=settings.stream_window, namespace=settings.queue)
     return LocalTransport(settings.data_path / "streams")
 
 
@@ -84,10 +84,10 @@ def transport_for(settings: Settings) -> StreamTransport:
 class RedisTransport:
     """Sessions, frames and messages in Redis (see the module docstring)."""
 
-    PENDING = "eigenscope:streams:pending"
-
-    def __init__(self, url: str, *, window: int) -> None:
+    def __init__(self, url: str, *, window: int, namespace: str = "eigenscope") -> None:
         self.url = url
+        #: Sessions waiting for a worker (one list per deployment: its queue name).
+        self.pending = f"{namespace}:streams:pending"
         #: Hard cap of a session's input stream: the relay keeps at most ``window`` frames in it, plus
         #: control messages; entries beyond are only ever ones already read (and deleted).
         self.maxlen = 2 * window + 64
@@ -120,7 +120,7 @@ class RedisTransport:
 
     # worker side
     def claim(self, timeout_s: float) -> str | None:
-        got = self.sync.brpop([self.PENDING], timeout=max(1, round(timeout_s)))
+        got = self.sync.brpop([self.pending], timeout=max(1, round(timeout_s)))
         return None if got is None else got[1].decode()
 
     def read(self, stream_id: str, timeout_s: float) -> list[Item]:
@@ -153,7 +153,7 @@ class RedisTransport:
 
     # API side
     async def dispatch(self, stream_id: str) -> None:
-        await self.aio.lpush(self.PENDING, stream_id)
+        await self.aio.lpush(self.pending, stream_id)
 
     async def push(
         self, stream_id: str, *, frame: bytes | None = None, control: dict[str, Any] | None = None

@@ -52,7 +52,9 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     documents = {out: text, out.with_name(ASYNCAPI_NAME): render_asyncapi()}
     if args.check:
-        stale = [p for p, t in documents.items() if (p.read_text(encoding="utf-8") if p.exists() else "") != t]
+        stale = [
+            p for p, t in documents.items() if (p.read_text(encoding="utf-8") if p.exists() else "") != t
+        ]
         for path in stale:
             print(f"{path} is out of date; run `eigenscope export-openapi`", file=sys.stderr)
         if stale:

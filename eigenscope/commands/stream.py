@@ -76,9 +76,7 @@ def _clip_frames(path: Path, fps: float | None) -> tuple[Camera, Iterator[RawFra
     info = reader.info
     scale = info.depth_scale or 0.001
     k = info.intrinsics
-    camera = Camera(
-        info.width, info.height, info.fps, None if k is None else (k.fx, k.fy, k.cx, k.cy), scale
-    )
+    camera = Camera(info.width, info.height, info.fps, None if k is None else (k.fx, k.fy, k.cx, k.cy), scale)
 
     def frames() -> Iterator[RawFrame]:
         with reader:

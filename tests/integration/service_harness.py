@@ -242,7 +242,8 @@ def start_split(tmp_path: Path, *, workers: int = 1, **settings: str) -> LiveSer
             ]
             service.procs.append(Proc.start(f"worker{i}", cmd, env=env, log_dir=tmp_path))
         service.wait_ready()
-        wait_worker_ready(service)
+        if workers:
+            wait_worker_ready(service)
     except BaseException:
         service.stop()
         raise
@@ -377,3 +378,27 @@ def synth_clip(out: Path, **options: Any) -> dict[str, Any]:
 
 
 SMALL_CLIP = {"frames": 64, "width": 160, "height": 120, "frequency_hz": 4.0, "mass_kg": 0.5, "force_n": 5.0}
+
+
+def start_stream_worker(service: LiveService, name: str) -> Proc:
+    """An ``eigenscope stream-worker`` process; waits until it says it is ready."""
+    cmd = [sys.executable, "-m", "eigenscope", "stream-worker"]
+    proc = Proc.start(name, cmd, env=service.env, log_dir=service.data_dir.parent)
+    service.procs.append(proc)
+    deadline = time.monotonic() + 60
+    while "ready:" not in proc.log():
+        if not proc.alive() or time.monotonic() > deadline:
+            raise RuntimeError(f"stream worker {name} did not start:\n{proc.log()}")
+        time.sleep(0.1)
+    return proc
+
+
+def wait_stream_worker(service: LiveService, timeout_s: float = 60.0) -> None:
+    """Wait until the stream worker that each ``eigenscope worker`` starts says it is ready."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        workers = [p for p in service.procs if p.name.startswith("worker")]
+        if workers and all("stream worker" in p.log() and "ready:" in p.log() for p in workers):
+            return
+        time.sleep(0.1)
+    raise RuntimeError(f"stream workers not ready:\n{service.logs()}")

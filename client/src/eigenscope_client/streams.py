@@ -59,6 +59,17 @@ def frame_message(
     return struct.pack(">I", len(head)) + head + bytes(data)
 
 
+def connect_websocket(url: str, **options: Any) -> Any:
+    """A blocking WebSocket connection (``websockets.sync``) across the library's versions."""
+    import inspect
+
+    from websockets.sync.client import connect
+
+    if "legacy" in inspect.signature(connect).parameters:
+        options["legacy"] = True  # a connection object, not a context manager to enter
+    return connect(url, **options)
+
+
 def _problem_text(problem: dict[str, Any]) -> str:
     return f"{problem.get('title', 'error')}: {problem.get('detail', '')}".strip()
 
@@ -229,11 +240,9 @@ class StreamSession:
     # Connection ------------------------------------------------------------------------------------
 
     def _connect(self, *, resume: bool) -> None:
-        from websockets.sync.client import connect
-
         url = self.info["websocket_url"] + (f"?resume_token={self.resume_token}" if resume else "")
         try:
-            self._ws = connect(
+            self._ws = connect_websocket(
                 url, additional_headers=self._headers, open_timeout=self.timeout_s, max_size=None
             )
         except Exception as exc:
