@@ -72,7 +72,13 @@ def scene_frames(*, width: int, height: int, frames: int, frequency_hz: float = 
     reader = SceneReader(scene)
     color, depth, times = [], [], []
     for f in reader.frames():
-        color.append(bytes(cv2.imencode(".jpg", cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])[1]))
+        color.append(
+            bytes(
+                cv2.imencode(".jpg", cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])[
+                    1
+                ]
+            )
+        )
         assert f.depth_m is not None
         depth.append(np.rint(np.nan_to_num(f.depth_m) * 1000).astype("<u2").tobytes())
         times.append(f.timestamp_s)
@@ -82,15 +88,28 @@ def scene_frames(*, width: int, height: int, frames: int, frequency_hz: float = 
 def open_session(base: str, fr: Frames, **kwargs: Any) -> StreamSession:
     fx, fy, cx, cy = fr.intrinsics
     return StreamSession(
-        base, fps=30.0, fx=fx, fy=fy, cx=cx, cy=cy, depth_scale=0.001, width=fr.width, height=fr.height,
-        excitation={"type": "step_release", "force_n": 6.0}, **kwargs,
+        base,
+        fps=30.0,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        depth_scale=0.001,
+        width=fr.width,
+        height=fr.height,
+        excitation={"type": "step_release", "force_n": 6.0},
+        **kwargs,
     )
 
 
-def stream(base: str, fr: Frames, *, pace_fps: float | None, realtime: bool, stop_when_converged: bool = False) -> dict[str, Any]:
+def stream(
+    base: str, fr: Frames, *, pace_fps: float | None, realtime: bool, stop_when_converged: bool = False
+) -> dict[str, Any]:
     """Send the frames (paced at ``pace_fps`` or as fast as allowed); returns what happened."""
     seen: list[tuple[float, dict[str, Any]]] = []
-    session = open_session(base, fr, realtime=realtime, on_message=lambda m: seen.append((time.perf_counter(), m)))
+    session = open_session(
+        base, fr, realtime=realtime, on_message=lambda m: seen.append((time.perf_counter(), m))
+    )
     sent_at: dict[int, float] = {}
     start = time.perf_counter()
     n = 0
@@ -136,8 +155,11 @@ def bench_keepup(base: str) -> None:
     for _ in range(2):
         fast = stream(base, fr, pace_fps=None, realtime=False)
         rates.append(fast["frames"] / fast["send_s"])
-    print(f"keepup: as fast as flow control allows: {statistics.median(rates):.1f} fps sustained (runs: "
-          + ", ".join(f"{r:.1f}" for r in rates) + ") = where a stream stops keeping up")
+    print(
+        f"keepup: as fast as flow control allows: {statistics.median(rates):.1f} fps sustained (runs: "
+        + ", ".join(f"{r:.1f}" for r in rates)
+        + ") = where a stream stops keeping up"
+    )
 
 
 def bench_latency(base: str, runs: int) -> None:
@@ -153,7 +175,9 @@ def bench_latency(base: str, runs: int) -> None:
     )
 
 
-def _live_run(fr_scene: Scene, *, every: int = 3) -> tuple[list[tuple[float, float, float]], dict[str, Any] | None]:
+def _live_run(
+    fr_scene: Scene, *, every: int = 3
+) -> tuple[list[tuple[float, float, float]], dict[str, Any] | None]:
     """Estimates (frame, f, sd) of one scene fed to LiveAnalysis, and the converged one."""
     from workers.pipeline.analysis import Excitation
     from workers.pipeline.clipio.types import Intrinsics
@@ -162,10 +186,15 @@ def _live_run(fr_scene: Scene, *, every: int = 3) -> tuple[list[tuple[float, flo
     reader = SceneReader(fr_scene)
     fx, fy, cx, cy = fr_scene.intrinsics
     obj = fr_scene.objects[0]
-    exc = Excitation(kind=obj.excitation, value=obj.force_n if obj.excitation == "step_release" else obj.impulse_ns)
+    exc = Excitation(
+        kind=obj.excitation, value=obj.force_n if obj.excitation == "step_release" else obj.impulse_ns
+    )
     live = LiveAnalysis(
-        width=fr_scene.width, height=fr_scene.height, intrinsics=Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy),
-        config=LiveConfig(fps=fr_scene.fps), excitation=exc,
+        width=fr_scene.width,
+        height=fr_scene.height,
+        intrinsics=Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy),
+        config=LiveConfig(fps=fr_scene.fps),
+        excitation=exc,
     )
     out: list[tuple[float, float, float]] = []
     converged = None
@@ -177,8 +206,13 @@ def _live_run(fr_scene: Scene, *, every: int = 3) -> tuple[list[tuple[float, flo
             if est is not None:
                 out.append((f.index, est.eigenfrequency_hz, est.eigenfrequency_sd_hz))
                 if est.converged and converged is None:
-                    converged = {"frame": f.index, "f": est.eigenfrequency_hz, "sd": est.eigenfrequency_sd_hz,
-                                 "k": est.stiffness_n_per_m, "k_sd": est.stiffness_sd}
+                    converged = {
+                        "frame": f.index,
+                        "f": est.eigenfrequency_hz,
+                        "sd": est.eigenfrequency_sd_hz,
+                        "k": est.stiffness_n_per_m,
+                        "k_sd": est.stiffness_sd,
+                    }
     live.close()
     return out, converged
 
@@ -187,8 +221,16 @@ def bench_early(seeds: int) -> None:
     times = []
     errors = []
     for seed in range(seeds):
-        scene = Scene(width=640, height=480, frames=90, fps=30.0, seed=100 + seed, objects=(
-            SceneObject(frequency_hz=4.5, damping_ratio=0.03, mass_kg=0.8, force_n=6.0, release_frame=15),))
+        scene = Scene(
+            width=640,
+            height=480,
+            frames=90,
+            fps=30.0,
+            seed=100 + seed,
+            objects=(
+                SceneObject(frequency_hz=4.5, damping_ratio=0.03, mass_kg=0.8, force_n=6.0, release_frame=15),
+            ),
+        )
         _, conv = _live_run(scene, every=1)
         truth = scene.truth()["objects"][0]["eigenfrequency_hz"]
         if conv is None:
@@ -215,13 +257,27 @@ def bench_coverage(scenes: int) -> None:
         mass = float(rng.uniform(0.2, 2.0))
         k = mass * (2 * math.pi * f) ** 2
         obj = SceneObject(
-            center_px=(float(rng.uniform(120, 200)), float(rng.uniform(90, 150))), size_px=(70.0, 55.0),
-            depth_m=float(rng.uniform(0.6, 1.4)), frequency_hz=f, damping_ratio=zeta, mass_kg=mass,
-            excitation=kind, force_n=0.006 * k, impulse_ns=0.006 * mass * 2 * math.pi * f,
-            direction=(float(rng.uniform(-1, 1)), float(rng.uniform(-1, 1)), 0.0), release_frame=int(rng.integers(5, 20)),
+            center_px=(float(rng.uniform(120, 200)), float(rng.uniform(90, 150))),
+            size_px=(70.0, 55.0),
+            depth_m=float(rng.uniform(0.6, 1.4)),
+            frequency_hz=f,
+            damping_ratio=zeta,
+            mass_kg=mass,
+            excitation=kind,
+            force_n=0.006 * k,
+            impulse_ns=0.006 * mass * 2 * math.pi * f,
+            direction=(float(rng.uniform(-1, 1)), float(rng.uniform(-1, 1)), 0.0),
+            release_frame=int(rng.integers(5, 20)),
         )
-        scene = Scene(width=320, height=240, frames=120, fps=30.0, objects=(obj,), seed=1000 + i,
-                      rgb_noise=float(rng.uniform(1.0, 4.0)))
+        scene = Scene(
+            width=320,
+            height=240,
+            frames=120,
+            fps=30.0,
+            objects=(obj,),
+            seed=1000 + i,
+            rgb_noise=float(rng.uniform(1.0, 4.0)),
+        )
         truth = scene.truth()["objects"][0]
         est, conv = _live_run(scene)
         for _frame, fe, sd in est[1:]:
@@ -270,7 +326,8 @@ def bench_concurrency(tmp: Path) -> None:
             f"concurrency: 4 streams of 640x480 at 30 fps on 2 stream workers (Redis): {len(results)} results, "
             f"{len(errors)} errors, jobs {jobs}; latencies "
             + ", ".join(f"{r['latency_s'] * 1000:.0f} ms" for r in results)
-            + "; dropped frames " + ", ".join(str(r["dropped"]) for r in results)
+            + "; dropped frames "
+            + ", ".join(str(r["dropped"]) for r in results)
         )
         for e in errors:
             print(f"  error: {e}")
@@ -279,7 +336,9 @@ def bench_concurrency(tmp: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--only", default=None)
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--scenes", type=int, default=30)

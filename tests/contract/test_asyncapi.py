@@ -33,7 +33,11 @@ def test_document_describes_the_servers_channel_and_messages(tmp_path: Path) -> 
     create_app(Settings(data_dir=tmp_path))  # the app includes this router
     socket_paths = {r.path for r in streams.router.routes if isinstance(r, APIWebSocketRoute)}
     assert socket_paths == {channel["address"]}
-    kinds = {m["payload"]["$ref"].rsplit("/", 1)[1] for m in doc["components"]["messages"].values() if "$ref" in m["payload"]}
+    kinds = {
+        m["payload"]["$ref"].rsplit("/", 1)[1]
+        for m in doc["components"]["messages"].values()
+        if "$ref" in m["payload"]
+    }
     for name, model in SERVER_MESSAGES.items():
         schema = doc["components"]["schemas"][model.__name__]
         assert schema["properties"]["type"]["const"] == name

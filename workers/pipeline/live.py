@@ -77,7 +77,9 @@ class LiveConfig:
     fps : float or None
         Nominal frame rate, Hz; None measures it from the frames' timestamps.
     flow : FlowConfig
-        Optical flow settings (the analysis's default: DIS on a grid about 320 px wide).
+        Optical flow settings: the analysis's (DIS on a grid about 320 px wide) on one thread, so that
+        each frame pair's flow is ready as soon as its second frame arrives (two threads would hold back
+        the last few pairs until more frames come; the stream's decoding runs beside it anyway).
     window_frames : int
         Most frames kept for the analysis (memory is bounded by this, not by the stream's length).
     lead_frames : int
@@ -101,7 +103,7 @@ class LiveConfig:
     """
 
     fps: float | None = None
-    flow: FlowConfig = field(default_factory=FlowConfig)
+    flow: FlowConfig = field(default_factory=lambda: FlowConfig(threads=1))
     window_frames: int = 256
     lead_frames: int = 8
     target_relative_uncertainty: float = 0.01

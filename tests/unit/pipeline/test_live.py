@@ -14,7 +14,12 @@ from workers.pipeline.synth import Scene, SceneObject, SceneReader
 
 def _scene(frames: int = 100, release: int = 12) -> Scene:
     obj = SceneObject(
-        center_px=(160, 120), size_px=(80, 60), frequency_hz=4.5, mass_kg=0.8, force_n=6.0, release_frame=release
+        center_px=(160, 120),
+        size_px=(80, 60),
+        frequency_hz=4.5,
+        mass_kg=0.8,
+        force_n=6.0,
+        release_frame=release,
     )
     return Scene(width=320, height=240, frames=frames, fps=30.0, objects=(obj,), seed=5)
 
