@@ -17,14 +17,6 @@ from api_schemas.job import (
     StepReleaseExcitation,
 )
 from api_schemas.problem import Problem
-from api_schemas.stream import (
-    FrameHeader,
-    LiveEstimateModel,
-    ServerMessage,
-    StreamCreate,
-    StreamList,
-    StreamModel,
-)
 from api_schemas.result import (
     AnalysisResult,
     Artifacts,
@@ -32,6 +24,14 @@ from api_schemas.result import (
     QualityFlag,
     RingdownResult,
     Spectrum,
+)
+from api_schemas.stream import (
+    FrameHeader,
+    LiveEstimateModel,
+    ServerMessage,
+    StreamCreate,
+    StreamList,
+    StreamModel,
 )
 
 __all__ = [
@@ -41,8 +41,8 @@ __all__ = [
     "CameraIntrinsicsModel",
     "ClipInfoModel",
     "Excitation",
-    "FrameHeader",
     "ExcitationSpec",
+    "FrameHeader",
     "ImpulseExcitation",
     "JobCreate",
     "JobList",

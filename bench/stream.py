@@ -43,8 +43,8 @@ sys.path.insert(0, str(ROOT / "tests" / "integration"))
 sys.path.insert(0, str(ROOT))
 
 import service_harness as h  # noqa: E402
-
 from eigenscope_client import StreamSession  # noqa: E402
+
 from workers.pipeline.synth import Scene, SceneObject, SceneReader  # noqa: E402
 
 
@@ -148,7 +148,8 @@ def bench_keepup(base: str) -> None:
     fr = scene_frames(width=640, height=480, frames=150)
     paced = stream(base, fr, pace_fps=30.0, realtime=True)
     print(
-        f"keepup 640x480 RGB-D at 30 fps: {paced['frames']} frames, dropped {paced['dropped']}, accept lag median "
+        f"keepup 640x480 RGB-D at 30 fps: {paced['frames']} frames, dropped {paced['dropped']}, "
+        f"accept lag median "
         f"{paced['lag_median_s'] * 1000:.0f} ms, max {paced['lag_max_s'] * 1000:.0f} ms"
     )
     rates = []
@@ -169,7 +170,8 @@ def bench_latency(base: str, runs: int) -> None:
         full.append(stream(base, fr, pace_fps=30.0, realtime=True)["latency_s"])
         early.append(stream(base, fr, pace_fps=30.0, realtime=True, stop_when_converged=True)["latency_s"])
     print(
-        f"latency last frame -> result, 640x480: whole 120-frame clip median {statistics.median(full) * 1000:.0f} ms "
+        "latency last frame -> result, 640x480: whole 120-frame clip median "
+        f"{statistics.median(full) * 1000:.0f} ms "
         f"(runs {', '.join(f'{x * 1000:.0f}' for x in full)}); stopped when converged median "
         f"{statistics.median(early) * 1000:.0f} ms (runs {', '.join(f'{x * 1000:.0f}' for x in early)})"
     )
@@ -239,7 +241,8 @@ def bench_early(seeds: int) -> None:
         times.append((conv["frame"] - 15) / 30.0)
         errors.append(abs(conv["f"] - truth) / truth)
     print(
-        f"early stop, 4.5 Hz at 640x480, target 1 %: release -> converged median {statistics.median(times):.2f} s of "
+        "early stop, 4.5 Hz at 640x480, target 1 %: release -> converged median "
+        f"{statistics.median(times):.2f} s of "
         f"capture (runs {', '.join(f'{t:.2f}' for t in times)}); error at convergence max "
         f"{max(errors) * 100:.3f} %"
     )
@@ -293,10 +296,13 @@ def bench_coverage(scenes: int) -> None:
                 k_inside += abs(conv["k"] - truth["stiffness_n_per_m"]) <= 1.96 * conv["k_sd"]
     print(
         f"coverage of 95 % frequency intervals, {scenes} random scenes (320x240): all live estimates "
-        f"{inside}/{total} = {inside / max(total, 1) * 100:.1f} % (median error {statistics.median(errs) * 100:.3f} %); "
-        f"at convergence {conv_inside}/{conv_total} = {conv_inside / max(conv_total, 1) * 100:.1f} % (median error "
+        f"{inside}/{total} = {inside / max(total, 1) * 100:.1f} % "
+        f"(median error {statistics.median(errs) * 100:.3f} %); "
+        f"at convergence {conv_inside}/{conv_total} = {conv_inside / max(conv_total, 1) * 100:.1f} % "
+        "(median error "
         f"{statistics.median(conv_errs) * 100 if conv_errs else math.nan:.3f} %, max "
-        f"{max(conv_errs) * 100 if conv_errs else math.nan:.3f} %); stiffness at convergence {k_inside}/{k_total}"
+        f"{max(conv_errs) * 100 if conv_errs else math.nan:.3f} %); "
+        f"stiffness at convergence {k_inside}/{k_total}"
     )
 
 
@@ -323,7 +329,8 @@ def bench_concurrency(tmp: Path) -> None:
             t.join()
         jobs = [service.client.get(f"/v1/jobs/{r['job_id']}").json()["status"] for r in results]
         print(
-            f"concurrency: 4 streams of 640x480 at 30 fps on 2 stream workers (Redis): {len(results)} results, "
+            "concurrency: 4 streams of 640x480 at 30 fps on 2 stream workers (Redis): "
+            f"{len(results)} results, "
             f"{len(errors)} errors, jobs {jobs}; latencies "
             + ", ".join(f"{r['latency_s'] * 1000:.0f} ms" for r in results)
             + "; dropped frames "

@@ -4,5 +4,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 . .venv/bin/activate
 echo "== ruff"; ruff check . && ruff format --check .
-echo "== mypy"; mypy api_schemas workers service eigenscope
+echo "== mypy"; mypy api_schemas workers service eigenscope client/src/eigenscope_client
 echo "== pytest"; pytest "$@"

@@ -40,7 +40,7 @@ from api_schemas import AnalysisParameters, FrameHeader, StreamCreate
 from api_schemas.stream import problem_doc
 from service.settings import Settings
 from service.storage import Storage, tree_bytes
-from service.store import ClaimOutcome, StreamRecord, Store, lease_owner_token
+from service.store import ClaimOutcome, Store, StreamRecord, lease_owner_token
 from service.stream_transport import Item, StreamTransport, transport_for
 
 log = logging.getLogger(__name__)
@@ -218,14 +218,14 @@ class Session:
                 request = StreamCreate.model_validate(record.request)
                 self._loop(request, lease)
                 if lease.lost.is_set():
-                    raise _Abort("the stream's job was cancelled or taken over")
+                    raise _AbortError("the stream's job was cancelled or taken over")
                 self.store.update_stream(self.stream_id, status="finishing")
                 workdir = self.storage.new_job_workdir(record.job_id, 1)
                 self._finish(request, owner, workdir)
-        except _Abort as exc:
+        except _AbortError as exc:
             self.error("stream-aborted", "Stream aborted", str(exc), fatal=True, status=409)
             self._discard_clip()
-        except _Failed as exc:
+        except _FailedError as exc:
             self.store.fail_job(record.job_id, owner, exc.problem)
             self.store.update_stream(self.stream_id, status="failed", error=exc.problem)
             self.send({"type": "error", "fatal": True, "frame": None, "problem": exc.problem})
@@ -295,7 +295,8 @@ class Session:
                 self.error(
                     "client-timeout",
                     "Client silent",
-                    f"no frame or message for {s.stream_client_timeout_s:g} s; the stream is analysed as it is",
+                    f"no frame or message for {s.stream_client_timeout_s:g} s; the stream is analysed as it "
+                    "is",
                     status=408,
                 )
                 self._end_reason = "client-timeout"
@@ -360,7 +361,8 @@ class Session:
             bgr = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_COLOR) if payload else None
             if bgr is None:
                 raise FrameError(
-                    f"frame {i}: the colour image cannot be decoded as {header.encoding} ({len(payload)} bytes)",
+                    f"frame {i}: the colour image cannot be decoded as {header.encoding} "
+                    f"({len(payload)} bytes)",
                     frame=i,
                     code="undecodable-frame",
                 )
@@ -478,7 +480,8 @@ class Session:
         if p.fx is not None or p.fy is not None:
             fx = p.fx if p.fx is not None else p.fy
             fy = p.fy if p.fy is not None else p.fx
-            assert fx is not None and fy is not None
+            assert fx is not None
+            assert fy is not None
             intrinsics = Intrinsics(
                 fx=fx,
                 fy=fy,
@@ -550,7 +553,7 @@ class Session:
             self._complete(self._pending, None, request)
             self._pending = None
         if self._live is None:
-            raise _Failed(
+            raise _FailedError(
                 problem_doc(
                     "analysis-failed",
                     "Analysis failed",
@@ -565,7 +568,7 @@ class Session:
             analysis = self._live.finish(analysis_config=config, excitations=pipeline_excitations(requested))
             result = write_result(analysis, workdir, excitation=requested, parameters=params)
         except EigenscopeError as exc:
-            raise _Failed(
+            raise _FailedError(
                 problem_doc(getattr(exc, "code", "analysis-failed"), "Analysis failed", 422, str(exc))
             ) from exc
         result.timings_s["stream_frames"] = float(self._live.frames_received)
@@ -575,7 +578,7 @@ class Session:
         if not self.store.complete_job(
             job_id, owner, doc, output_bytes=tree_bytes(self.storage.job_dir(job_id))
         ):
-            raise _Abort("the stream's job was cancelled")
+            raise _AbortError("the stream's job was cancelled")
         served = dict(doc)
         served["artifacts"] = {
             k: artifact_url(job_id, v) if isinstance(v, str) else v for k, v in doc["artifacts"].items()
@@ -593,7 +596,8 @@ class Session:
         """Close the clip and make it the stream's clip record (analysable again as any upload)."""
         from workers.pipeline.clipio import open_clip
 
-        assert self.record is not None and self._clip is not None
+        assert self.record is not None
+        assert self._clip is not None
         live = self._live
         camera: dict[str, float] = {"fps": fps, "depth_scale": params.depth_scale or 0.001}
         if live.intrinsics is not None:
@@ -620,11 +624,11 @@ class Session:
         )
 
 
-class _Abort(Exception):
+class _AbortError(Exception):
     """The stream's job is no longer this worker's."""
 
 
-class _Failed(Exception):
+class _FailedError(Exception):
     def __init__(self, problem: dict[str, Any]) -> None:
         super().__init__(problem.get("detail"))
         self.problem = problem
@@ -654,7 +658,7 @@ def run_stream_worker(settings: Settings, *, stop: threading.Event | None = None
     tune_malloc()
     # Results are drawn by this process's drawing process: started now (and the pipeline imported), not
     # after a stream's last frame.
-    import workers.pipeline.live
+    import workers.pipeline.live  # noqa: F401 - imported before any session needs it
     import workers.pipeline.render as render
 
     render.start_drawing_process()

@@ -191,7 +191,8 @@ def _show(message: dict[str, Any], quiet: bool) -> None:
     elif kind == "converged":
         print(
             f"converged after {message['frames_received']} frames: relative uncertainty "
-            f"{message['relative_uncertainty'] * 100:.2f} % <= {message['target_relative_uncertainty'] * 100:g} %",
+            f"{message['relative_uncertainty'] * 100:.2f} % <= "
+            f"{message['target_relative_uncertainty'] * 100:g} %",
             file=sys.stderr,
             flush=True,
         )
@@ -290,7 +291,8 @@ def run(args: argparse.Namespace) -> int:
         m_ = obj.get("mass_kg")
         mech = "" if k_ is None else f", k = {k_:.4g} N/m, m = {m_:.4g} kg"
         print(
-            f"object {obj['id']}: f = {obj['eigenfrequency_hz']:.4f} Hz, ζ = {obj.get('damping_ratio') or 0:.3f}"
+            f"object {obj['id']}: f = {obj['eigenfrequency_hz']:.4f} Hz, "
+            f"ζ = {obj.get('damping_ratio') or 0:.3f}"
             f"{mech}"
         )
     print(f"job {session.job_id}: {args.server.rstrip('/')}/v1/jobs/{session.job_id}")

@@ -42,5 +42,5 @@ def test_document_describes_the_servers_channel_and_messages(tmp_path: Path) -> 
         schema = doc["components"]["schemas"][model.__name__]
         assert schema["properties"]["type"]["const"] == name
         assert model.__name__ in kinds
-    received = [op["messages"] for op in doc["operations"].values() if op["action"] == "receive"][0]
+    received = next(op["messages"] for op in doc["operations"].values() if op["action"] == "receive")
     assert {m["$ref"].rsplit("/", 1)[1] for m in received} == set(SERVER_MESSAGES)

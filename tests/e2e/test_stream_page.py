@@ -11,9 +11,8 @@ import service_harness as h
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "integration"))
 
-from stream_helpers import scene_frames, session_kwargs  # noqa: E402
-
-from eigenscope_client import StreamSession  # noqa: E402
+from eigenscope_client import StreamSession
+from stream_helpers import scene_frames, session_kwargs
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 

@@ -9,10 +9,10 @@ from typing import Any
 
 import cv2
 import numpy as np
+from eigenscope_client import frame_message
 from pydantic import TypeAdapter
 
 from api_schemas import ServerMessage
-from eigenscope_client import frame_message
 
 #: Every server message must parse as one of the protocol's models (those the AsyncAPI document is
 #: generated from), so the document says what the server does.

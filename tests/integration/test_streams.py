@@ -16,9 +16,8 @@ from typing import Any
 import httpx
 import pytest
 import service_harness as h
-from stream_helpers import RawSocket, scene_frames, send_scene, session_kwargs
-
 from eigenscope_client import StreamError, StreamSession
+from stream_helpers import RawSocket, scene_frames, send_scene, session_kwargs
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -146,9 +145,13 @@ def test_worker_killed_mid_stream_gets_an_error(tmp_path: Path) -> None:
         session = StreamSession(service.base_url, **session_kwargs(scene))
         send_scene(session, scene, stop=20)
         os.killpg(worker.pid, signal.SIGKILL)
-        with pytest.raises(StreamError) as caught:
+
+        def go_on() -> None:
             send_scene(session, scene, start=20)
             session.finish(timeout_s=60)
+
+        with pytest.raises(StreamError) as caught:
+            go_on()
         assert caught.value.problem["code"] == "worker-lost", caught.value.problem
         session.close()
         job = service.client.get(f"/v1/jobs/{session.job_id}").json()

@@ -478,7 +478,7 @@ class LiveAnalysis:
             if not top > 0:
                 return None
             region = (energy > _REGION_LEVEL * top).astype(np.uint8)
-            count, labels, stats, _ = cv2.connectedComponentsWithStats(region, connectivity=8)
+            count, labels, _stats, _ = cv2.connectedComponentsWithStats(region, connectivity=8)
             if count < 2:
                 return None
             # The component holding the most motion energy.
@@ -699,8 +699,9 @@ def _final_analysis(
 ) -> Analysis:
     """The full analysis (spectra, peaks, segmentation, every object's mechanics) of the live window's
     ``n`` flow maps, as :func:`workers.pipeline.analysis.analyze` does after its frame stream."""
-    from workers.pipeline import analysis as A
+    from workers.pipeline import analysis as pipeline
     from workers.pipeline.segmentation import (
+        Exclusion,
         exclude_background_surfaces,
         frequency_map,
         reject_artefacts,
@@ -717,7 +718,7 @@ def _final_analysis(
         whitened_spectrum,
     )
 
-    watch = A._Stopwatch()
+    watch = pipeline._Stopwatch()
     fps = live.fps
     flow = live._flow[:n]
     camera = live._camera[:n].copy()
@@ -727,7 +728,7 @@ def _final_analysis(
         camera[:] = 0.0
     assert live._first_rgb is not None
     times = live._times[: n + 1]
-    buffers = A._Buffers(
+    buffers = pipeline._Buffers(
         flow=flow,
         depth=None if live._depth is None else live._depth[: n + 1],
         gray=live._gray[: n + 1],
@@ -738,15 +739,15 @@ def _final_analysis(
         start_s=float(times[0]),
     )
     watch.lap("flow")
-    band = A._band(config, fps, n)
-    quality: list[A.QualityNote] = []
+    band = pipeline._band(config, fps, n)
+    quality: list[pipeline.QualityNote] = []
     from workers.pipeline.flow import needs_resampling, resample_uniform
 
     uniform = buffers.flow
     if needs_resampling(buffers.times_s, fps):
         uniform, _ = resample_uniform(buffers.flow, buffers.times_s, fps)
         quality.append(
-            A.QualityNote(
+            pipeline.QualityNote(
                 "uneven_timing",
                 f"frame times deviate from a uniform {fps:g} fps grid: spectra were resampled and the "
                 "ring-down was fitted at the true frame times",
@@ -777,17 +778,17 @@ def _final_analysis(
     watch.lap("spectrum")
     seg = segment(spectra, peaks, grid_shape=live.grid, band_hz=band, config=config.segmentation)
     seg, rejected = reject_artefacts(seg, spectra, band_hz=band)
-    quality.extend(A.QualityNote("artefact_peak", item.reason, "info") for item in rejected)
+    quality.extend(pipeline.QualityNote("artefact_peak", item.reason, "info") for item in rejected)
     labels_grid = seg.labels
-    exclusions = []
+    exclusions: list[Exclusion] = []
     if buffers.depth is not None and seg.peaks:
         labels_grid, exclusions = exclude_background_surfaces(labels_grid, buffers.depth)
     fmap, fvalid = frequency_map(spectra, grid_shape=live.grid, band_hz=band)
     labels_full = upsample_labels(labels_grid, (live.height, live.width))
     watch.lap("segmentation")
-    by_label = A._excitations_by_label(list(excitations), labels_full, len(seg.peaks))
+    by_label = pipeline._excitations_by_label(list(excitations), labels_full, len(seg.peaks))
     objects = [
-        A._measure_object(
+        pipeline._measure_object(
             label=label,
             peak=peak,
             mask=labels_grid == label,
@@ -802,10 +803,10 @@ def _final_analysis(
         )
         for label, peak in enumerate(seg.peaks, start=1)
     ]
-    objects, labels_full, dropped = A._drop_incoherent(objects, labels_full, quality, by_label)
+    objects, labels_full, dropped = pipeline._drop_incoherent(objects, labels_full, quality, by_label)
     if not objects:
         quality.append(
-            A.QualityNote(
+            pipeline.QualityNote(
                 "no_motion",
                 "no vibrating object stands above the noise in the streamed frames; check that the object "
                 "moves while the camera records",
@@ -814,16 +815,16 @@ def _final_analysis(
         )
     if live._depth is None and config.depth_m is None:
         quality.append(
-            A.QualityNote(
+            pipeline.QualityNote(
                 "no_depth",
                 "the stream sent no depth frames: amplitudes in metres, stiffness and mass need depth or "
                 "depth_m",
             )
         )
-    quality.extend(A._quality_notes(objects, fps=fps, band=band, bin_hz=fps / n))
+    quality.extend(pipeline._quality_notes(objects, fps=fps, band=band, bin_hz=fps / n))
     if live._received > live._base + n + 1:
         quality.append(
-            A.QualityNote(
+            pipeline.QualityNote(
                 "window",
                 f"frames {live._base}-{live._base + n + 1} of the {live._received} streamed were analysed "
                 f"(the window holds at most {live.config.window_frames} frames from just before the motion)",

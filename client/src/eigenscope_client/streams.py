@@ -24,6 +24,7 @@ and the server tells which frames it had to drop.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import struct
 import time
@@ -254,10 +255,8 @@ class StreamSession:
     def resume(self) -> None:
         """Reconnect after a dropped connection (with the resume token); go on from the server's frame."""
         if self._ws is not None:
-            try:
+            with contextlib.suppress(Exception):
                 self._ws.close()
-            except Exception:
-                pass
         self._state.job_id = None
         self._connect(resume=True)
 
@@ -286,7 +285,7 @@ class StreamSession:
         self._state.raise_if_fatal()
 
     def poll(self) -> list[Message]:
-        """Take the messages that have arrived (without waiting); raises :class:`StreamError` on a fatal one."""
+        """The messages that have arrived (without waiting); :class:`StreamError` on a fatal one."""
         messages = []
         while (m := self._recv(0)) is not None:
             messages.append(m)
@@ -349,10 +348,8 @@ class StreamSession:
 
     def close(self) -> None:
         if self._ws is not None:
-            try:
+            with contextlib.suppress(Exception):
                 self._ws.close()
-            except Exception:
-                pass
 
     def __enter__(self) -> StreamSession:
         return self
