@@ -23,7 +23,8 @@ def generate_client(dest: Path) -> Any:
     exe = shutil.which("openapi-python-client") or str(
         Path(sys.executable).with_name("openapi-python-client")
     )
-    package = dest / "eigenscope_client"
+    # Not `eigenscope_client`: that is the real client package (client/), installed with the server.
+    package = dest / "eigenscope_generated_client"
     out = subprocess.run(
         [exe, "generate", "--path", str(SPEC), "--output-path", str(package), "--meta", "none"],
         capture_output=True,
@@ -34,17 +35,17 @@ def generate_client(dest: Path) -> Any:
     assert out.returncode == 0, out.stdout + out.stderr
     sys.path.insert(0, str(dest))
     try:
-        return importlib.import_module("eigenscope_client")
+        return importlib.import_module("eigenscope_generated_client")
     finally:
         sys.path.remove(str(dest))
 
 
 def test_generated_client_runs_a_job(tmp_path: Path, truth_clip: tuple[Path, dict[str, Any]]) -> None:
     generate_client(tmp_path / "gen")
-    from eigenscope_client import Client
-    from eigenscope_client.api.clips import create_clip, get_clip
-    from eigenscope_client.api.jobs import create_job, get_job, get_job_artifact
-    from eigenscope_client.models import (
+    from eigenscope_generated_client import Client
+    from eigenscope_generated_client.api.clips import create_clip, get_clip
+    from eigenscope_generated_client.api.jobs import create_job, get_job, get_job_artifact
+    from eigenscope_generated_client.models import (
         Clip,
         ClipUpload,
         Job,
@@ -53,7 +54,7 @@ def test_generated_client_runs_a_job(tmp_path: Path, truth_clip: tuple[Path, dic
         Problem,
         StepReleaseExcitation,
     )
-    from eigenscope_client.types import File
+    from eigenscope_generated_client.types import File
 
     service = h.start_embedded(tmp_path / "svc")
     try:
