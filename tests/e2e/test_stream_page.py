@@ -12,7 +12,7 @@ import service_harness as h
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "integration"))
 
 from eigenscope_client import StreamSession
-from stream_helpers import scene_frames, session_kwargs
+from stream_helpers import scene_frames, send_scene, session_kwargs
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -22,15 +22,7 @@ def test_the_page_shows_a_live_streams_estimates(browser: Any, live: h.LiveServi
     session = StreamSession(live.base_url, **session_kwargs(scene))
     try:
         # Send frames until the first estimate, then hold the stream open while the page looks.
-        for f in scene.frames[:60]:
-            session.send_frame(
-                f.color_png,
-                timestamp_s=f.timestamp_s,
-                depth=f.depth_raw,
-                color_encoding="png",
-                width=scene.width,
-                height=scene.height,
-            )
+        send_scene(session, scene, stop=60)
         page = browser.new_page()
         page.goto(live.base_url + "/")
         selector = f'#streams li[data-stream-id="{session.stream_id}"]'

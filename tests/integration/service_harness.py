@@ -272,12 +272,17 @@ def start_api(service: LiveService, *, port: int, name: str = "api") -> Proc:
 def start_worker(service: LiveService, name: str) -> Proc:
     """An ``eigenscope worker`` process (one pool process); waits until Celery says it is ready."""
     cmd = [sys.executable, "-m", "eigenscope", "worker", "--hostname", f"{name}-{uuid.uuid4().hex[:6]}@%h"]
+    return _start_until_logged(service, name, cmd, " ready.")
+
+
+def _start_until_logged(service: LiveService, name: str, cmd: list[str], marker: str) -> Proc:
+    """Start ``cmd`` as a process of ``service`` and wait (60 s at most) until its log shows ``marker``."""
     proc = Proc.start(name, cmd, env=service.env, log_dir=service.data_dir.parent)
     service.procs.append(proc)
     deadline = time.monotonic() + 60
-    while " ready." not in proc.log():
+    while marker not in proc.log():
         if not proc.alive() or time.monotonic() > deadline:
-            raise RuntimeError(f"worker {name} did not start:\n{proc.log()}")
+            raise RuntimeError(f"{name} did not start:\n{proc.log()}")
         time.sleep(0.1)
     return proc
 
@@ -382,15 +387,7 @@ SMALL_CLIP = {"frames": 64, "width": 160, "height": 120, "frequency_hz": 4.0, "m
 
 def start_stream_worker(service: LiveService, name: str) -> Proc:
     """An ``eigenscope stream-worker`` process; waits until it says it is ready."""
-    cmd = [sys.executable, "-m", "eigenscope", "stream-worker"]
-    proc = Proc.start(name, cmd, env=service.env, log_dir=service.data_dir.parent)
-    service.procs.append(proc)
-    deadline = time.monotonic() + 60
-    while "ready:" not in proc.log():
-        if not proc.alive() or time.monotonic() > deadline:
-            raise RuntimeError(f"stream worker {name} did not start:\n{proc.log()}")
-        time.sleep(0.1)
-    return proc
+    return _start_until_logged(service, name, [sys.executable, "-m", "eigenscope", "stream-worker"], "ready:")
 
 
 def wait_stream_worker(service: LiveService, timeout_s: float = 60.0) -> None:

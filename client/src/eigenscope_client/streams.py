@@ -60,6 +60,35 @@ def frame_message(
     return struct.pack(">I", len(head)) + head + bytes(data)
 
 
+def _frame_messages(
+    index: int,
+    timestamp_s: float,
+    color: bytes | bytearray | memoryview,
+    depth: bytes | bytearray | memoryview | None,
+    color_encoding: str,
+    depth_encoding: str,
+    width: int | None,
+    height: int | None,
+) -> list[bytes]:
+    """The colour message of a frame and, with depth, its depth message."""
+    messages = [
+        frame_message(color, frame=index, kind="color", timestamp_s=timestamp_s, encoding=color_encoding)
+    ]
+    if depth is not None:
+        messages.append(
+            frame_message(
+                depth,
+                frame=index,
+                kind="depth",
+                timestamp_s=timestamp_s,
+                encoding=depth_encoding,
+                width=width,
+                height=height,
+            )
+        )
+    return messages
+
+
 def connect_websocket(url: str, **options: Any) -> Any:
     """A blocking WebSocket connection (``websockets.sync``) across the library's versions."""
     import inspect
@@ -312,21 +341,9 @@ class StreamSession:
         array; give ``width`` and ``height``) or 16-bit PNG bytes (``depth_encoding="png"``).
         """
         index = self._frame if frame is None else frame
-        messages = [
-            frame_message(color, frame=index, kind="color", timestamp_s=timestamp_s, encoding=color_encoding)
-        ]
-        if depth is not None:
-            messages.append(
-                frame_message(
-                    depth,
-                    frame=index,
-                    kind="depth",
-                    timestamp_s=timestamp_s,
-                    encoding=depth_encoding,
-                    width=width,
-                    height=height,
-                )
-            )
+        messages = _frame_messages(
+            index, timestamp_s, color, depth, color_encoding, depth_encoding, width, height
+        )
         for data in messages:
             if not self.realtime:
                 self._wait(
@@ -463,21 +480,9 @@ class AsyncStreamSession:
     ) -> int:
         """As :meth:`StreamSession.send_frame`."""
         index = self._frame
-        parts = [
-            frame_message(color, frame=index, kind="color", timestamp_s=timestamp_s, encoding=color_encoding)
-        ]
-        if depth is not None:
-            parts.append(
-                frame_message(
-                    depth,
-                    frame=index,
-                    kind="depth",
-                    timestamp_s=timestamp_s,
-                    encoding=depth_encoding,
-                    width=width,
-                    height=height,
-                )
-            )
+        parts = _frame_messages(
+            index, timestamp_s, color, depth, color_encoding, depth_encoding, width, height
+        )
         for data in parts:
             if not self.realtime:
                 await self._wait(lambda: self._state.in_flight < self._state.window, "room in the window")
