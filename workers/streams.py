@@ -28,6 +28,7 @@ import struct
 import threading
 import time
 import zipfile
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -100,31 +101,68 @@ class _Pending:
 
 
 class ClipWriter:
-    """The stream's frames as a TUM RGB-D zip, written as they arrive (stored, not recompressed)."""
+    """The stream's frames as a TUM RGB-D zip, written as they arrive (colour stored as received, depth as
+    16-bit PNG) by a thread of its own: PNG-encoding a 640x480 depth frame costs about 10 ms, which the
+    frame loop does not wait for (at most ``max_pending`` frames queue up; then it does)."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, max_pending: int = 32) -> None:
+        from concurrent.futures import Future, ThreadPoolExecutor
+
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
         self._zip = zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True)
         self._rgb: list[str] = []
         self._depth: list[str] = []
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="clip-writer")
+        self._pending: deque[Future[None]] = deque()
+        self._max_pending = max_pending
         self.frames = 0
 
     def add(
-        self, *, frame: int, timestamp_s: float, color: bytes, color_ext: str, depth_png: bytes | None
+        self,
+        *,
+        frame: int,
+        timestamp_s: float,
+        color: bytes,
+        color_ext: str,
+        depth: NDArray[np.uint16] | None,
     ) -> None:
         stamp = f"{timestamp_s:.6f}"
         name = f"rgb/{frame:06d}.{color_ext}"
-        self._zip.writestr(name, color)
         self._rgb.append(f"{stamp} {name}")
-        if depth_png is not None:
+        dname = None
+        if depth is not None:
             dname = f"depth/{frame:06d}.png"
-            self._zip.writestr(dname, depth_png)
             self._depth.append(f"{stamp} {dname}")
+        while len(self._pending) >= self._max_pending:
+            self._pending.popleft().result()
+        self._pending.append(self._pool.submit(self._write, name, color, dname, depth))
         self.frames += 1
+
+    def _write(self, name: str, color: bytes, dname: str | None, depth: NDArray[np.uint16] | None) -> None:
+        import cv2
+
+        self._zip.writestr(name, color)
+        if dname is not None and depth is not None:
+            options = [
+                cv2.IMWRITE_PNG_COMPRESSION,
+                1,
+                cv2.IMWRITE_PNG_STRATEGY,
+                cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
+            ]
+            ok, buf = cv2.imencode(".png", depth, options)
+            if not ok:
+                raise OSError(f"depth frame {dname} could not be encoded")
+            self._zip.writestr(dname, bytes(buf))
+
+    def _drain(self) -> None:
+        while self._pending:
+            self._pending.popleft().result()
+        self._pool.shutdown(wait=True)
 
     def close(self, camera: dict[str, float]) -> int:
         """Write the lists and ``camera.json``, close; returns the file's size."""
+        self._drain()
         header = "# written by an eigenscope live stream: timestamp filename\n"
         self._zip.writestr("rgb.txt", header + "\n".join(self._rgb) + "\n")
         if self._depth and len(self._depth) == len(self._rgb):
@@ -135,6 +173,7 @@ class ClipWriter:
 
     def discard(self) -> None:
         try:
+            self._drain()
             self._zip.close()
         finally:
             self.path.unlink(missing_ok=True)
@@ -428,7 +467,6 @@ class Session:
     def _complete(
         self, pending: _Pending, depth_raw: NDArray[np.uint16] | None, request: StreamCreate
     ) -> None:
-        import cv2
 
         from workers.pipeline.clipio.types import depth_to_metres
 
@@ -436,12 +474,9 @@ class Session:
         if self._live is None:
             self._start_live(request, pending.rgb.shape[1], pending.rgb.shape[0])
         depth_m = None
-        depth_png = None
         if depth_raw is not None:
             self._has_depth = True
             depth_m = depth_to_metres(depth_raw, params.depth_scale or 0.001)
-            ok, buf = cv2.imencode(".png", depth_raw, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-            depth_png = bytes(buf) if ok else None
         try:
             self._live.push(rgb=pending.rgb, depth_m=depth_m, timestamp_s=pending.timestamp_s)
         except Exception as exc:
@@ -457,7 +492,7 @@ class Session:
             timestamp_s=pending.timestamp_s - self._first_time,
             color=pending.data,
             color_ext=pending.encoding,
-            depth_png=depth_png,
+            depth=depth_raw,
         )
         in_flight = 0
         self.send(
