@@ -27,6 +27,14 @@ from api_schemas.result import (
     RingdownResult,
     Spectrum,
 )
+from api_schemas.stream import (
+    FrameHeader,
+    LiveEstimateModel,
+    ServerMessage,
+    StreamCreate,
+    StreamList,
+    StreamModel,
+)
 
 __all__ = [
     "AnalysisParameters",
@@ -38,16 +46,22 @@ __all__ = [
     "ClipList",
     "Excitation",
     "ExcitationSpec",
+    "FrameHeader",
     "ImpulseExcitation",
     "JobCreate",
     "JobList",
     "JobModel",
     "JobStatus",
+    "LiveEstimateModel",
     "ObjectResult",
     "Problem",
     "QualityFlag",
     "RejectedPeakResult",
     "RingdownResult",
+    "ServerMessage",
     "Spectrum",
     "StepReleaseExcitation",
+    "StreamCreate",
+    "StreamList",
+    "StreamModel",
 ]

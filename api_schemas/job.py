@@ -148,6 +148,9 @@ class JobModel(BaseModel):
     error: Problem | None = None
     result: AnalysisResult | None = None
     callback: CallbackState | None = None
+    source: Literal["upload", "stream"] = Field(
+        default="upload", description="`stream`: the job a live stream ended as (see `/v1/streams`)."
+    )
 
 
 class JobList(BaseModel):

@@ -19,7 +19,17 @@ from collections.abc import Callable, Sequence
 from eigenscope import __version__
 
 #: Modules under eigenscope.commands, in help order.
-COMMAND_MODULES = ("analyze", "synth", "probe", "serve", "worker", "submit", "export_openapi")
+COMMAND_MODULES = (
+    "analyze",
+    "synth",
+    "probe",
+    "serve",
+    "worker",
+    "stream_worker",
+    "submit",
+    "stream",
+    "export_openapi",
+)
 
 Handler = Callable[[argparse.Namespace], int]
 

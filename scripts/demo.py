@@ -4,7 +4,9 @@
 2. renders a synthetic RGB-D clip of a spring-mass object with known frequency, stiffness and mass;
 3. uploads it, queues a job, follows its progress and prints the result next to the truth, with the
    artifact URLs;
-4. stops the server (or keeps it running with ``--keep-serving``).
+4. streams the same clip live, as a robot's camera would (``eigenscope stream``): estimates as the frames
+   arrive, ``converged`` when the robot may stop recording, the result right after the last frame;
+5. stops the server (or keeps it running with ``--keep-serving``).
 """
 
 from __future__ import annotations
@@ -107,6 +109,20 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(f"demo: upload to result in {elapsed:.2f} s")
         if job.status != "succeeded":
+            return 1
+        print(
+            "demo: streaming the clip live, as a robot's camera would (eigenscope stream --realtime)",
+            flush=True,
+        )
+        streamed = subprocess.run(
+            [
+                sys.executable, "-m", "eigenscope", "stream", str(clip), "--server", base, "--force-n", "6",
+                "--realtime", "--stop-when-converged",
+            ],
+            env=env,
+            check=False,
+        )  # fmt: skip
+        if streamed.returncode != 0:
             return 1
         if args.keep_serving:
             print(f"demo: still serving on {base} (API docs at {base}/docs); Ctrl-C to stop", flush=True)

@@ -20,7 +20,7 @@ from service.logs import configure_logging
 from service.observability import RequestMiddleware
 from service.openapi import install_openapi
 from service.problems import install_problem_handlers
-from service.routes import clips, health, jobs, page
+from service.routes import clips, health, jobs, page, streams
 from service.routes.docs import install_docs
 from service.settings import Settings
 
@@ -94,6 +94,7 @@ def create_app(settings: Settings | None = None, *, configure_log: bool | None =
     install_problem_handlers(app)
     app.include_router(clips.router)
     app.include_router(jobs.router)
+    app.include_router(streams.router)
     app.include_router(health.router)
     page.install_page(app)
     install_docs(app)

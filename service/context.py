@@ -17,6 +17,7 @@ from service.retention import cleanup
 from service.settings import Settings
 from service.storage import Storage
 from service.store import JobRecord, Store
+from service.stream_transport import StreamTransport, transport_for
 from service.webhooks import Dispatcher
 
 log = logging.getLogger(__name__)
@@ -51,6 +52,7 @@ class ServiceContext:
     storage: Storage
     queue: JobQueue
     metrics: Metrics
+    stream_transport: StreamTransport
     keys: KeyRing = field(default_factory=lambda: KeyRing({}))
     auth_limiter: FailedAuthLimiter = field(default_factory=lambda: FailedAuthLimiter(20, 60.0))
     webhooks: Dispatcher | None = None
@@ -72,6 +74,7 @@ class ServiceContext:
             storage=Storage(settings.data_path),
             queue=JobQueue(settings),
             metrics=Metrics(store),
+            stream_transport=transport_for(settings),
             keys=KeyRing.from_settings(settings),
             auth_limiter=FailedAuthLimiter(settings.auth_failures_per_window, settings.auth_failure_window_s),
             webhooks=Dispatcher(store, settings, _webhook_view(settings))
@@ -107,6 +110,7 @@ class ServiceContext:
             self._sweeper.join(timeout=10)
             self._sweeper = None
         self.queue.close()
+        self.stream_transport.close()
         self.store.dispose()
 
     def publish(self, job_id: str) -> bool:

@@ -70,6 +70,7 @@ def job_view(job: JobRecord, *, root_path: str = "") -> JobModel:
             "error": job.error,
             "result": result,
             "callback": callback_view(job),
+            "source": job.source,
         }
     )
 

@@ -211,6 +211,32 @@ class Settings(BaseSettings):
     orphan_grace_s: float = Field(
         default=3600, ge=0, description="Files with no record older than this are removed by the cleanup."
     )
+    # Live streams ----------------------------------------------------------------------------
+    stream_window: int = Field(
+        default=32, ge=2, le=4096, description="Frame messages a stream may have in flight to its worker."
+    )
+    stream_sessions_per_worker: int = Field(
+        default=2, ge=1, le=64, description="Live streams one worker process runs at once."
+    )
+    stream_start_timeout_s: float = Field(
+        default=30, gt=0, description="A stream no worker has taken up within this fails (`no-worker`)."
+    )
+    stream_worker_timeout_s: float = Field(
+        default=10, gt=0, description="A stream whose worker is silent this long fails (`worker-lost`)."
+    )
+    stream_client_timeout_s: float = Field(
+        default=15,
+        gt=0,
+        description="A connected client silent this long ends its stream (`client-timeout`).",
+    )
+    stream_resume_window_s: float = Field(
+        default=30, ge=0, description="How long a dropped stream waits for its client to resume."
+    )
+    stream_max_duration_s: float = Field(default=600, gt=0, description="Longest stream capture, seconds.")
+    stream_max_frame_mb: int = Field(default=32, ge=1, description="Largest frame message, MiB.")
+    stream_estimate_interval_s: float = Field(
+        default=0.2, gt=0, le=0.25, description="Time between `estimate` messages once motion is seen."
+    )
     test_hooks: bool = Field(
         default=False,
         description="Fault-injection hooks for the test suite (a clip named `__eigenscope_kill_worker__*` "

@@ -140,6 +140,28 @@ class JobRow(Base):
     callback_next_at: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
     callback_lease_until: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
     callback_error: Mapped[str | None] = mapped_column(String(500), nullable=True)
+    source: Mapped[str] = mapped_column(String(16), default="upload", server_default="upload")
+
+
+class StreamRow(Base):
+    """A live stream session; its job and clip are ordinary rows of the other tables."""
+
+    __tablename__ = "eigenscope_streams"
+
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    owner: Mapped[str] = mapped_column(String(64), default="", index=True)
+    job_id: Mapped[str] = mapped_column(String(64), index=True)
+    clip_id: Mapped[str] = mapped_column(String(64))
+    status: Mapped[str] = mapped_column(String(16), index=True)
+    token_digest: Mapped[str] = mapped_column(String(64))
+    request: Mapped[dict[str, Any]] = mapped_column(JSON)
+    frames_received: Mapped[int] = mapped_column(Integer, default=0)
+    converged: Mapped[bool] = mapped_column(default=False)
+    last_estimate: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    error: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    updated_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    expires_at: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
 
 
 #: Columns added after the first release: ``create_schema`` adds them to older tables.
@@ -160,6 +182,7 @@ _ADDED_COLUMNS: dict[str, dict[str, str]] = {
         "callback_next_at": "FLOAT",
         "callback_lease_until": "FLOAT",
         "callback_error": "VARCHAR(500)",
+        "source": "VARCHAR(16) NOT NULL DEFAULT 'upload'",
     },
 }
 #: Indexes of added columns, created with them.
@@ -231,6 +254,7 @@ class JobRecord:
     callback_status: str | None = None
     callback_attempts: int = 0
     callback_error: str | None = None
+    source: str = "upload"
 
     @classmethod
     def of(cls, row: JobRow) -> JobRecord:
@@ -261,7 +285,49 @@ class JobRecord:
             callback_status=row.callback_status,
             callback_attempts=int(row.callback_attempts or 0),
             callback_error=row.callback_error,
+            source=row.source or "upload",
         )
+
+
+@dataclass(frozen=True, slots=True)
+class StreamRecord:
+    id: str
+    owner: str
+    job_id: str
+    clip_id: str
+    status: str
+    token_digest: str
+    request: dict[str, Any]
+    frames_received: int
+    converged: bool
+    last_estimate: dict[str, Any] | None
+    error: dict[str, Any] | None
+    created_at: datetime
+    updated_at: datetime | None
+
+    @classmethod
+    def of(cls, row: StreamRow) -> StreamRecord:
+        created = _aware(row.created_at)
+        assert created is not None
+        return cls(
+            id=row.id,
+            owner=row.owner or "",
+            job_id=row.job_id,
+            clip_id=row.clip_id,
+            status=row.status,
+            token_digest=row.token_digest,
+            request=dict(row.request),
+            frames_received=int(row.frames_received or 0),
+            converged=bool(row.converged),
+            last_estimate=row.last_estimate,
+            error=row.error,
+            created_at=created,
+            updated_at=_aware(row.updated_at),
+        )
+
+
+#: Stream statuses of a session that has not ended.
+STREAM_ACTIVE = ("waiting", "streaming", "finishing")
 
 
 class ClaimOutcome(Enum):
@@ -663,6 +729,7 @@ class Store:
         max_active_jobs: int | None = None,
         retry_after_s: int | None = None,
         callback_url: str | None = None,
+        source: str = "upload",
     ) -> tuple[JobRecord, bool]:
         """Insert a queued job on one of ``owner``'s clips; returns ``(job, created)``.
 
@@ -694,6 +761,7 @@ class Store:
             output_bytes=0,
             callback_url=callback_url,
             callback_attempts=0,
+            source=source,
         )
         try:
             with self._tx() as s:
@@ -852,11 +920,19 @@ class Store:
         with self._tx() as s:
             running = s.scalars(select(JobRow).where(JobRow.status == "running")).all()
             stale_queued = s.scalars(
-                select(JobRow.id).where(JobRow.status == "queued", JobRow.enqueued_at < now - requeue_after_s)
+                select(JobRow.id).where(
+                    JobRow.status == "queued",
+                    JobRow.enqueued_at < now - requeue_after_s,
+                    JobRow.source != "stream",  # a stream's job is run by its session, never by a message
+                )
             ).all()
         for job in running:
             expired = job.lease_until is None or job.lease_until < now or owner_is_dead_here(job.lease_owner)
             if not expired:
+                continue
+            if job.source == "stream":
+                # A stream cannot be run again from a message: its frames were the session's.
+                self.fail_stream_job(job.id, _problem_worker_lost(job.attempts))
                 continue
             if job.attempts >= self.max_attempts:
                 values: dict[str, Any] = {
@@ -1056,6 +1132,129 @@ class Store:
                 )
             )
 
+    # Streams -----------------------------------------------------------------------------------
+
+    def create_stream(
+        self,
+        *,
+        stream_id: str,
+        owner: str,
+        clip: dict[str, Any],
+        job: dict[str, Any],
+        token_digest: str,
+        request: dict[str, Any],
+        expires_at: float | None,
+        max_active_jobs: int | None = None,
+        retry_after_s: int | None = None,
+    ) -> tuple[StreamRecord, JobRecord]:
+        """Record a new stream with its (empty) clip and its queued job (``source='stream'``).
+
+        ``clip`` and ``job`` are the keyword arguments of :meth:`add_clip` and :meth:`create_job` (less
+        owner and expiry). Quotas apply as for a job.
+        """
+        clip_record, _ = self.add_clip(owner=owner, expires_at=expires_at, **clip)
+        try:
+            job_record, _ = self.create_job(
+                clip_id=clip_record.id,
+                owner=owner,
+                expires_at=expires_at,
+                max_active_jobs=max_active_jobs,
+                retry_after_s=retry_after_s,
+                source="stream",
+                **job,
+            )
+        except BaseException:
+            with self._tx() as s:
+                s.execute(delete(ClipRow).where(ClipRow.id == clip_record.id))
+            raise
+        row = StreamRow(
+            id=stream_id,
+            owner=owner,
+            job_id=job_record.id,
+            clip_id=clip_record.id,
+            status="waiting",
+            token_digest=token_digest,
+            request=request,
+            frames_received=0,
+            converged=False,
+            created_at=utcnow(),
+            expires_at=expires_at,
+        )
+        with self._tx() as s:
+            s.add(row)
+        return StreamRecord.of(row), job_record
+
+    def find_stream(self, stream_id: str, owner: str | None = ANY_OWNER) -> StreamRecord | None:
+        """The stream, if it exists and belongs to ``owner`` (any owner when None)."""
+        with self._tx(readonly=True) as s:
+            row = s.get(StreamRow, stream_id)
+            if row is None or (owner is not None and row.owner != owner):
+                return None
+            return StreamRecord.of(row)
+
+    def get_stream(self, stream_id: str, owner: str | None = ANY_OWNER) -> StreamRecord:
+        stream = self.find_stream(stream_id, owner)
+        if stream is None:
+            raise NotFoundError(f"no stream with id {stream_id!r}", code="stream-not-found")
+        return stream
+
+    def list_streams(self, *, owner: str | None, active: bool, limit: int = 20) -> list[StreamRecord]:
+        """Streams newest first (only those not ended when ``active``)."""
+        query = select(StreamRow).order_by(StreamRow.created_at.desc()).limit(limit)
+        if owner is not None:
+            query = query.where(StreamRow.owner == owner)
+        if active:
+            query = query.where(StreamRow.status.in_(STREAM_ACTIVE))
+        with self._tx(readonly=True) as s:
+            return [StreamRecord.of(r) for r in s.scalars(query).all()]
+
+    def update_stream(
+        self, stream_id: str, *, only_active: bool = True, expect_status: str | None = None, **values: Any
+    ) -> bool:
+        """Set columns of a stream (while it has not ended, with ``only_active``; while its status is
+        ``expect_status``, when given); True if it landed."""
+        query = update(StreamRow).where(StreamRow.id == stream_id)
+        if only_active:
+            query = query.where(StreamRow.status.in_(STREAM_ACTIVE))
+        if expect_status is not None:
+            query = query.where(StreamRow.status == expect_status)
+        with self._tx() as s:
+            res = s.execute(query.values(updated_at=utcnow(), **values))
+            return bool(res.rowcount)  # type: ignore[attr-defined]
+
+    def update_clip(self, clip_id: str, *, path: str, info: dict[str, Any], size_bytes: int) -> None:
+        """Fill in a stream's clip once its frames are written."""
+        with self._tx() as s:
+            s.execute(
+                update(ClipRow)
+                .where(ClipRow.id == clip_id)
+                .values(path=path, info=info, size_bytes=size_bytes)
+            )
+
+    def fail_stream_job(self, job_id: str, problem: dict[str, Any]) -> bool:
+        """Fail a stream's job whoever holds it (its session is gone); its stream too. True if it landed."""
+        with self._tx() as s:
+            res = s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.status.in_(ACTIVE), JobRow.source == "stream")
+                .values(
+                    version=JobRow.version + 1,
+                    status="failed",
+                    stage="failed",
+                    error=problem,
+                    finished_at=utcnow(),
+                    lease_owner=None,
+                    lease_until=None,
+                )
+            )
+            landed = bool(res.rowcount)  # type: ignore[attr-defined]
+            s.execute(
+                update(StreamRow)
+                .where(StreamRow.job_id == job_id, StreamRow.status.in_(STREAM_ACTIVE))
+                .values(status="failed", error=problem, updated_at=utcnow())
+            )
+        return landed
+
     # Retention ---------------------------------------------------------------------------------
 
     def expired_jobs(self, now: float, limit: int = 500) -> list[JobRecord]:
@@ -1080,9 +1279,11 @@ class Store:
             return [ClipRecord.of(r) for r in s.scalars(query).all()]
 
     def delete_finished_job(self, job_id: str) -> bool:
-        """Delete a job's record if it is finished; True if it was deleted."""
+        """Delete a job's record (and its stream's, if it was one) if it is finished; True if deleted."""
         with self._tx() as s:
             res = s.execute(delete(JobRow).where(JobRow.id == job_id, JobRow.status.in_(TERMINAL)))
+            if res.rowcount:  # type: ignore[attr-defined]
+                s.execute(delete(StreamRow).where(StreamRow.job_id == job_id))
             return bool(res.rowcount)  # type: ignore[attr-defined]
 
     def existing_ids(self, clip_ids: Sequence[str], job_ids: Sequence[str]) -> tuple[set[str], set[str]]:

@@ -31,8 +31,9 @@ from api_schemas import (
 
 if TYPE_CHECKING:
     from service.settings import Settings
+    from workers.pipeline.analysis import Analysis, ObjectMeasurement
+    from workers.pipeline.analysis import AnalysisConfig as PipelineConfig
     from workers.pipeline.analysis import Excitation as PipelineExcitation
-    from workers.pipeline.analysis import ObjectMeasurement
     from workers.pipeline.clipio import ReadLimits
 
 #: ``progress(stage, fraction)`` with fraction in [0, 1] over the whole analysis.
@@ -145,10 +146,9 @@ def run_analysis(
         cannot be analysed (``AnalysisError``); their messages are meant for the user.
     """
     from workers.allocator import tune_malloc
-    from workers.pipeline.analysis import AnalysisConfig, analyze
+    from workers.pipeline.analysis import analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
-    from workers.pipeline.flow import FlowConfig
-    from workers.pipeline.render import render_all, warm_up
+    from workers.pipeline.render import warm_up
 
     tune_malloc()  # once per process: freed buffers are reused instead of faulted in afresh
     report = _warming_up_for_images(progress, (lambda: None) if draw_elsewhere else warm_up)
@@ -164,10 +164,38 @@ def run_analysis(
         color_topic=params.color_topic,
         depth_topic=params.depth_topic,
     )
+    config = analysis_config(params, flow_threads=flow_threads)
+    requested = requested_excitations(excitation)
+    exc = pipeline_excitations(requested)
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with open_clip(
+        clip_path, overrides=overrides, limits=limits, depth=depth_path, scratch_dir=scratch_dir
+    ) as reader:
+        analysis = analyze(reader, config=config, excitation=exc, progress=report)
+    report("rendering", 0.97)
+    result = write_result(
+        analysis,
+        out,
+        excitation=requested,
+        parameters=params,
+        drawing_process=drawing_process,
+        draw_elsewhere=draw_elsewhere,
+    )
+    report("done", 1.0)
+    return result
+
+
+def analysis_config(params: AnalysisParameters, *, flow_threads: int | None = None) -> PipelineConfig:
+    """The pipeline's configuration for the API's analysis parameters."""
+    from workers.pipeline.analysis import AnalysisConfig
+    from workers.pipeline.flow import FlowConfig
+
     flow = None
     if params.flow is not None:
         flow = FlowConfig(method=params.flow, scale=1.0 if params.method == "paper" else None)
-    config = AnalysisConfig(
+    return AnalysisConfig(
         method=params.method,
         flow=flow,
         frames=params.frames,
@@ -177,23 +205,47 @@ def run_analysis(
         depth_m=params.depth_m,
         flow_threads=flow_threads,
     )
-    if excitation is None:
-        requested: list[StepReleaseExcitation | ImpulseExcitation] = []
-    elif isinstance(excitation, StepReleaseExcitation | ImpulseExcitation):
-        requested = [excitation]
-    else:
-        requested = list(excitation)
-    exc = [_pipeline_excitation(e) for e in requested]
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    with open_clip(
-        clip_path, overrides=overrides, limits=limits, depth=depth_path, scratch_dir=scratch_dir
-    ) as reader:
-        analysis = analyze(reader, config=config, excitation=exc, progress=report)
-    report("rendering", 0.97)
+
+def requested_excitations(
+    excitation: StepReleaseExcitation
+    | ImpulseExcitation
+    | Sequence[StepReleaseExcitation | ImpulseExcitation]
+    | None,
+) -> list[StepReleaseExcitation | ImpulseExcitation]:
+    """The request's excitation (one, several or none) as a list."""
+    if excitation is None:
+        return []
+    if isinstance(excitation, StepReleaseExcitation | ImpulseExcitation):
+        return [excitation]
+    return list(excitation)
+
+
+def pipeline_excitations(
+    requested: Sequence[StepReleaseExcitation | ImpulseExcitation],
+) -> list[PipelineExcitation]:
+    """The API's excitation models as the pipeline's dataclasses."""
+    return [_pipeline_excitation(e) for e in requested]
+
+
+def write_result(
+    analysis: Analysis,
+    out: Path,
+    *,
+    excitation: Sequence[StepReleaseExcitation | ImpulseExcitation],
+    parameters: AnalysisParameters,
+    drawing_process: bool = True,
+    draw_elsewhere: bool = False,
+) -> AnalysisResult:
+    """Draw the images of ``analysis`` into ``out`` and write ``result.json`` there; returns the result.
+
+    ``drawing_process`` and ``draw_elsewhere`` as for :func:`run_analysis`.
+    """
     from time import perf_counter
 
+    from workers.pipeline.render import render_all
+
+    requested, params = list(excitation), parameters
     started = perf_counter()
     # mask.png (MASK_FILE) and every other image
     artifacts = Artifacts(
@@ -269,7 +321,6 @@ def run_analysis(
         version=_version(),
     )
     _atomic_write_text(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
-    report("done", 1.0)
     return result
 
 

@@ -40,7 +40,60 @@ def register(subparsers: Any) -> None:
         help="serve this worker's Prometheus /metrics on this port (default EIGENSCOPE_WORKER_METRICS_PORT; "
         "0 or unset: none)",
     )
+    parser.add_argument(
+        "--no-streams",
+        action="store_true",
+        help="do not run live stream sessions beside the jobs (see `eigenscope stream-worker`)",
+    )
     parser.set_defaults(handler=run)
+
+
+class StreamWorkerChild:
+    """An ``eigenscope stream-worker`` process beside the Celery worker, restarted when it dies.
+
+    It is a process of its own (not a thread of the Celery worker, whose pool forks) and dies with this
+    one (PR_SET_PDEATHSIG).
+    """
+
+    def __init__(self, loglevel: str) -> None:
+        import sys
+        import threading
+
+        self.cmd = [sys.executable, "-m", "eigenscope", "stream-worker", "--loglevel", loglevel]
+        self.stopping = threading.Event()
+        self.proc: Any = None
+        self._thread = threading.Thread(target=self._watch, name="stream-worker-watch", daemon=True)
+
+    def start(self) -> None:
+        self._spawn()
+        self._thread.start()
+
+    def _spawn(self) -> None:
+        import subprocess
+
+        from eigenscope.commands.serve import _die_with_parent
+
+        self.proc = subprocess.Popen(self.cmd, preexec_fn=_die_with_parent)
+
+    def _watch(self) -> None:
+        import sys
+        import time
+
+        while not self.stopping.wait(0.5):
+            code = self.proc.poll()
+            if code is not None and not self.stopping.is_set():
+                print(f"eigenscope worker: stream worker exited with {code}; restarting it", file=sys.stderr)
+                time.sleep(1.0)
+                self._spawn()
+
+    def stop(self) -> None:
+        self.stopping.set()
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=10)
+            except Exception:
+                self.proc.kill()
 
 
 def celery_worker_argv(args: argparse.Namespace, *, queue: str, embedded: bool, loglevel: str) -> list[str]:
@@ -106,7 +159,14 @@ def _run_worker(args: argparse.Namespace, settings: Any, port: int | None) -> in
         signals.worker_ready.connect(lambda **_: app.context().metrics.process_started(), weak=False)
     if port:
         serve_metrics(port)
-    app.worker_main(
-        celery_worker_argv(args, queue=settings.queue, embedded=settings.embedded, loglevel=loglevel)
-    )
+    streams = None if args.no_streams else StreamWorkerChild(loglevel)
+    if streams is not None:
+        streams.start()
+    try:
+        app.worker_main(
+            celery_worker_argv(args, queue=settings.queue, embedded=settings.embedded, loglevel=loglevel)
+        )
+    finally:
+        if streams is not None:
+            streams.stop()
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi import FastAPI
 from fastapi.openapi.docs import get_swagger_ui_html
-from fastapi.responses import HTMLResponse
+from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 ASSETS = "/docs-assets"
@@ -16,6 +16,13 @@ def install_docs(app: FastAPI) -> None:
     from swagger_ui_bundle import swagger_ui_path
 
     app.mount(ASSETS, StaticFiles(directory=swagger_ui_path), name="docs-assets")
+
+    @app.get("/asyncapi.json", include_in_schema=False)
+    def asyncapi() -> JSONResponse:
+        """The live streams' WebSocket protocol (AsyncAPI 3)."""
+        from service.asyncapi import asyncapi_document
+
+        return JSONResponse(asyncapi_document(version=app.version))
 
     @app.get("/docs", include_in_schema=False)
     def docs() -> HTMLResponse:

@@ -677,6 +677,32 @@
     }
   }
 
+  function streamLine(stream) {
+    const e = stream.last_estimate;
+    const head = `Stream ${shortId(stream.id)}: ${stream.frames_received} frames`;
+    if (!e) return `${head}, waiting for motion`;
+    let text = `${head}, f = ${formatNumber(e.eigenfrequency_hz, 5)} ± ${formatNumber(e.eigenfrequency_uncertainty_hz, 2)} Hz ` +
+      `(${formatNumber(e.relative_uncertainty * 100, 2)} %)`;
+    if (isFiniteNumber(e.damping_ratio)) text += `, ζ = ${formatNumber(e.damping_ratio, 3)}`;
+    if (isFiniteNumber(e.stiffness_n_per_m)) text += `, k = ${formatNumber(e.stiffness_n_per_m, 4)} N/m`;
+    if (isFiniteNumber(e.mass_kg)) text += `, m = ${formatNumber(e.mass_kg, 4)} kg`;
+    return text + (stream.converged ? " — converged" : "");
+  }
+
+  async function refreshStreams() {
+    const page = await api("v1/streams?active=true&limit=10");
+    const list = $("streams");
+    list.replaceChildren(...page.items.map((stream) => {
+      const li = document.createElement("li");
+      li.className = "job stream";
+      li.dataset.streamId = stream.id;
+      li.textContent = streamLine(stream);
+      return li;
+    }));
+    $("streams-empty").hidden = page.items.length > 0;
+    return page.items.length > 0;
+  }
+
   async function refreshJobs() {
     window.clearTimeout(state.pollTimer);
     if (state.polling) {
@@ -689,6 +715,7 @@
     const keyAtStart = apiKey();
     let delay = POLL_IDLE_MS;
     try {
+      const streaming = await refreshStreams();
       const page = await api("v1/jobs?limit=30");
       const selected = state.selectedId ? state.jobs.find((j) => j.id === state.selectedId) : null;
       state.jobs = page.items;
@@ -698,7 +725,7 @@
       noteStatusChanges();
       renderJobs();
       if (state.selectedId) await renderSelected();
-      if (state.jobs.some((j) => !TERMINAL.has(j.status))) delay = POLL_ACTIVE_MS;
+      if (streaming || state.jobs.some((j) => !TERMINAL.has(j.status))) delay = POLL_ACTIVE_MS;
     } catch (err) {
       if (apiKey() !== keyAtStart) {
         state.pollAgain = true; // refused with the previous key: not news any more

@@ -28,6 +28,7 @@ MODELS = [
     ec.Callback,
     ec.CameraIntrinsics,
     ec.Problem,
+    ec.Stream,
 ]
 #: Client-side members that are not the resource's: its ETag (a header) and the document as received.
 CLIENT_ONLY = {"etag", "raw"}

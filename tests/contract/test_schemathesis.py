@@ -27,7 +27,10 @@ CHECKS = "not_a_server_error,status_code_conformance,content_type_conformance,re
 @pytest.mark.timeout(300)
 def test_schemathesis_finds_no_server_error_and_no_spec_mismatch(tmp_path: Path) -> None:
     port = h.free_port()
-    env = h.base_env(tmp_path / "data", api_keys=KEY, max_upload_mb="4", probe_timeout_s="20")
+    # Long-polls end within the requests' timeout (a generated `wait` may ask for the server's cap).
+    env = h.base_env(
+        tmp_path / "data", api_keys=KEY, max_upload_mb="4", probe_timeout_s="20", long_poll_max_s="10"
+    )
     service = h.LiveService(f"http://127.0.0.1:{port}", tmp_path / "data", env)
     try:
         h.start_api(service, port=port)

@@ -196,6 +196,19 @@ class LiveService:
                 )
             time.sleep(0.02)
 
+    def wait_stream(self, stream_id: str, timeout_s: float = 60.0) -> dict[str, Any]:
+        """The stream once it has ended (its frames filed as a clip when it succeeded)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            stream: dict[str, Any] = self.client.get(f"/v1/streams/{stream_id}").json()
+            if stream["status"] in ("succeeded", "failed", "cancelled"):
+                return stream
+            if time.monotonic() > deadline:
+                raise AssertionError(
+                    f"stream {stream_id} still {stream['status']} after {timeout_s} s:\n{self.logs()}"
+                )
+            time.sleep(0.02)
+
 
 def base_env(data_dir: Path, **settings: str) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("EIGENSCOPE_")}
@@ -243,7 +256,8 @@ def start_split(tmp_path: Path, *, workers: int = 1, **settings: str) -> LiveSer
             ]
             service.procs.append(Proc.start(f"worker{i}", cmd, env=env, log_dir=tmp_path))
         service.wait_ready()
-        wait_worker_ready(service)
+        if workers:
+            wait_worker_ready(service)
     except BaseException:
         service.stop()
         raise
@@ -272,12 +286,17 @@ def start_api(service: LiveService, *, port: int, name: str = "api") -> Proc:
 def start_worker(service: LiveService, name: str) -> Proc:
     """An ``eigenscope worker`` process (one pool process); waits until Celery says it is ready."""
     cmd = [sys.executable, "-m", "eigenscope", "worker", "--hostname", f"{name}-{uuid.uuid4().hex[:6]}@%h"]
+    return _start_until_logged(service, name, cmd, " ready.")
+
+
+def _start_until_logged(service: LiveService, name: str, cmd: list[str], marker: str) -> Proc:
+    """Start ``cmd`` as a process of ``service`` and wait (60 s at most) until its log shows ``marker``."""
     proc = Proc.start(name, cmd, env=service.env, log_dir=service.data_dir.parent)
     service.procs.append(proc)
     deadline = time.monotonic() + 60
-    while " ready." not in proc.log():
+    while marker not in proc.log():
         if not proc.alive() or time.monotonic() > deadline:
-            raise RuntimeError(f"worker {name} did not start:\n{proc.log()}")
+            raise RuntimeError(f"{name} did not start:\n{proc.log()}")
         time.sleep(0.1)
     return proc
 
@@ -378,3 +397,19 @@ def synth_clip(out: Path, **options: Any) -> dict[str, Any]:
 
 
 SMALL_CLIP = {"frames": 64, "width": 160, "height": 120, "frequency_hz": 4.0, "mass_kg": 0.5, "force_n": 5.0}
+
+
+def start_stream_worker(service: LiveService, name: str) -> Proc:
+    """An ``eigenscope stream-worker`` process; waits until it says it is ready."""
+    return _start_until_logged(service, name, [sys.executable, "-m", "eigenscope", "stream-worker"], "ready:")
+
+
+def wait_stream_worker(service: LiveService, timeout_s: float = 60.0) -> None:
+    """Wait until the stream worker that each ``eigenscope worker`` starts says it is ready."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        workers = [p for p in service.procs if p.name.startswith("worker")]
+        if workers and all("stream worker" in p.log() and "ready:" in p.log() for p in workers):
+            return
+        time.sleep(0.1)
+    raise RuntimeError(f"stream workers not ready:\n{service.logs()}")

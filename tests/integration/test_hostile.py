@@ -46,7 +46,8 @@ def as_upload(path: Path) -> Path:
 
 
 def worker_pids(service: h.LiveService) -> set[int]:
-    """The Celery worker started by ``eigenscope serve`` and its pool processes (once both are up)."""
+    """The Celery worker started by ``eigenscope serve``, its pool process and its stream worker (once all
+    three are up)."""
     deadline = time.monotonic() + 60
     while True:
         pids = set()
@@ -55,7 +56,7 @@ def worker_pids(service: h.LiveService) -> set[int]:
             if b"eigenscope worker" in cmdline:
                 pids.add(child)
                 pids.update(h.children_of(child))
-        if len(pids) >= 2 or time.monotonic() > deadline:
+        if len(pids) >= 3 or time.monotonic() > deadline:
             return pids
         time.sleep(0.1)
 

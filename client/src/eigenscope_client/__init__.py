@@ -7,8 +7,10 @@
         print(job.result.eigenfrequency_hz, job.result.main.mass_kg)
         es.download_artifact(job, "mask", "mask.png")
 
-:class:`Client` blocks; :class:`AsyncClient` has the same methods for ``async`` code. Every error is an
-:class:`EigenscopeError`; problem documents from the server become :class:`APIError` subclasses.
+:class:`Client` blocks; :class:`AsyncClient` has the same methods for ``async`` code. Live streams of
+frames from a robot's camera: :class:`StreamSession` (``pip install 'eigenscope-client[streams]'``).
+Every error is an :class:`EigenscopeError`; problem documents from the server become :class:`APIError`
+subclasses.
 """
 
 from eigenscope_client._client import OPERATIONS, AsyncClient, Client
@@ -27,6 +29,7 @@ from eigenscope_client._errors import (
     RateLimitError,
     ServerError,
     ServiceUnavailableError,
+    StreamError,
     TransportError,
     UnsupportedMediaTypeError,
     WaitTimeoutError,
@@ -50,9 +53,11 @@ from eigenscope_client._models import (
     Ringdown,
     Spectrum,
     StepRelease,
+    Stream,
 )
 from eigenscope_client._upload import ProgressCallback
 from eigenscope_client._version import __version__
+from eigenscope_client.streams import AsyncStreamSession, StreamSession, frame_message
 
 __all__ = [
     "FINAL_STATUSES",
@@ -61,6 +66,7 @@ __all__ = [
     "AnalysisParameters",
     "AnalysisResult",
     "AsyncClient",
+    "AsyncStreamSession",
     "AuthenticationError",
     "BadRequestError",
     "Callback",
@@ -91,8 +97,12 @@ __all__ = [
     "ServiceUnavailableError",
     "Spectrum",
     "StepRelease",
+    "Stream",
+    "StreamError",
+    "StreamSession",
     "TransportError",
     "UnsupportedMediaTypeError",
     "WaitTimeoutError",
     "__version__",
+    "frame_message",
 ]

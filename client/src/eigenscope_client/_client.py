@@ -30,6 +30,7 @@ from eigenscope_client._models import (
     Job,
     JobStatus,
     Page,
+    Stream,
 )
 from eigenscope_client._upload import ProgressCallback, UploadBody
 from eigenscope_client._version import __version__
@@ -53,6 +54,9 @@ OPERATIONS = {
     "delete_job": "delete_job",
     "cancel_job": "cancel_job",
     "get_job_artifact": "download_artifact",
+    "create_stream": "create_stream",
+    "list_streams": "list_streams",
+    "get_stream": "get_stream",
     "healthz": "health",
     "readyz": "ready",
     "metrics": "metrics",
@@ -230,6 +234,32 @@ class _Protocol:
         if cursor is not None:
             params["cursor"] = cursor
         return _Call("GET", "/v1/clips", params=params)
+
+    @staticmethod
+    def _create_stream_call(
+        *,
+        width: int | None,
+        height: int | None,
+        excitation: Excitation | list[Excitation] | dict[str, Any] | None,
+        parameters: AnalysisParameters | dict[str, Any] | None,
+        target_relative_uncertainty: float,
+        max_duration_s: float,
+    ) -> _Call:
+        body: dict[str, Any] = {
+            "target_relative_uncertainty": target_relative_uncertainty,
+            "max_duration_s": max_duration_s,
+        }
+        if width is not None and height is not None:
+            body["width"], body["height"] = width, height
+        if excitation is not None:
+            body["excitation"] = _excitation_json(excitation)
+        if parameters:
+            body["parameters"] = dict(parameters)
+        return _Call("POST", "/v1/streams", json=body)
+
+    @staticmethod
+    def _list_streams_call(*, active: bool, limit: int) -> _Call:
+        return _Call("GET", "/v1/streams", params={"active": str(active).lower(), "limit": limit})
 
     # Reading answers ------------------------------------------------------------------------------
 
@@ -434,6 +464,38 @@ class Client(_Protocol):
     def get_job(self, job_id: str, *, wait: float | None = None) -> Job:
         """The job; with ``wait`` (seconds) the server answers once it has ended or the wait ran out."""
         return self._job(self._send(self._get_job_call(job_id, wait=wait, etag=None)))
+
+    def create_stream(
+        self,
+        *,
+        width: int | None = None,
+        height: int | None = None,
+        excitation: Excitation | list[Excitation] | dict[str, Any] | None = None,
+        parameters: AnalysisParameters | dict[str, Any] | None = None,
+        target_relative_uncertainty: float = 0.01,
+        max_duration_s: float = 60.0,
+    ) -> Stream:
+        """Open a live stream session; send frames over its ``websocket_url`` (or use
+        :class:`~eigenscope_client.StreamSession`, which does both)."""
+        call = self._create_stream_call(
+            width=width,
+            height=height,
+            excitation=excitation,
+            parameters=parameters,
+            target_relative_uncertainty=target_relative_uncertainty,
+            max_duration_s=max_duration_s,
+        )
+        stream: Stream = Stream.from_dict(self._send(call).json())
+        return stream
+
+    def get_stream(self, stream_id: str) -> Stream:
+        stream: Stream = Stream.from_dict(self._send(_Call("GET", f"/v1/streams/{stream_id}")).json())
+        return stream
+
+    def list_streams(self, *, active: bool = False, limit: int = 20) -> list[Stream]:
+        """Streams newest first (only those not ended with ``active``)."""
+        doc = self._send(self._list_streams_call(active=active, limit=limit)).json()
+        return [Stream.from_dict(x) for x in doc.get("items", [])]
 
     def wait_for_change(self, job: Job, *, timeout: float = LONG_POLL_S) -> Job:
         """``job`` as it is once it differs from the one given (progress, stage, end), or after ``timeout``
@@ -646,6 +708,35 @@ class AsyncClient(_Protocol):
 
     async def get_job(self, job_id: str, *, wait: float | None = None) -> Job:
         return self._job(await self._send(self._get_job_call(job_id, wait=wait, etag=None)))
+
+    async def create_stream(
+        self,
+        *,
+        width: int | None = None,
+        height: int | None = None,
+        excitation: Excitation | list[Excitation] | dict[str, Any] | None = None,
+        parameters: AnalysisParameters | dict[str, Any] | None = None,
+        target_relative_uncertainty: float = 0.01,
+        max_duration_s: float = 60.0,
+    ) -> Stream:
+        call = self._create_stream_call(
+            width=width,
+            height=height,
+            excitation=excitation,
+            parameters=parameters,
+            target_relative_uncertainty=target_relative_uncertainty,
+            max_duration_s=max_duration_s,
+        )
+        stream: Stream = Stream.from_dict((await self._send(call)).json())
+        return stream
+
+    async def get_stream(self, stream_id: str) -> Stream:
+        stream: Stream = Stream.from_dict((await self._send(_Call("GET", f"/v1/streams/{stream_id}"))).json())
+        return stream
+
+    async def list_streams(self, *, active: bool = False, limit: int = 20) -> list[Stream]:
+        doc = (await self._send(self._list_streams_call(active=active, limit=limit))).json()
+        return [Stream.from_dict(x) for x in doc.get("items", [])]
 
     async def wait_for_change(self, job: Job, *, timeout: float = LONG_POLL_S) -> Job:
         response = await self._send(self._get_job_call(job.id, wait=min(timeout, LONG_POLL_S), etag=job.etag))

@@ -21,6 +21,16 @@ class TransportError(EigenscopeError):
     """The server could not be reached, or the connection broke (after the retries allowed)."""
 
 
+class StreamError(EigenscopeError):
+    """A live stream failed: the server sent a fatal ``error`` (its problem document in ``problem``), the
+    connection closed, or an answer did not come in time."""
+
+    def __init__(self, message: str, *, problem: dict[str, Any] | None = None) -> None:
+        super().__init__(message)
+        self.problem: dict[str, Any] = problem or {}
+        self.status: int | None = self.problem.get("status")
+
+
 class WaitTimeoutError(EigenscopeError, TimeoutError):
     """A job did not end within the time given to :meth:`Client.wait`; ``job`` is its last state."""
 

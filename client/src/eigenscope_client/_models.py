@@ -263,6 +263,7 @@ class Job(_Model):
     error: Problem | None = None
     result: AnalysisResult | None = None
     callback: Callback | None = None
+    source: str = "upload"
     etag: str | None = field(default=None, compare=False)
     raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
@@ -281,6 +282,36 @@ class Job(_Model):
         if self.status in ("failed", "cancelled"):
             raise JobFailedError(self)
         return self
+
+
+@dataclass(frozen=True)
+class Stream(_Model):
+    """A live stream session (frames go over its ``websocket_url``; :class:`StreamSession` drives it).
+    ``resume_token`` is only in the answer that created it."""
+
+    schema: ClassVar[str] = "Stream"
+    convert: ClassVar[dict[str, Callable[[Any], Any]]] = {
+        "created_at": _datetime,
+        "updated_at": _datetime,
+        "error": _optional(Problem.from_dict),
+    }
+    id: str
+    job_id: str
+    clip_id: str
+    status: str
+    websocket_url: str
+    parameters: dict[str, Any]
+    target_relative_uncertainty: float
+    max_duration_s: float
+    created_at: datetime
+    resume_token: str | None = None
+    excitation: dict[str, Any] | list[dict[str, Any]] | None = None
+    frames_received: int = 0
+    converged: bool = False
+    last_estimate: dict[str, Any] | None = None
+    updated_at: datetime | None = None
+    error: Problem | None = None
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
 
 @dataclass(frozen=True)

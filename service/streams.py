@@ -1,0 +1,441 @@
+"""Live streams: session creation and views, and the WebSocket relay between a client and its worker.
+
+The relay (:class:`Relay`) never decodes a frame. It passes the client's binary frame messages to the
+session's worker through the stream transport, and the worker's messages back, and it does the flow
+control: at most ``Settings.stream_window`` frame messages in flight (sent, not yet consumed by the
+worker). Near the window the client gets a ``backpressure`` ``slow_down``; a frame message beyond it is
+refused with a ``backpressure`` ``dropped`` naming the frame, never lost silently nor buffered without
+bound. A worker that is silent for ``stream_worker_timeout_s`` (or never takes the session up within
+``stream_start_timeout_s``) ends the session with a fatal ``error`` and fails its job.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hashlib
+import hmac
+import json
+import logging
+import struct
+import time
+import uuid
+from typing import Any
+
+from starlette.concurrency import run_in_threadpool
+from starlette.websockets import WebSocket, WebSocketDisconnect
+
+from api_schemas import StreamCreate, StreamModel
+from api_schemas.stream import problem_doc
+from service.context import ServiceContext
+from service.errors import InvalidInputError, ServiceError
+from service.jobs import excitation_json
+from service.retention import expiry
+from service.store import StreamRecord, new_id
+from service.stream_transport import new_token
+
+log = logging.getLogger(__name__)
+
+#: Parameters of a job that do not apply to a stream.
+_NOT_FOR_STREAMS = ("start_frame", "color_topic", "depth_topic")
+
+
+def token_digest(token: str) -> str:
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def _invalid(field: str, msg: str) -> InvalidInputError:
+    return InvalidInputError(
+        f"{field}: {msg}", code="invalid-parameter", errors=[{"loc": ["body", *field.split(".")], "msg": msg}]
+    )
+
+
+def websocket_url(base_url: str, root_path: str, stream_id: str) -> str:
+    """``ws(s)://host[/root]/v1/streams/{id}`` for an API reached at ``base_url``."""
+    scheme, _, rest = base_url.partition("://")
+    host = rest.split("/", 1)[0]
+    ws = "wss" if scheme == "https" else "ws"
+    return f"{ws}://{host}{root_path}/v1/streams/{stream_id}"
+
+
+def stream_view(stream: StreamRecord, *, ws_url: str, token: str | None = None) -> StreamModel:
+    request = stream.request
+    return StreamModel.model_validate(
+        {
+            "id": stream.id,
+            "job_id": stream.job_id,
+            "clip_id": stream.clip_id,
+            "status": stream.status,
+            "websocket_url": ws_url,
+            "resume_token": token,
+            "excitation": request.get("excitation"),
+            "parameters": request.get("parameters") or {},
+            "target_relative_uncertainty": request.get("target_relative_uncertainty", 0.01),
+            "max_duration_s": request.get("max_duration_s", 60.0),
+            "frames_received": stream.frames_received,
+            "converged": stream.converged,
+            "last_estimate": stream.last_estimate,
+            "created_at": stream.created_at,
+            "updated_at": stream.updated_at,
+            "error": stream.error,
+        }
+    )
+
+
+def check_request(ctx: ServiceContext, body: StreamCreate) -> None:
+    """Reject options a stream cannot honour, before anything is recorded."""
+    p = body.parameters
+    if p.method != "default":
+        raise _invalid("parameters.method", "streams are analysed with the default method only")
+    for name in _NOT_FOR_STREAMS:
+        if getattr(p, name) is not None:
+            raise _invalid(f"parameters.{name}", f"{name} does not apply to a live stream; leave it out")
+    if p.frames is not None and p.frames < 16:
+        raise _invalid("parameters.frames", "a stream's analysis window needs at least 16 frames")
+    if (
+        p.min_frequency_hz is not None
+        and p.max_frequency_hz is not None
+        and p.min_frequency_hz >= p.max_frequency_hz
+    ):
+        raise _invalid("parameters.max_frequency_hz", "max_frequency_hz must exceed min_frequency_hz")
+    limit = ctx.settings.stream_max_duration_s
+    if body.max_duration_s > limit:
+        raise _invalid(
+            "max_duration_s", f"at most {limit:g} s on this server (EIGENSCOPE_STREAM_MAX_DURATION_S)"
+        )
+
+
+async def create_stream(
+    ctx: ServiceContext, body: StreamCreate, *, tenant: str, base_url: str, root_path: str
+) -> StreamModel:
+    """Record the stream, its clip and its job, and hand the session to the workers."""
+    check_request(ctx, body)
+    stream_id, clip_id, token = new_id(), new_id(), new_token()
+    request = body.model_dump(mode="json", exclude_none=True)
+    request["parameters"] = body.parameters.model_dump(mode="json", exclude_none=True)
+    info = {
+        "format": "stream",
+        "frames": 0,
+        "width": body.width or 0,
+        "height": body.height or 0,
+        "fps": body.parameters.fps,
+        "fps_source": "user" if body.parameters.fps else None,
+        "has_depth": False,
+        "streams": ["live stream " + stream_id],
+    }
+    settings = ctx.settings
+    stream, job = await run_in_threadpool(
+        ctx.store.create_stream,
+        stream_id=stream_id,
+        owner=tenant,
+        clip={
+            "clip_id": clip_id,
+            "filename": f"stream-{stream_id}.zip",
+            "path": f"clips/{clip_id}/clip.zip",
+            "info": info,
+            "size_bytes": 0,
+        },
+        job={"excitation": excitation_json(body.excitation), "parameters": request["parameters"]},
+        token_digest=token_digest(token),
+        request=request,
+        expires_at=expiry(time.time(), settings.retention_s),
+        max_active_jobs=settings.max_active_jobs_per_key,
+        retry_after_s=settings.quota_retry_after_s,
+    )
+    try:
+        await ctx.stream_transport.dispatch(stream_id)
+    except Exception as exc:
+        problem = problem_doc(
+            "unavailable", "Service unavailable", 503, f"the stream transport failed: {exc}"
+        )
+        await run_in_threadpool(ctx.store.fail_stream_job, job.id, problem)
+        raise ServiceError(
+            "the stream workers cannot be reached; try again shortly", code="unavailable"
+        ) from exc
+    ctx.metrics.jobs_created.inc()
+    log.info("stream %s: created (job %s, clip %s)", stream_id, job.id, clip_id)
+    return stream_view(stream, ws_url=websocket_url(base_url, root_path, stream_id), token=token)
+
+
+# The relay --------------------------------------------------------------------------------------
+
+
+def frame_index(data: bytes) -> tuple[int | None, str | None]:
+    """The ``frame`` and ``kind`` of a frame message's header, if it can be read (no image is decoded)."""
+    try:
+        (length,) = struct.unpack(">I", data[:4])
+        if length > 4096:
+            return None, None
+        header = json.loads(data[4 : 4 + length])
+        frame, kind = header.get("frame"), header.get("kind")
+        return (frame if isinstance(frame, int) else None), (kind if kind in ("color", "depth") else None)
+    except (struct.error, ValueError, UnicodeDecodeError, AttributeError):
+        return None, None
+
+
+class Relay:
+    """One WebSocket connection of a stream, relayed to and from its worker."""
+
+    def __init__(self, ctx: ServiceContext, ws: WebSocket, stream: StreamRecord, *, resumed: bool) -> None:
+        self.ctx, self.ws, self.stream, self.resumed = ctx, ws, stream, resumed
+        self.settings = ctx.settings
+        self.transport = ctx.stream_transport
+        self.window = self.settings.stream_window
+        self.relay_id = uuid.uuid4().hex
+        self.sent = 0  # frame messages this connection passed on
+        self.base: int | None = None  # messages the worker had consumed when this connection attached
+        self.consumed = 0
+        self.slowed = False
+        self.dropped: set[int] = set()
+        self.last_worker = time.monotonic()
+        self.done = asyncio.Event()
+        self.sid = stream.id
+
+    @property
+    def in_flight(self) -> int:
+        return self.sent - (self.consumed - (self.base or 0))
+
+    async def send(self, message: dict[str, Any]) -> None:
+        with contextlib.suppress(Exception):
+            await self.ws.send_text(json.dumps(message, separators=(",", ":")))
+
+    async def fatal(self, code: str, title: str, status: int, detail: str, *, fail_job: bool) -> None:
+        problem = problem_doc(code, title, status, detail)
+        await self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
+        if fail_job:
+            await run_in_threadpool(self.ctx.store.fail_stream_job, self.stream.job_id, problem)
+            with contextlib.suppress(Exception):
+                await self.transport.acleanup(self.sid)
+        self.done.set()
+
+    async def run(self) -> None:
+        cursor = await self.transport.last_cursor(self.sid)
+        await self.transport.push(self.sid, control={"type": "_attach", "relay": self.relay_id})
+        status, cursor = await self._await_attach(cursor)
+        if status is None:
+            return
+        self.base = self.consumed = int(status.get("messages", 0))
+        await self.send(
+            {
+                "type": "ready",
+                "stream_id": self.sid,
+                "job_id": self.stream.job_id,
+                "window": self.window,
+                "next_frame": int(status.get("next_frame", 0)),
+                "messages": self.base,
+                "resumed": self.resumed,
+            }
+        )
+        downstream = asyncio.create_task(self._downstream(cursor))
+        upstream = asyncio.create_task(self._upstream())
+        finished, _ = await asyncio.wait({downstream, upstream}, return_when=asyncio.FIRST_COMPLETED)
+        if upstream in finished and not self.done.is_set():
+            # The client left (or broke the protocol): the worker waits for a resume, then ends the stream.
+            await self.transport.push(self.sid, control={"type": "_detach", "relay": self.relay_id})
+        for task in (downstream, upstream):
+            task.cancel()
+        for task in (downstream, upstream):
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+
+    async def _await_attach(self, cursor: str) -> tuple[dict[str, Any] | None, str]:
+        """Wait for the worker's answer to this connection's ``_attach``."""
+        deadline = time.monotonic() + self.settings.stream_start_timeout_s
+        while time.monotonic() < deadline:
+            messages, cursor = await self.transport.receive(self.sid, cursor, 0.25)
+            for m in messages:
+                if m.get("type") == "_status" and m.get("relay") == self.relay_id:
+                    return m, cursor
+                if m.get("type") in ("result", "error") and m.get("fatal", True):
+                    await self.send(m)
+                    self.done.set()
+                    return None, cursor
+        await self.fatal(
+            "no-worker",
+            "No stream worker",
+            503,
+            f"no worker took the stream up within {self.settings.stream_start_timeout_s:g} s; start "
+            "`eigenscope worker` processes (or more of them) and open a new stream",
+            fail_job=True,
+        )
+        return None, cursor
+
+    async def _downstream(self, cursor: str) -> None:
+        timeout = self.settings.stream_worker_timeout_s
+        while not self.done.is_set():
+            messages, cursor = await self.transport.receive(self.sid, cursor, 0.25)
+            now = time.monotonic()
+            if messages:
+                self.last_worker = now
+            elif now - self.last_worker > timeout:
+                await self.fatal(
+                    "worker-lost",
+                    "Worker lost",
+                    503,
+                    f"the worker running this stream has been silent for {timeout:g} s (it crashed or was "
+                    "stopped); the stream's job is failed: open a new stream",
+                    fail_job=True,
+                )
+                return
+            for m in messages:
+                kind = m.get("type", "")
+                if "messages" in m:
+                    self.consumed = max(self.consumed, int(m["messages"]))
+                if kind.startswith("_"):
+                    continue
+                if kind == "accepted":
+                    m["in_flight"] = max(self.in_flight, 0)
+                    m["window"] = self.window
+                await self.send(m)
+                if kind == "result" or (kind == "error" and m.get("fatal")):
+                    self.done.set()
+                    with contextlib.suppress(Exception):
+                        await self.transport.acleanup(self.sid)
+                    return
+            if self.slowed and self.in_flight <= self.window // 2:
+                self.slowed = False
+
+    async def _upstream(self) -> None:
+        max_bytes = self.settings.stream_max_frame_mb * 1024 * 1024
+        while not self.done.is_set():
+            message = await self.ws.receive()
+            if message["type"] == "websocket.disconnect":
+                raise WebSocketDisconnect(message.get("code", 1000))
+            data = message.get("bytes")
+            if data is not None:
+                await self._frame(data, max_bytes)
+                continue
+            text = message.get("text") or ""
+            try:
+                doc = json.loads(text)
+            except ValueError:
+                doc = None
+            if isinstance(doc, dict) and doc.get("type") == "end":
+                await self.transport.push(self.sid, control={"type": "end"})
+                continue
+            await self.send(
+                {
+                    "type": "error",
+                    "fatal": False,
+                    "frame": None,
+                    "problem": problem_doc(
+                        "invalid-message",
+                        "Invalid message",
+                        422,
+                        'text messages must be {"type": "end"}; frames are binary messages (see the AsyncAPI '
+                        "document)",
+                    ),
+                }
+            )
+
+    async def _frame(self, data: bytes, max_bytes: int) -> None:
+        frame, kind = frame_index(data)
+        if len(data) > max_bytes:
+            await self.send(
+                {
+                    "type": "error",
+                    "fatal": False,
+                    "frame": frame,
+                    "problem": problem_doc(
+                        "frame-too-large",
+                        "Frame too large",
+                        413,
+                        f"frame {frame}: a frame message of {len(data)} bytes exceeds "
+                        f"{max_bytes // (1024 * 1024)} MiB (EIGENSCOPE_STREAM_MAX_FRAME_MB)",
+                        frame=frame,
+                    ),
+                }
+            )
+            return
+        in_flight = self.in_flight
+        # The depth of a frame whose colour was refused goes the same way (it would have no colour).
+        if in_flight >= self.window or (kind == "depth" and frame in self.dropped):
+            if frame is not None:
+                self.dropped.add(frame)
+            await self.send(
+                {
+                    "type": "backpressure",
+                    "action": "dropped",
+                    "frame": frame,
+                    "kind": kind,
+                    "in_flight": in_flight,
+                    "window": self.window,
+                }
+            )
+            return
+        if not self.slowed and in_flight >= (3 * self.window) // 4:
+            self.slowed = True
+            await self.send(
+                {
+                    "type": "backpressure",
+                    "action": "slow_down",
+                    "frame": frame,
+                    "kind": kind,
+                    "in_flight": in_flight,
+                    "window": self.window,
+                }
+            )
+        await self.transport.push(self.sid, frame=data)
+        self.sent += 1
+
+
+async def serve_websocket(ctx: ServiceContext, ws: WebSocket, stream_id: str) -> None:
+    """Authenticate, find the stream (tenant-scoped), check the resume token and relay."""
+    await ws.accept()
+    try:
+        tenant = ctx.keys.tenant(ws.headers.get("authorization"))
+        stream = await run_in_threadpool(ctx.store.get_stream, stream_id, tenant)
+    except ServiceError as exc:
+        await ws.send_text(
+            json.dumps(
+                {
+                    "type": "error",
+                    "fatal": True,
+                    "frame": None,
+                    "problem": exc.problem(f"/v1/streams/{stream_id}"),
+                }
+            )
+        )
+        await ws.close(code=4000 + exc.status)
+        return
+    token = ws.query_params.get("resume_token")
+    resumed = False
+    problem: dict[str, Any] | None = None
+    if stream.status not in ("waiting", "streaming"):
+        problem = problem_doc(
+            "stream-ended",
+            "Stream ended",
+            409,
+            f"stream {stream_id} is {stream.status}; see its job {stream.job_id}",
+        )
+    elif token is not None:
+        if not hmac.compare_digest(token_digest(token), stream.token_digest):
+            problem = problem_doc(
+                "invalid-resume-token",
+                "Invalid resume token",
+                403,
+                "the resume_token does not belong to this stream",
+            )
+        resumed = True
+    elif not await run_in_threadpool(_first_connection, ctx, stream_id):
+        problem = problem_doc(
+            "stream-connected",
+            "Stream already connected",
+            409,
+            f"stream {stream_id} already had a connection; reconnect with ?resume_token=",
+        )
+    if problem is not None:
+        await ws.send_text(json.dumps({"type": "error", "fatal": True, "frame": None, "problem": problem}))
+        await ws.close(code=4000 + int(problem["status"]))
+        return
+    relay = Relay(ctx, ws, stream, resumed=resumed)
+    try:
+        await relay.run()
+    except Exception:
+        log.exception("stream %s: relay failed", stream_id)
+    with contextlib.suppress(Exception):
+        await ws.close(code=1000)
+
+
+def _first_connection(ctx: ServiceContext, stream_id: str) -> bool:
+    return ctx.store.update_stream(stream_id, only_active=False, status="streaming", expect_status="waiting")

@@ -1,0 +1,738 @@
+"""Live stream sessions on a worker: frames in, estimates out, a job and a clip at the end.
+
+:func:`run_stream_worker` takes sessions from the stream transport (:mod:`service.stream_transport`) and
+runs up to ``Settings.stream_sessions_per_worker`` of them at once, each on a thread of its own
+(:class:`Session`). A session:
+
+1. claims the stream's job (lease renewed while it runs; a worker that dies leaves a lease that expires,
+   and the API fails the stream with ``worker-lost``);
+2. decodes each frame message, checks it (size, encoding, timestamps, depth with its colour frame: a bad
+   one gets a non-fatal ``error`` naming the frame and is skipped), feeds it to
+   :class:`workers.pipeline.live.LiveAnalysis` and keeps its bytes in the stream's clip (a TUM RGB-D zip:
+   colour as received, depth as 16-bit PNG, per-frame timestamps, ``camera.json``);
+3. sends ``accepted`` per frame, an ``estimate`` every ``stream_estimate_interval_s`` once motion is seen,
+   ``converged`` once, and internal heartbeats;
+4. on ``end``, a silent client, a client gone for longer than the resume window, or the duration limit:
+   runs the final analysis on the flow already computed, writes the images and ``result.json`` as a job
+   does, sends ``result``, completes the job and files the clip.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import shutil
+import struct
+import threading
+import time
+import zipfile
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import ValidationError
+
+from api_schemas import AnalysisParameters, FrameHeader, StreamCreate
+from api_schemas.stream import problem_doc
+from service.settings import Settings
+from service.storage import Storage, tree_bytes
+from service.store import ClaimOutcome, Store, StreamRecord, lease_owner_token
+from service.stream_transport import Item, StreamTransport, transport_for
+
+log = logging.getLogger(__name__)
+
+#: Seconds between heartbeats (the API fails a stream whose worker is silent for stream_worker_timeout_s).
+HEARTBEAT_S = 0.5
+#: Seconds between writes of the latest estimate to the stream's record (what GET /v1/streams shows).
+RECORD_EVERY_S = 0.5
+
+
+class FrameError(Exception):
+    """A frame message that cannot be used; ``frame`` names it when its header could be read."""
+
+    def __init__(self, detail: str, *, frame: int | None, code: str = "invalid-frame") -> None:
+        super().__init__(detail)
+        self.detail, self.frame, self.code = detail, frame, code
+
+
+def parse_frame_message(data: bytes, *, max_header: int = 4096) -> tuple[FrameHeader, bytes]:
+    """Split a binary frame message into its header and its image bytes; :class:`FrameError` if bad."""
+    if len(data) < 4:
+        raise FrameError("a frame message must start with a 4-byte header length", frame=None)
+    (length,) = struct.unpack(">I", data[:4])
+    if not 2 <= length <= max_header or len(data) < 4 + length:
+        raise FrameError(
+            f"frame message header length {length} is not in [2, {max_header}] or exceeds the message",
+            frame=None,
+        )
+    try:
+        raw = json.loads(data[4 : 4 + length])
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise FrameError(f"frame message header is not JSON: {exc}", frame=None) from None
+    frame = raw.get("frame") if isinstance(raw, dict) else None
+    try:
+        header = FrameHeader.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(x) for x in err.get("loc", ())) or "header"
+        raise FrameError(
+            f"frame {frame}: header field {where}: {err.get('msg')}"
+            if isinstance(frame, int)
+            else f"frame message header field {where}: {err.get('msg')}",
+            frame=frame if isinstance(frame, int) else None,
+        ) from None
+    return header, data[4 + length :]
+
+
+@dataclass
+class _Pending:
+    """A decoded colour frame waiting for its depth frame."""
+
+    frame: int
+    rgb: NDArray[np.uint8]
+    timestamp_s: float
+    data: bytes
+    encoding: str
+
+
+class ClipWriter:
+    """The stream's frames as a TUM RGB-D zip, written as they arrive (colour stored as received, depth as
+    16-bit PNG) by a thread of its own: PNG-encoding a 640x480 depth frame costs about 10 ms, which the
+    frame loop does not wait for (at most ``max_pending`` frames queue up; then it does)."""
+
+    def __init__(self, path: Path, *, max_pending: int = 32) -> None:
+        from concurrent.futures import Future, ThreadPoolExecutor
+
+        self.path = path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._zip = zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True)
+        self._rgb: list[str] = []
+        self._depth: list[str] = []
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="clip-writer")
+        self._pending: deque[Future[None]] = deque()
+        self._max_pending = max_pending
+        self.frames = 0
+
+    def add(
+        self,
+        *,
+        frame: int,
+        timestamp_s: float,
+        color: bytes,
+        color_ext: str,
+        depth: NDArray[np.uint16] | None,
+    ) -> None:
+        stamp = f"{timestamp_s:.6f}"
+        name = f"rgb/{frame:06d}.{color_ext}"
+        self._rgb.append(f"{stamp} {name}")
+        dname = None
+        if depth is not None:
+            dname = f"depth/{frame:06d}.png"
+            self._depth.append(f"{stamp} {dname}")
+        while len(self._pending) >= self._max_pending:
+            self._pending.popleft().result()
+        self._pending.append(self._pool.submit(self._write, name, color, dname, depth))
+        self.frames += 1
+
+    def _write(self, name: str, color: bytes, dname: str | None, depth: NDArray[np.uint16] | None) -> None:
+        import cv2
+
+        self._zip.writestr(name, color)
+        if dname is not None and depth is not None:
+            options = [
+                cv2.IMWRITE_PNG_COMPRESSION,
+                1,
+                cv2.IMWRITE_PNG_STRATEGY,
+                cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
+            ]
+            ok, buf = cv2.imencode(".png", depth, options)
+            if not ok:
+                raise OSError(f"depth frame {dname} could not be encoded")
+            self._zip.writestr(dname, bytes(buf))
+
+    def _drain(self) -> None:
+        while self._pending:
+            self._pending.popleft().result()
+        self._pool.shutdown(wait=True)
+
+    def close(self, camera: dict[str, float]) -> int:
+        """Write the lists and ``camera.json``, close; returns the file's size."""
+        self._drain()
+        header = "# written by an eigenscope live stream: timestamp filename\n"
+        self._zip.writestr("rgb.txt", header + "\n".join(self._rgb) + "\n")
+        if self._depth and len(self._depth) == len(self._rgb):
+            self._zip.writestr("depth.txt", header + "\n".join(self._depth) + "\n")
+        self._zip.writestr("camera.json", json.dumps(camera))
+        self._zip.close()
+        return self.path.stat().st_size
+
+    def discard(self) -> None:
+        try:
+            self._drain()
+            self._zip.close()
+        finally:
+            self.path.unlink(missing_ok=True)
+
+
+@dataclass
+class Session:
+    """One live stream on this worker; :meth:`run` blocks until it has ended."""
+
+    stream_id: str
+    settings: Settings
+    store: Store
+    storage: Storage
+    transport: StreamTransport
+    record: StreamRecord | None = None
+    messages: int = 0
+    attached: bool = False
+    ever_attached: bool = False
+    detached_at: float | None = None
+    last_input: float = field(default_factory=time.monotonic)
+    started: float = field(default_factory=time.monotonic)
+    _pending: _Pending | None = None
+    _last_frame: int = -1
+    _last_time: float | None = None
+    _first_time: float | None = None
+    _size: tuple[int, int] | None = None  # (width, height)
+    _live: Any = None
+    _clip: ClipWriter | None = None
+    _converged_sent: bool = False
+    _end_reason: str | None = None
+    _has_depth: bool = False
+
+    def send(self, message: dict[str, Any]) -> None:
+        self.transport.send(self.stream_id, message)
+
+    def error(
+        self,
+        code: str,
+        title: str,
+        detail: str,
+        *,
+        frame: int | None = None,
+        fatal: bool = False,
+        status: int = 422,
+    ) -> None:
+        extra = {"frame": frame} if frame is not None else {}
+        self.send(
+            {
+                "type": "error",
+                "fatal": fatal,
+                "frame": frame,
+                "messages": self.messages,
+                "problem": problem_doc(code, title, status, detail, **extra),
+            }
+        )
+
+    # ------------------------------------------------------------------------------------------
+    def run(self) -> None:
+        record = self.store.find_stream(self.stream_id)
+        if record is None:
+            log.warning("stream %s: no record (deleted?); dropped", self.stream_id)
+            self.transport.cleanup(self.stream_id)
+            return
+        self.record = record
+        owner = lease_owner_token()
+        claim = self.store.claim_job(record.job_id, owner)
+        if claim.outcome is not ClaimOutcome.CLAIMED:
+            self.error(
+                "stream-ended",
+                "Stream ended",
+                f"stream {self.stream_id} cannot be run ({claim.outcome.value})",
+                fatal=True,
+                status=409,
+            )
+            return
+        from workers.execution import _Lease
+
+        workdir: Path | None = None
+        try:
+            with _Lease(self.store, record.job_id, owner) as lease:
+                request = StreamCreate.model_validate(record.request)
+                self._loop(request, lease)
+                if lease.lost.is_set():
+                    raise _AbortError("the stream's job was cancelled or taken over")
+                self.store.update_stream(self.stream_id, status="finishing")
+                workdir = self.storage.new_job_workdir(record.job_id, 1)
+                self._finish(request, owner, workdir)
+        except _AbortError as exc:
+            self.error("stream-aborted", "Stream aborted", str(exc), fatal=True, status=409)
+            self._discard_clip()
+        except _FailedError as exc:
+            self.store.fail_job(record.job_id, owner, exc.problem)
+            self.store.update_stream(self.stream_id, status="failed", error=exc.problem)
+            self.send({"type": "error", "fatal": True, "frame": None, "problem": exc.problem})
+            self._discard_clip()
+        except Exception as exc:
+            log.exception("stream %s failed", self.stream_id)
+            problem = problem_doc(
+                "internal-error", "Internal error", 500, f"the stream failed: {type(exc).__name__}: {exc}"
+            )
+            self.store.fail_job(record.job_id, owner, problem)
+            self.store.update_stream(self.stream_id, status="failed", error=problem)
+            self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
+            self._discard_clip()
+        finally:
+            if self._live is not None:
+                self._live.close()
+            if workdir is not None:
+                shutil.rmtree(workdir, ignore_errors=True)
+            if not self.attached:  # nobody will read the rest: remove everything now
+                self.transport.cleanup(self.stream_id)
+
+    def _discard_clip(self) -> None:
+        if self._clip is not None:
+            self._clip.discard()
+            self._clip = None
+
+    def _loop(self, request: StreamCreate, lease: Any) -> None:
+        s = self.settings
+        next_beat = 0.0
+        next_estimate = 0.0
+        next_record = 0.0
+        max_duration = min(request.max_duration_s, s.stream_max_duration_s)
+        while self._end_reason is None:
+            if lease.lost.is_set():
+                return
+            items = self.transport.read(self.stream_id, 0.05)
+            now = time.monotonic()
+            for item in items:
+                self._handle(item, request)
+                if self._end_reason is not None:
+                    break
+            if items:
+                self.send({"type": "_progress", "messages": self.messages})
+            now = time.monotonic()
+            if now >= next_beat:
+                self.send({"type": "_heartbeat", "messages": self.messages})
+                next_beat = now + HEARTBEAT_S
+            live = self._live
+            if live is not None and live.motion_seen and now >= next_estimate:
+                next_estimate = now + s.stream_estimate_interval_s
+                self._estimate(request, record=now >= next_record)
+                if now >= next_record:
+                    next_record = now + RECORD_EVERY_S
+            if (
+                self._first_time is not None
+                and self._last_time is not None
+                and (self._last_time - self._first_time >= max_duration)
+            ):
+                self.error(
+                    "max-duration",
+                    "Stream too long",
+                    f"the capture reached max_duration_s={max_duration:g} s; the stream is analysed as it is",
+                    status=413,
+                )
+                self._end_reason = "max-duration"
+            elif self.attached and now - self.last_input > s.stream_client_timeout_s:
+                self.error(
+                    "client-timeout",
+                    "Client silent",
+                    f"no frame or message for {s.stream_client_timeout_s:g} s; the stream is analysed as it "
+                    "is",
+                    status=408,
+                )
+                self._end_reason = "client-timeout"
+            elif not self.attached and now - (self.detached_at or self.started) > max(
+                s.stream_resume_window_s, s.stream_start_timeout_s if not self.ever_attached else 0.0
+            ):
+                self._end_reason = "client-gone"
+
+    def _handle(self, item: Item, request: StreamCreate) -> None:
+        self.last_input = time.monotonic()
+        if item.kind == "control":
+            ctl = item.control or {}
+            kind = ctl.get("type")
+            if kind == "end":
+                self._end_reason = "end"
+            elif kind == "_attach":
+                self.attached, self.ever_attached, self.detached_at = True, True, None
+                next_frame = self._last_frame + 1 if self._pending is None else self._pending.frame + 1
+                self.send(
+                    {
+                        "type": "_status",
+                        "relay": ctl.get("relay"),
+                        "messages": self.messages,
+                        "next_frame": next_frame,
+                    }
+                )
+            elif kind == "_detach":
+                self.attached, self.detached_at = False, time.monotonic()
+            return
+        self.messages += 1
+        try:
+            self._frame(item.data, request)
+        except FrameError as exc:
+            self.error(exc.code, "Invalid frame", exc.detail, frame=exc.frame)
+
+    # Frames ------------------------------------------------------------------------------------
+    def _frame(self, data: bytes, request: StreamCreate) -> None:
+        import cv2
+
+        header, payload = parse_frame_message(data)
+        i = header.frame
+        if header.kind == "color":
+            if self._pending is not None and self._pending.frame != i:
+                self._complete(self._pending, None, request)
+                self._pending = None
+            if i <= self._last_frame or (self._pending is not None and self._pending.frame == i):
+                raise FrameError(
+                    f"frame {i}: index does not follow frame {self._last_frame}; frame indices must increase",
+                    frame=i,
+                )
+            if self._last_time is not None and header.timestamp_s <= self._last_time:
+                raise FrameError(
+                    f"frame {i}: timestamp {header.timestamp_s} s is not after the previous frame's "
+                    f"{self._last_time} s; timestamps must increase",
+                    frame=i,
+                    code="timestamp-backwards",
+                )
+            if not math.isfinite(header.timestamp_s):
+                raise FrameError(f"frame {i}: timestamp is not finite", frame=i)
+            if header.encoding not in ("jpeg", "png"):
+                raise FrameError(f"frame {i}: colour must be jpeg or png, not {header.encoding}", frame=i)
+            bgr = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_COLOR) if payload else None
+            if bgr is None:
+                raise FrameError(
+                    f"frame {i}: the colour image cannot be decoded as {header.encoding} "
+                    f"({len(payload)} bytes)",
+                    frame=i,
+                    code="undecodable-frame",
+                )
+            self._check_size(i, "colour", bgr.shape[1], bgr.shape[0], request)
+            rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            self._pending = _Pending(
+                i, rgb, header.timestamp_s, payload, "jpg" if header.encoding == "jpeg" else "png"
+            )
+            return
+        pending = self._pending
+        if pending is None or pending.frame != i:
+            raise FrameError(
+                f"frame {i}: depth frame without its colour frame; send each frame's colour message first, "
+                "then its depth",
+                frame=i,
+                code="depth-without-color",
+            )
+        depth_raw = self._decode_depth(i, header, payload)
+        self._check_size(i, "depth", depth_raw.shape[1], depth_raw.shape[0], request)
+        self._pending = None
+        self._complete(pending, depth_raw, request)
+
+    def _decode_depth(self, i: int, header: FrameHeader, payload: bytes) -> NDArray[np.uint16]:
+        import cv2
+
+        if header.encoding == "raw":
+            if header.width is None or header.height is None:
+                raise FrameError(f"frame {i}: raw depth needs width and height in its header", frame=i)
+            expected = header.width * header.height * 2
+            if len(payload) != expected:
+                raise FrameError(
+                    f"frame {i}: raw depth of {header.width}x{header.height} needs {expected} bytes, "
+                    f"got {len(payload)}",
+                    frame=i,
+                    code="wrong-size",
+                )
+            return np.frombuffer(payload, "<u2").reshape(header.height, header.width).astype(np.uint16)
+        if header.encoding != "png":
+            raise FrameError(f"frame {i}: depth must be 16-bit png or raw, not {header.encoding}", frame=i)
+        img = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_UNCHANGED) if payload else None
+        if img is None:
+            raise FrameError(
+                f"frame {i}: the depth image cannot be decoded as png", frame=i, code="undecodable-frame"
+            )
+        if img.dtype != np.uint16 or img.ndim != 2:
+            raise FrameError(
+                f"frame {i}: depth must be a 16-bit single-channel png (got {img.dtype}, {img.ndim} dims)",
+                frame=i,
+            )
+        return np.asarray(img, np.uint16)
+
+    def _check_size(self, i: int, what: str, width: int, height: int, request: StreamCreate) -> None:
+        if self._size is None:
+            self._size = (request.width or width, request.height or height)
+        w, h = self._size
+        if (width, height) != (w, h):
+            raise FrameError(
+                f"frame {i}: {what} is {width}x{height}, but the stream's frames are {w}x{h}",
+                frame=i,
+                code="wrong-size",
+            )
+
+    def _complete(
+        self, pending: _Pending, depth_raw: NDArray[np.uint16] | None, request: StreamCreate
+    ) -> None:
+
+        from workers.pipeline.clipio.types import depth_to_metres
+
+        params = request.parameters
+        if self._live is None:
+            self._start_live(request, pending.rgb.shape[1], pending.rgb.shape[0])
+        depth_m = None
+        if depth_raw is not None:
+            self._has_depth = True
+            depth_m = depth_to_metres(depth_raw, params.depth_scale or 0.001)
+        try:
+            self._live.push(rgb=pending.rgb, depth_m=depth_m, timestamp_s=pending.timestamp_s)
+        except Exception as exc:
+            if getattr(exc, "code", None) == "invalid-clip":
+                raise FrameError(str(exc), frame=pending.frame) from None
+            raise
+        if self._first_time is None:
+            self._first_time = pending.timestamp_s
+        self._last_frame, self._last_time = pending.frame, pending.timestamp_s
+        assert self._clip is not None
+        self._clip.add(
+            frame=pending.frame,
+            timestamp_s=pending.timestamp_s - self._first_time,
+            color=pending.data,
+            color_ext=pending.encoding,
+            depth=depth_raw,
+        )
+        in_flight = 0
+        self.send(
+            {
+                "type": "accepted",
+                "frame": pending.frame,
+                "messages": self.messages,
+                "in_flight": in_flight,
+                "window": self.settings.stream_window,
+            }
+        )
+
+    def _start_live(self, request: StreamCreate, width: int, height: int) -> None:
+        from workers.pipeline.clipio.types import Intrinsics
+        from workers.pipeline.live import LiveAnalysis, LiveConfig
+        from workers.runner import pipeline_excitations, requested_excitations
+
+        p = request.parameters
+        intrinsics = None
+        if p.fx is not None or p.fy is not None:
+            fx = p.fx if p.fx is not None else p.fy
+            fy = p.fy if p.fy is not None else p.fx
+            assert fx is not None
+            assert fy is not None
+            intrinsics = Intrinsics(
+                fx=fx,
+                fy=fy,
+                cx=p.cx if p.cx is not None else (width - 1) / 2,
+                cy=p.cy if p.cy is not None else (height - 1) / 2,
+            )
+        excitations = pipeline_excitations(requested_excitations(request.excitation))
+        main = next(
+            (e for e in excitations if e.object_id in (None, 1) and e.point_px is None and e.box_px is None),
+            None,
+        )
+        config = LiveConfig(
+            fps=p.fps,
+            window_frames=p.frames or 256,
+            target_relative_uncertainty=request.target_relative_uncertainty,
+            min_frequency_hz=p.min_frequency_hz,
+            max_frequency_hz=p.max_frequency_hz,
+            depth_m=p.depth_m,
+        )
+        self._live = LiveAnalysis(
+            width=width, height=height, intrinsics=intrinsics, config=config, excitation=main
+        )
+        assert self.record is not None
+        self._clip = ClipWriter(self.storage.root / "tmp" / f"stream-{self.stream_id}" / "clip.zip")
+
+    # Estimates ---------------------------------------------------------------------------------
+    def _estimate(self, request: StreamCreate, *, record: bool) -> None:
+        from workers.pipeline.live import estimate_dict
+
+        est = self._live.estimate()
+        if est is None:
+            return
+        model = live_estimate_json(estimate_dict(est))
+        self.send({"type": "estimate", "estimate": model})
+        if est.converged and not self._converged_sent:
+            self._converged_sent = True
+            self.send(
+                {
+                    "type": "converged",
+                    "quantity": "eigenfrequency_hz",
+                    "relative_uncertainty": est.relative_uncertainty,
+                    "target_relative_uncertainty": request.target_relative_uncertainty,
+                    "frames_received": est.frames_received,
+                    "estimate": model,
+                }
+            )
+            record = True
+        if record:
+            self.store.update_stream(
+                self.stream_id,
+                frames_received=est.frames_received,
+                converged=self._converged_sent,
+                last_estimate=model,
+            )
+
+    # The end -------------------------------------------------------------------------------------
+    def _finish(self, request: StreamCreate, owner: str, workdir: Path) -> None:
+        from service.jobs import artifact_url
+        from workers.pipeline.errors import EigenscopeError
+        from workers.runner import (
+            analysis_config,
+            pipeline_excitations,
+            requested_excitations,
+            write_result,
+        )
+
+        assert self.record is not None
+        if self._pending is not None:
+            self._complete(self._pending, None, request)
+            self._pending = None
+        if self._live is None:
+            raise _FailedError(
+                problem_doc(
+                    "analysis-failed",
+                    "Analysis failed",
+                    422,
+                    f"the stream ended ({self._end_reason}) before any frame arrived",
+                )
+            )
+        params = request.parameters
+        requested = requested_excitations(request.excitation)
+        config = analysis_config(params.model_copy(update={"frames": None}))
+        try:
+            analysis = self._live.finish(analysis_config=config, excitations=pipeline_excitations(requested))
+            result = write_result(analysis, workdir, excitation=requested, parameters=params)
+        except EigenscopeError as exc:
+            raise _FailedError(
+                problem_doc(getattr(exc, "code", "analysis-failed"), "Analysis failed", 422, str(exc))
+            ) from exc
+        result.timings_s["stream_frames"] = float(self._live.frames_received)
+        job_id = self.record.job_id
+        self.storage.publish_job_outputs(job_id, workdir)
+        doc = result.model_dump(mode="json")
+        if not self.store.complete_job(
+            job_id, owner, doc, output_bytes=tree_bytes(self.storage.job_dir(job_id))
+        ):
+            raise _AbortError("the stream's job was cancelled")
+        served = dict(doc)
+        served["artifacts"] = {
+            k: artifact_url(job_id, v) if isinstance(v, str) else v for k, v in doc["artifacts"].items()
+        }
+        self.send({"type": "result", "job_id": job_id, "clip_id": self.record.clip_id, "result": served})
+        # The result goes out first (a robot waits for it); the stream has succeeded once its frames are
+        # filed as a clip that can be analysed again.
+        self._file_clip(params, analysis.fps)
+        self.store.update_stream(
+            self.stream_id,
+            only_active=False,
+            status="succeeded",
+            frames_received=self._live.frames_received,
+        )
+
+    def _file_clip(self, params: AnalysisParameters, fps: float) -> None:
+        """Close the clip and make it the stream's clip record (analysable again as any upload)."""
+        from workers.pipeline.clipio import open_clip
+
+        assert self.record is not None
+        assert self._clip is not None
+        live = self._live
+        camera: dict[str, float] = {"fps": fps, "depth_scale": params.depth_scale or 0.001}
+        if live.intrinsics is not None:
+            k = live.intrinsics
+            camera |= {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy}
+        size = self._clip.close(camera)
+        clip_dir = self.storage.root / "clips" / self.record.clip_id
+        clip_dir.mkdir(parents=True, exist_ok=True)
+        target = clip_dir / "clip.zip"
+        os.replace(self._clip.path, target)
+        shutil.rmtree(self._clip.path.parent, ignore_errors=True)
+        self._clip = None
+        try:
+            with open_clip(target) as reader:
+                info = reader.info.to_dict()
+        except Exception as exc:  # the frames are still there; the record says why it cannot be read
+            log.warning("stream %s: its clip cannot be read back: %s", self.stream_id, exc)
+            info = {"format": "tum", "frames": 0, "width": 0, "height": 0, "fps": fps, "has_depth": False}
+        self.store.update_clip(
+            self.record.clip_id,
+            path=target.relative_to(self.storage.root).as_posix(),
+            info=info,
+            size_bytes=size,
+        )
+
+
+class _AbortError(Exception):
+    """The stream's job is no longer this worker's."""
+
+
+class _FailedError(Exception):
+    def __init__(self, problem: dict[str, Any]) -> None:
+        super().__init__(problem.get("detail"))
+        self.problem = problem
+
+
+_RENAMES = {
+    "eigenfrequency_sd_hz": "eigenfrequency_uncertainty_hz",
+    "damping_ratio_sd": "damping_ratio_uncertainty",
+    "amplitude_sd_m": "amplitude_uncertainty_m",
+    "stiffness_sd": "stiffness_uncertainty_n_per_m",
+    "mass_sd": "mass_uncertainty_kg",
+}
+
+
+def live_estimate_json(values: dict[str, Any]) -> dict[str, Any]:
+    """A live estimate (``estimate_dict``) under the API's field names (:class:`LiveEstimateModel`)."""
+    from api_schemas import LiveEstimateModel
+
+    renamed = {_RENAMES.get(k, k): v for k, v in values.items()}
+    return LiveEstimateModel.model_validate(renamed).model_dump(mode="json")
+
+
+def run_stream_worker(settings: Settings, *, stop: threading.Event | None = None) -> None:
+    """Take stream sessions and run them, ``stream_sessions_per_worker`` at a time, until ``stop``."""
+    from workers.allocator import tune_malloc
+
+    tune_malloc()
+    # Results are drawn by this process's drawing process: started now (and the pipeline imported), not
+    # after a stream's last frame.
+    import workers.pipeline.live  # noqa: F401 - imported before any session needs it
+    import workers.pipeline.render as render
+
+    render.start_drawing_process()
+    render.warm_up()
+    stop = stop or threading.Event()
+    transport = transport_for(settings)
+    store = Store(settings.effective_database_url, lease_s=settings.lease_s, max_attempts=1)
+    storage = Storage(settings.data_path)
+    storage.ensure()
+    slots = threading.Semaphore(settings.stream_sessions_per_worker)
+    log.info(
+        "stream worker %d ready: %d session(s) at once, %s transport",
+        os.getpid(),
+        settings.stream_sessions_per_worker,
+        "redis" if settings.redis_url else "local",
+    )
+
+    def run(stream_id: str) -> None:
+        try:
+            Session(stream_id, settings, store, storage, transport_for(settings)).run()
+        except Exception:
+            log.exception("stream %s: session crashed", stream_id)
+        finally:
+            slots.release()
+
+    while not stop.is_set():
+        if not slots.acquire(timeout=0.5):
+            continue
+        try:
+            stream_id = transport.claim(1.0)
+        except Exception:
+            log.warning("stream worker: the transport is unavailable", exc_info=True)
+            slots.release()
+            stop.wait(1.0)
+            continue
+        if stream_id is None:
+            slots.release()
+            continue
+        log.info("stream %s: taken up", stream_id)
+        threading.Thread(target=run, args=(stream_id,), name=f"stream-{stream_id[:8]}", daemon=True).start()
