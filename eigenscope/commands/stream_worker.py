@@ -9,7 +9,6 @@ stream transport (Redis with ``EIGENSCOPE_REDIS_URL``, else the data directory) 
 from __future__ import annotations
 
 import argparse
-import logging
 import os
 import signal
 import threading
@@ -33,16 +32,15 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from eigenscope.cli import UsageError
     from eigenscope.commands.serve import load_settings
+    from service.logs import configure_logging
     from service.store import Store
     from workers.streams import run_stream_worker
 
     if args.sessions is not None and args.sessions < 1:
         raise UsageError(f"--sessions={args.sessions} must be at least 1")
     settings = load_settings(stream_sessions_per_worker=args.sessions)
-    logging.basicConfig(
-        level=(args.loglevel or settings.log_level).upper(),
-        format="[%(asctime)s: %(levelname)s/stream-worker %(process)d] %(message)s",
-    )
+    # Lines as every other process writes them (EIGENSCOPE_LOG_FORMAT: text or one JSON object each).
+    configure_logging((args.loglevel or settings.log_level).upper(), settings.log_format)
     if settings.background_niceness:
         os.nice(settings.background_niceness)
     store = Store(settings.effective_database_url)

@@ -425,6 +425,10 @@ def test_malformed_clip_is_refused(
     run_dir = tmp_path / "cwd"
     run_dir.mkdir()
     monkeypatch.chdir(run_dir)
+    # The readers' temporary files go to a folder of this test's (other processes use the system's).
+    private_tmp = tmp_path / "tmp"
+    private_tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(private_tmp))
     before = _outside_snapshot()
     listing = sorted(p.name for p in work.rglob("*"))
     started = time.monotonic()
