@@ -15,6 +15,8 @@ from numpy.typing import NDArray
 
 from workers.pipeline.peaks import noise_floor
 
+#: Brightness is followed frame by frame as the means of BRIGHTNESS_BLOCKS x BRIGHTNESS_BLOCKS blocks.
+BRIGHTNESS_BLOCKS = 8
 #: A block row's brightness oscillates when it stands this far above its own floor ...
 FLICKER_SNR = 10.0
 #: ... with this coherence along the row (1: every block in phase, as lighting does; 1/B at random) ...

@@ -18,10 +18,9 @@ from workers.pipeline.clipio.types import ClipReader, Frame
 from workers.pipeline.errors import AnalysisError
 from workers.pipeline.fft import warm_up as spectrum_warm_up
 from workers.pipeline.flow import FlowConfig, flow_magnitude, flow_stream, prepare_gray
+from workers.pipeline.light import BRIGHTNESS_BLOCKS
 from workers.pipeline.model import Progress
 
-#: Brightness is summarised per frame as the means of BRIGHTNESS_BLOCKS x BRIGHTNESS_BLOCKS blocks.
-BRIGHTNESS_BLOCKS = 8
 #: Fewest frames a window may end with when the clip delivers fewer than it announced.
 MIN_FRAMES = 16
 

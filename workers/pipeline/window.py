@@ -1,10 +1,11 @@
 """Which frames to analyse: the window the user gave, or for a long clip the one a survey of the whole clip
-chooses (start, length and frame step), the flow grid, and the frequency band searched.
+chooses (start, length and frame step; :func:`plan_window`), the flow grid, and the frequency band searched.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -21,7 +22,8 @@ from workers.pipeline.model import (
     Progress,
     QualityNote,
 )
-from workers.pipeline.survey import Survey, WindowPlan, plan_window, survey_motion
+from workers.pipeline.peaks import Peak
+from workers.pipeline.survey import Survey, survey_motion
 
 
 @dataclass(frozen=True)
@@ -209,12 +211,300 @@ def survey_notes(plan: Plan, objects: list[ObjectMeasurement]) -> list[QualityNo
     return notes
 
 
+@dataclass(frozen=True)
+class WindowPlan:
+    """The main analysis window chosen by :func:`plan_window`.
+
+    Attributes
+    ----------
+    start_frame, stop_frame : int
+        Clip frames [start, stop) analysed.
+    frame_step : int
+        Every ``frame_step``-th frame of the window is analysed (1: all).
+    reference_hz : float or None
+        Frequency whose periods set the length (the lowest confident one); None when nothing stood out.
+    periods : float
+        Periods of ``reference_hz`` the window spans.
+    reason : str
+        One sentence for the result's quality notes.
+    """
+
+    start_frame: int
+    stop_frame: int
+    frame_step: int
+    reference_hz: float | None
+    periods: float
+    reason: str
+
+    @property
+    def samples(self) -> int:
+        """Flow maps the window gives."""
+        return (self.stop_frame - self.start_frame - 1) // self.frame_step
+
+
+def plan_window(
+    survey: Survey,
+    *,
+    total_frames: int,
+    default_frames: int,
+    max_samples: int,
+    grid_scale: float,
+    band_hz: tuple[float, float] | None = None,
+    min_duration_s: float | None = None,
+    min_periods: float = 10.0,
+    max_step_grid_px: float = 6.0,
+    samples_per_period: float = 4.0,
+    resolve_lines: float = 4.0,
+    end_energy: float = 0.02,
+    lasting_energy: float = 0.5,
+) -> WindowPlan:
+    """Choose the main analysis window from a survey of the whole clip.
+
+    The window starts where the strongest ring-down of the strongest object frequency begins and lasts
+    as long as the scene needs: at least ``min_periods`` periods of the lowest confident frequency and
+    ``default_frames`` frames when the clip has them; as long as the motion lasts when it is still
+    ``lasting_energy`` as strong (in energy) where that window would end (until it falls below
+    ``end_energy`` of its peak: a steady vibration lasts to the end of the clip); and long enough to
+    resolve close frequencies (``resolve_lines`` lines between two peaks closer than a few survey bins,
+    or within a peak wider than a line). When that needs more than
+    ``default_frames`` flow maps, every k-th frame is analysed, provided each frequency seen keeps at
+    least ``samples_per_period`` samples per period (its strong harmonics stay below the Nyquist rate;
+    lighting flicker may fold back, it is rejected anyway) and the motion between analysed frames stays
+    below ``max_step_grid_px``; the window never gives more than ``max_samples`` flow maps.
+
+    Parameters
+    ----------
+    survey : Survey
+    total_frames : int
+        Frames in the clip (that decode).
+    default_frames : int
+        Window length when nothing asks for more.
+    max_samples : int
+        Most flow maps the main analysis may hold (its memory budget).
+    grid_scale : float
+        Main flow grid pixels per input pixel.
+    band_hz : (low, high), optional
+        Only peaks in this band shape the window (the analysis searches no other).
+    min_duration_s : float, optional
+        The window spans at least this long (a second pass that separates close frequencies).
+    min_periods, max_step_grid_px, samples_per_period, resolve_lines, end_energy, lasting_energy : float
+
+    Returns
+    -------
+    WindowPlan
+    """
+    if max_samples < 8 or default_frames < 9:
+        raise ParameterError(
+            f"plan_window: max_samples={max_samples} and default_frames={default_frames} are too small; "
+            "allow at least 8 flow maps"
+        )
+    fps = survey.fps
+    lo, hi = band_hz if band_hz is not None else (0.0, math.inf)
+    seen = [p for p in survey.peaks if lo <= p.frequency_hz <= hi and p.frequency_hz not in survey.flicker_hz]
+    objects = [p for p in seen if p.frequency_hz not in survey.global_peaks_hz]
+    if not seen and min_duration_s is None:
+        stop = min(total_frames, default_frames)
+        return WindowPlan(
+            start_frame=0,
+            stop_frame=stop,
+            frame_step=1,
+            reference_hz=None,
+            periods=0.0,
+            reason=(
+                f"nothing stood out in a survey of all {total_frames} frames: the first {stop} were "
+                "analysed; give start_frame and frames to choose the window"
+            ),
+        )
+    main = (objects or seen)[0] if seen else None
+    lowest = min((p.frequency_hz for p in seen), default=None)
+    onset = _onset_frame(survey, main.frequency_hz) if main is not None else survey.first_frame
+    length = min(default_frames, total_frames)
+    why = ""
+    if lowest is not None:
+        length = max(length, math.ceil(min_periods * fps / lowest) + 1)
+    resolve_s = _resolution_needed(survey, seen, lines=resolve_lines)
+    if resolve_s > 0 and math.ceil(resolve_s * fps) + 1 > length:
+        length = math.ceil(resolve_s * fps) + 1
+        why = f"; {resolve_s:.3g} s resolve frequencies {resolve_lines / resolve_s:.3g} Hz apart"
+    if seen and _energy_at(survey, [p.frequency_hz for p in seen], onset + length) >= lasting_energy:
+        # Still strong where the window would end (a steady vibration, a lightly damped fork): follow
+        # the motion while it lasts.
+        lasting = _motion_end(survey, [p.frequency_hz for p in seen], onset, level=end_energy) - onset
+        if lasting > length:
+            length = lasting
+            why += "; the motion lasts that long"
+    if min_duration_s is not None and math.ceil(min_duration_s * fps) + 1 > length:
+        length = math.ceil(min_duration_s * fps) + 1
+        why += f"; {min_duration_s:.3g} s asked for"
+    # Frames skipped between analysed frames: as few as keep the buffer near the default size.
+    step = max(1, math.ceil((length - 1) / max(default_frames - 1, 1)))
+    step_max_rate = _max_step_for_rate(survey, samples_per_period=samples_per_period)
+    per_frame_grid_px = survey.max_step_px * grid_scale
+    step_max_motion = max(1, math.floor(max_step_grid_px / max(per_frame_grid_px, 1e-9)))
+    step = max(1, min(step, step_max_rate, step_max_motion))
+    length = min(length, step * max_samples + 1, total_frames)
+    start = max(0, onset)
+    stop = min(total_frames, start + length)
+    if stop - start < min(length, total_frames):
+        start = max(0, stop - length)  # late ring-down: take the frames before it rather than fewer
+    # Whole steps: round the window up to the next analysed frame when the clip has it, else down.
+    intervals = math.ceil((stop - start - 1) / step)
+    if start + intervals * step + 1 > total_frames:
+        intervals = (stop - start - 1) // step
+    stop = start + intervals * step + 1
+    periods = (lowest or 0.0) * (stop - start - 1) / fps
+    every = "" if step == 1 else f" (one frame in {step})"
+    if main is None or lowest is None:
+        reason = f"frames {start}-{stop}{every} of {total_frames}{why}"
+    else:
+        reason = (
+            f"a survey of all {total_frames} frames found motion at {main.frequency_hz:.3g} Hz starting "
+            f"near frame {onset}; frames {start}-{stop}{every} span {periods:.1f} periods of "
+            f"{lowest:.3g} Hz{why}"
+        )
+    return WindowPlan(
+        start_frame=start,
+        stop_frame=stop,
+        frame_step=step,
+        reference_hz=lowest,
+        periods=periods,
+        reason=reason,
+    )
+
+
+def _resolution_needed(survey: Survey, peaks: list[Peak], *, lines: float, near_bins: float = 6.0) -> float:
+    """Seconds of window that resolve ``lines`` lines between any two peaks closer than ``near_bins``
+    survey bins, or within a peak wider than its decay explains: a Hann window's tone is 1.44 bins wide
+    at half power, a decay at rate σ widens it by about σ / π Hz; one half as wide again may be two tones
+    about half its width apart. (A peak whose decay cannot be measured, being too short or too late in
+    the clip, asks for nothing.)"""
+    bin_hz = survey.bin_hz
+    needed = 0.0
+    for i, a in enumerate(peaks):
+        for b in peaks[i + 1 :]:
+            gap = abs(a.frequency_hz - b.frequency_hz)
+            if 0 < gap < near_bins * bin_hz:
+                needed = max(needed, lines / gap)
+        if a.width_bins > 1.0:
+            decay = survey.decay_at(a.frequency_hz)
+            if decay is None:
+                continue
+            explained = 1.44 * bin_hz + max(decay[0], 0.0) / math.pi
+            if 2 * a.width_bins * bin_hz > 1.5 * explained:
+                needed = max(needed, lines / (a.width_bins * bin_hz))
+    return needed
+
+
+def _energy_at(survey: Survey, frequencies_hz: list[float], frame: int) -> float:
+    """How strong the motion still is at clip ``frame`` relative to its strongest: the lower of two
+    readings, the stored segments' energy at ``frequencies_hz`` (coarse in time) and the motion energy
+    of the blocks of frames (fine in time, all frequencies)."""
+    energy = sum(survey.band_energy(f) for f in frequencies_hz)
+    if not isinstance(energy, np.ndarray) or energy.size == 0 or float(energy.max()) <= 0:
+        return 0.0
+    i = int(np.searchsorted(survey.segment_starts + survey.segment_span // 2, frame))
+    coarse = float(energy[min(i, len(energy) - 1)] / energy.max())
+    blocks = survey.block_energy
+    # The fine reading against the motion's typical strength (a few noisy blocks must not set the scale).
+    typical = float(np.percentile(blocks, 90)) if blocks.size else 0.0
+    if typical <= 0:
+        return coarse
+    b = min(len(blocks) - 1, max(0, (frame - survey.first_frame) // survey.block_frames))
+    fine = float(blocks[b] / typical)
+    return min(coarse, fine)
+
+
+def _motion_end(survey: Survey, frequencies_hz: list[float], onset: int, *, level: float) -> int:
+    """Clip frame where the motion at ``frequencies_hz`` has faded below ``level`` of its strongest after
+    ``onset`` (the clip's end when it never does)."""
+    energy = sum(survey.band_energy(f) for f in frequencies_hz)
+    starts = survey.segment_starts
+    end = survey.first_frame + survey.frames
+    if not isinstance(energy, np.ndarray) or energy.size == 0:
+        return end
+    after = np.flatnonzero(starts + survey.segment_span > onset)
+    if after.size == 0:
+        return end
+    peak_at = int(after[np.argmax(energy[after])])
+    peak = float(energy[peak_at])
+    for i in range(peak_at + 1, len(energy)):
+        if energy[i] < level * peak:
+            return int(min(end, starts[i] + survey.segment_span // 2))
+    return end
+
+
+def _max_step_for_rate(
+    survey: Survey,
+    *,
+    samples_per_period: float,
+    relative_power: float = 0.1,
+    harmonic_samples: float = 2.5,
+    minor_power: float = 0.05,
+) -> int:
+    """Largest frame step that keeps ``samples_per_period`` samples in each period of every confident
+    peak carrying at least ``minor_power`` of the strongest one's power, and each harmonic carrying
+    ``relative_power`` of its peak's power below the reduced Nyquist rate (``harmonic_samples`` per
+    period; weaker overtones fold back as faint peaks, which the segmentation recognises as folded
+    harmonics). Lighting flicker, and minor peaks far above the motion that matters, may fold back: the
+    analysis recognises their images (see :func:`folded_image`)."""
+    fps = survey.fps
+    step = math.inf
+    bins = survey.frequencies_hz
+    strongest = max((float(survey.power[p.bin]) for p in survey.peaks), default=0.0)
+    for peak in survey.peaks:
+        if peak.frequency_hz in survey.flicker_hz or float(survey.power[peak.bin]) < minor_power * strongest:
+            continue
+        step = min(step, fps / (samples_per_period * peak.frequency_hz))
+        base = float(survey.power[max(peak.bin - 1, 0) : peak.bin + 2].max())
+        for f in peak.harmonics_hz:
+            k = int(np.argmin(np.abs(bins - f)))
+            if survey.power[max(k - 1, 0) : k + 2].max() >= relative_power * base:
+                step = min(step, fps / (harmonic_samples * f))
+    return max(1, math.floor(step)) if math.isfinite(step) else 1
+
+
+def _onset_frame(survey: Survey, frequency_hz: float) -> int:
+    """Clip frame where the strongest burst of motion at ``frequency_hz`` starts (a few frames early)."""
+    energy = survey.band_energy(frequency_hz)
+    for harmonic in next((p.harmonics_hz for p in survey.peaks if p.frequency_hz == frequency_hz), []):
+        energy = energy + survey.band_energy(harmonic)
+    if energy.size == 0:
+        return survey.first_frame
+    strongest = int(np.argmax(energy))
+    quiet = float(np.min(energy))
+    threshold = quiet + 0.1 * (float(energy[strongest]) - quiet)
+    first = strongest
+    while first > 0 and energy[first - 1] >= threshold:
+        first -= 1
+    # The burst begins inside segment ``first`` (or before the clip when that is the first one): find
+    # where the motion energy rises within it.
+    seg_start = int(survey.segment_starts[first])
+    seg_stop = seg_start + survey.segment_span
+    blocks = survey.block_energy
+    b0 = max(0, (seg_start - survey.first_frame) // survey.block_frames)
+    b1 = min(len(blocks), (seg_stop - survey.first_frame) // survey.block_frames + 1)
+    if b1 - b0 < 2:
+        return seg_start
+    inside = blocks[b0:b1]
+    floor = float(np.percentile(blocks, 10))
+    peak = float(inside.max())
+    rising = np.flatnonzero(inside >= floor + 0.2 * (peak - floor))
+    b = b0 + int(rising[0]) if rising.size else b0
+    # Walk back over the ramp (a released object starts from rest): blocks still above the quiet level.
+    while b > b0 and blocks[b - 1] > floor + 0.02 * (peak - floor):
+        b -= 1
+    margin = max(2, survey.block_frames)
+    return max(survey.first_frame, survey.first_frame + b * survey.block_frames - margin)
+
+
 __all__ = [
     "Plan",
     "StridedReader",
+    "WindowPlan",
     "analysis_band",
     "fixed_window",
     "plan_analysis",
+    "plan_window",
     "survey_grays",
     "survey_notes",
 ]

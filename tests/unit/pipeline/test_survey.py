@@ -15,10 +15,10 @@ from workers.pipeline.survey import (
     MAX_BLOCKS,
     MAX_SEGMENTS,
     Survey,
-    plan_window,
     survey_motion,
 )
 from workers.pipeline.synth import Scene, SceneObject, SceneReader
+from workers.pipeline.window import plan_window
 
 FPS = 30.0
 
