@@ -211,7 +211,10 @@ class ConvergedMessage(BaseModel):
 
 
 class ResultMessage(BaseModel):
-    """Server -> client: the final result (the same schema as a job's), then the server closes."""
+    """Server -> client: the final result (the same schema as a job's), sent as soon as the analysis
+    ends, then the server closes. The images it names are drawn after it is sent: the stream's job
+    completes (and serves them) a moment later, so wait for the job (`GET /v1/jobs/{id}?wait=`) before
+    fetching them."""
 
     model_config = ConfigDict(title="ResultMessage")
 

@@ -12,7 +12,7 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -245,19 +245,35 @@ def write_result(
 
     from workers.pipeline.render import render_all
 
-    requested, params = list(excitation), parameters
     started = perf_counter()
     # mask.png (MASK_FILE) and every other image
-    artifacts = Artifacts(
-        **render_all(
-            analysis,
-            out,
-            drawing_process=drawing_process or draw_elsewhere,
-            everything_elsewhere=draw_elsewhere,
-        )
+    artifacts = render_all(
+        analysis,
+        out,
+        drawing_process=drawing_process or draw_elsewhere,
+        everything_elsewhere=draw_elsewhere,
     )
     analysis.timings_s["render"] = perf_counter() - started
+    result = build_result(analysis, excitation=excitation, parameters=parameters, artifacts=artifacts)
+    write_result_json(out, result)
+    return result
 
+
+def write_result_json(out: Path, result: AnalysisResult) -> None:
+    """Write ``result`` as ``out``/``result.json`` (atomically)."""
+    _atomic_write_text(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
+
+
+def build_result(
+    analysis: Analysis,
+    *,
+    excitation: Sequence[StepReleaseExcitation | ImpulseExcitation],
+    parameters: AnalysisParameters,
+    artifacts: Mapping[str, str],
+) -> AnalysisResult:
+    """The :class:`AnalysisResult` of ``analysis``, naming the image files ``artifacts`` (key -> file name);
+    nothing is drawn or written (a live stream sends it before its images are drawn)."""
+    requested, params = list(excitation), parameters
     objects = [
         ObjectResult(
             id=o.id,
@@ -295,7 +311,7 @@ def write_result(
         "excitation": [e.model_dump(mode="json") for e in requested] or None,
         "overrides": params.model_dump(exclude_none=True),
     }
-    result = AnalysisResult(
+    return AnalysisResult(
         eigenfrequency_hz=analysis.eigenfrequency_hz,
         objects=objects,
         spectrum=Spectrum(
@@ -303,7 +319,7 @@ def write_result(
             power=[float(p) for p in analysis.power],
             noise_power=None if analysis.noise_power is None else [float(p) for p in analysis.noise_power],
         ),
-        artifacts=artifacts,
+        artifacts=Artifacts(**artifacts),
         quality=[QualityFlag(code=q.code, message=q.message, severity=q.severity) for q in analysis.quality],
         rejected_peaks=[
             RejectedPeakResult(frequency_hz=r.frequency_hz, evidence=r.evidence, reason=r.reason)
@@ -320,8 +336,6 @@ def write_result(
         timings_s={k: round(v, 4) for k, v in analysis.timings_s.items()},
         version=_version(),
     )
-    _atomic_write_text(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
-    return result
 
 
 def read_limits(settings: Settings) -> ReadLimits:

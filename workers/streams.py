@@ -574,13 +574,21 @@ class Session:
 
     # The end -------------------------------------------------------------------------------------
     def _finish(self, request: StreamCreate, owner: str, workdir: Path) -> None:
+        """Analyse the window, send ``result`` at once, then draw the images and complete the job.
+
+        The numbers go out before the images are drawn (a robot waits for the numbers; drawing takes
+        about as long as the analysis): the job, with its images, completes a moment later, so a client
+        that wants the images waits for the job (``GET /v1/jobs/{id}?wait=``).
+        """
         from service.jobs import artifact_url
         from workers.pipeline.errors import EigenscopeError
+        from workers.pipeline.render import ARTIFACT_FILES, render_all
         from workers.runner import (
             analysis_config,
+            build_result,
             pipeline_excitations,
             requested_excitations,
-            write_result,
+            write_result_json,
         )
 
         assert self.record is not None
@@ -601,26 +609,28 @@ class Session:
         config = analysis_config(params.model_copy(update={"frames": None}))
         try:
             analysis = self._live.finish(analysis_config=config, excitations=pipeline_excitations(requested))
-            result = write_result(analysis, workdir, excitation=requested, parameters=params)
         except EigenscopeError as exc:
             raise _FailedError(
                 problem_doc(getattr(exc, "code", "analysis-failed"), "Analysis failed", 422, str(exc))
             ) from exc
-        result.timings_s["stream_frames"] = float(self._live.frames_received)
+        analysis.timings_s["stream_frames"] = float(self._live.frames_received)
+        result = build_result(analysis, excitation=requested, parameters=params, artifacts=ARTIFACT_FILES)
         job_id = self.record.job_id
-        self.storage.publish_job_outputs(job_id, workdir)
         doc = result.model_dump(mode="json")
-        if not self.store.complete_job(
-            job_id, owner, doc, output_bytes=tree_bytes(self.storage.job_dir(job_id))
-        ):
-            raise _AbortError("the stream's job was cancelled")
         served = dict(doc)
         served["artifacts"] = {
             k: artifact_url(job_id, v) if isinstance(v, str) else v for k, v in doc["artifacts"].items()
         }
         self.send({"type": "result", "job_id": job_id, "clip_id": self.record.clip_id, "result": served})
-        # The result goes out first (a robot waits for it); the stream has succeeded once its frames are
-        # filed as a clip that can be analysed again.
+        # Then the images, the job (the same result as sent), and the frames filed as a clip that can be
+        # analysed again: the stream has succeeded once all three are done.
+        render_all(analysis, workdir)
+        write_result_json(workdir, result)
+        self.storage.publish_job_outputs(job_id, workdir)
+        if not self.store.complete_job(
+            job_id, owner, doc, output_bytes=tree_bytes(self.storage.job_dir(job_id))
+        ):
+            raise _AbortError("the stream's job was cancelled")
         self._file_clip(params, analysis.fps)
         self.store.update_stream(
             self.stream_id,

@@ -59,8 +59,9 @@ def _check_result(
     assert abs(result["eigenfrequency_hz"] - f_true) / f_true < 0.01
     obj = result["objects"][0]
     assert abs(obj["stiffness_n_per_m"] - truth["stiffness_n_per_m"]) / truth["stiffness_n_per_m"] < 0.1
-    # The stream is a job, with the same images as an uploaded clip's.
-    job = service.client.get(f"/v1/jobs/{session.job_id}").json()
+    # The stream is a job, with the same images as an uploaded clip's (drawn after `result` was sent: the
+    # job completes a moment later).
+    job = service.client.get(f"/v1/jobs/{session.job_id}", params={"wait": 30}).json()
     assert job["status"] == "succeeded"
     assert job["source"] == "stream"
     assert job["result"]["eigenfrequency_hz"] == result["eigenfrequency_hz"]
