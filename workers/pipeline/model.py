@@ -19,10 +19,10 @@ from workers.pipeline.flow import FlowConfig
 from workers.pipeline.peaks import Peak
 from workers.pipeline.ringdown import Ringdown
 from workers.pipeline.segmentation import SegmentationConfig
-from workers.pipeline.survey import Survey
 
 if TYPE_CHECKING:
     from workers.pipeline.stream import FrameBuffers
+    from workers.pipeline.survey import Survey
 
 Method = Literal["default", "paper"]
 #: progress(stage, fraction of the whole analysis in [0, 1])

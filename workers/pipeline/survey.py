@@ -21,6 +21,7 @@ analysing every k-th frame when every frequency seen is far below the Nyquist ra
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Iterable
@@ -31,9 +32,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing
+from workers.pipeline.detection import SURVEY_PEAKS, detect_peaks
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, FLICKER_ROWS, flickering_rows
-from workers.pipeline.peaks import Peak, find_peaks, fold_harmonics, noise_floor
+from workers.pipeline.peaks import Peak
 
 #: Floats held by the survey's segment buffer (flow of every survey pixel over one Welch segment).
 SURVEY_BUFFER_FLOATS = 8_000_000
@@ -316,31 +318,16 @@ def survey_motion(
     # Peaks are searched from the first bin so that a low peak's left flank counts for its prominence;
     # those below two bins (unresolved from the mean and slow drift) are dropped afterwards.
     band = (0.5 * bin_hz, 0.98 * nyquist)
-    strong = find_peaks(freqs, power, band_hz=band, noise=background, min_snr_db=10.0)
-    weak = find_peaks(
+    peaks = detect_peaks(
         freqs,
-        whitened,
+        summed=power,
+        background=background,
+        whitened=whitened,
+        median_snr=median_snr,
         band_hz=band,
-        noise=noise_floor(whitened, width=max(9, len(whitened) // 8)),
-        min_snr_db=min_snr_db,
+        bin_hz=bin_hz,
+        policy=dataclasses.replace(SURVEY_PEAKS, weak_min_snr_db=min_snr_db),
     )
-    # A vibration of most of the picture (a compressor shaking everything near it) shows at the median
-    # pixel even when a stronger peak beside it hides it in the sums.
-    wide = find_peaks(
-        freqs,
-        median_snr,
-        band_hz=band,
-        noise=np.maximum(noise_floor(median_snr, width=max(9, len(median_snr) // 8)), 1.0),
-        min_snr_db=min_snr_db,
-    )
-    candidates = [
-        *strong,
-        *(Peak(**{**vars(p), "harmonics_hz": []}) for p in weak),
-        *(Peak(**{**vars(p), "harmonics_hz": []}) for p in wide),
-    ]
-    candidates = [p for p in candidates if p.frequency_hz >= 2 * bin_hz]
-    # Peaks of different detectors a bin apart are two components (a Hann window resolves about two).
-    peaks = fold_harmonics(candidates, bin_hz=bin_hz, min_separation_bins=1.0)
     global_hz = [p.frequency_hz for p in peaks if median_snr[p.bin] > GLOBAL_MEDIAN_SNR]
     flicker_hz = _flicker(np.asarray(brightness, np.float32), fps=fps, peaks=peaks, bin_hz=bin_hz)
     starts, span, seg_power = acc.segments_stored()
@@ -582,35 +569,8 @@ class _WelchAccumulator:
         return self._power / m, self._whitened / m, self._median / m, self._background / m
 
 
-def folded_image(
-    survey: Survey, frequency_hz: float, *, sample_rate_hz: float, tolerance_hz: float
-) -> float | None:
-    """The survey peak above the Nyquist rate of ``sample_rate_hz`` (a window analysed every k-th frame)
-    whose image folds back onto ``frequency_hz``, or None.
-
-    Parameters
-    ----------
-    frequency_hz : float
-        A frequency seen in the strided window.
-    sample_rate_hz : float
-        The window's sample rate (the clip's rate over its frame step).
-    tolerance_hz : float
-        How close the image must fall.
-    """
-    nyquist = sample_rate_hz / 2
-    for peak in survey.peaks:
-        f = peak.frequency_hz
-        if f <= nyquist:
-            continue
-        image = abs(f - sample_rate_hz * round(f / sample_rate_hz))
-        if abs(image - frequency_hz) <= tolerance_hz:
-            return f
-    return None
-
-
 __all__ = [
     "Survey",
-    "folded_image",
     "segment_length",
     "survey_factor",
     "survey_motion",
