@@ -174,15 +174,21 @@ def find_peaks(
     power = values
     bin_hz = float(frequencies_hz[1] - frequencies_hz[0]) if len(frequencies_hz) > 1 else 1.0
     lo, hi = band_hz
-    band = np.flatnonzero((frequencies_hz >= lo) & (frequencies_hz <= hi))
+    inside = (frequencies_hz >= lo) & (frequencies_hz <= hi)
+    band = np.flatnonzero(inside)
     if band.size < 3:
         return []
-    sub = power[band]
+    # A peak must lie in the band, but it is judged with its neighbours outside it (one bin each side):
+    # a vibration in the band's last line is a peak when the line beyond it is lower.
+    first, last = max(int(band[0]) - 1, 0), min(int(band[-1]) + 1, len(power) - 1)
+    sub = power[first : last + 1]
     padded = np.concatenate(([-np.inf], sub, [-np.inf]))
     local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
     candidates: list[Peak] = []
     for j in local:
-        k = int(band[j])
+        k = first + int(j)
+        if not inside[k]:
+            continue
         if not power[k] > 0:  # a flat, motionless spectrum has no peaks
             continue
         prom = 10 * math.log10(topographic_prominence(np.asarray(sub, np.float64), int(j)))

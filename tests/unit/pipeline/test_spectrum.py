@@ -82,6 +82,21 @@ def test_find_peaks_folds_harmonics_into_their_fundamental():
     assert [round(h, 1) for h in peaks[0].harmonics_hz] == [6.0, 9.0]
 
 
+def test_find_peaks_finds_a_peak_in_the_bands_last_line_and_nothing_beyond_the_band():
+    """A vibration in the band's edge line (128 Hz filmed at 250 fps shows at 122 Hz, inside a band that
+    ends at 0.98 of the Nyquist rate) is judged with its neighbour outside the band; a peak just outside
+    the band is never reported, even when its flank reaches into the band."""
+    freqs = np.arange(257) * 250.0 / 512
+    power = np.full_like(freqs, 1.0)
+    power[250] = 1000.0  # 122.07 Hz
+    band = (1.0, 0.98 * 125.0)
+    assert [round(p.frequency_hz, 1) for p in find_peaks(freqs, power, band_hz=band)] == [122.1]
+    power[:] = 1.0
+    power[252] = 1000.0  # 123.05 Hz: outside the band
+    power[251] = 30.0  # its flank, the band's last line
+    assert find_peaks(freqs, power, band_hz=band) == []
+
+
 def test_interpolate_peak_recovers_gaussian_centre():
     k = np.arange(20, dtype=float)
     power = np.exp(-0.5 * ((k - 7.3) / 1.2) ** 2)
