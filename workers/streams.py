@@ -313,7 +313,8 @@ class Session:
                 self.send({"type": "_heartbeat", "messages": self.messages})
                 next_beat = now + HEARTBEAT_S
             live = self._live
-            if live is not None and live.motion_seen and now >= next_estimate:
+            # Once the client has ended the stream, the result is what it waits for: no more estimates.
+            if self._end_reason is None and live is not None and live.motion_seen and now >= next_estimate:
                 next_estimate = now + s.stream_estimate_interval_s
                 self._estimate(request, record=now >= next_record)
                 if now >= next_record:
