@@ -168,9 +168,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     check_exposure(args.host, settings, keys=ring.enabled)
 
+    from service.broker import broker_options
     from service.storage import Storage
     from service.store import Store
-    from workers.celery_app import broker_options
 
     # Prepare the shared state once, before children race for it.
     Storage(settings.data_path).ensure()
