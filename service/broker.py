@@ -24,6 +24,12 @@ TASK_RUN_JOB = "eigenscope.run_job"
 APP_NAME = "eigenscope"
 
 
+def ensure_broker_folders(settings: Settings) -> None:
+    """Create the folders the embedded broker's producer and consumers share (``DATA_DIR/broker``)."""
+    for sub in ("queue", "processed", "control"):
+        (settings.broker_dir / sub).mkdir(parents=True, exist_ok=True)
+
+
 def broker_options(settings: Settings) -> tuple[str, dict[str, Any]]:
     """Broker URL and transport options for ``settings`` (creating the embedded broker's folders)."""
     if settings.redis_url:
@@ -32,10 +38,9 @@ def broker_options(settings: Settings) -> tuple[str, dict[str, Any]]:
             "socket_connect_timeout": 5,
             "socket_timeout": 30,
         }
+    ensure_broker_folders(settings)
     root = settings.broker_dir
     queue_dir, processed, control = root / "queue", root / "processed", root / "control"
-    for folder in (queue_dir, processed, control):
-        folder.mkdir(parents=True, exist_ok=True)
     return "filesystem://localhost//", {
         "data_folder_in": str(queue_dir),
         "data_folder_out": str(queue_dir),

@@ -14,15 +14,13 @@ from typing import TYPE_CHECKING
 
 from celery import Celery
 
-from service.broker import APP_NAME, TASK_RUN_JOB, broker_options, celery_config
+from service.broker import APP_NAME, celery_config
 from service.settings import Settings
 from service.storage import Storage
 from service.store import Store
 
 if TYPE_CHECKING:
     from workers.metrics import WorkerMetrics
-
-__all__ = ["TASK_RUN_JOB", "EigenscopeCelery", "WorkerContext", "broker_options", "create_celery"]
 
 
 @dataclass(frozen=True)
