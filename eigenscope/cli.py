@@ -48,6 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="eigenscope",
         description="Measure eigenfrequency, damping, stiffness and mass of objects from RGB-D clips.",
+        epilog="Exit status: 0 done; 1 the job failed (submit) or a file is stale (export-openapi --check); "
+        "2 bad input or usage (one line on "
+        "stderr says what to fix); 70 internal error; 130 interrupted; 141 standard output was closed by "
+        "its reader (e.g. | head).",
     )
     parser.add_argument("--version", action="version", version=f"eigenscope {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)

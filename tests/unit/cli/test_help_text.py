@@ -83,3 +83,10 @@ def test_every_option_has_help_with_its_unit(command: str) -> None:
                 name,
                 action.help,
             )
+
+
+def test_the_exit_statuses_are_documented() -> None:
+    from eigenscope.cli import EXIT_BROKEN_PIPE
+
+    text = " ".join(_help().split())
+    assert f"{EXIT_BROKEN_PIPE} standard output was closed by its reader" in text
