@@ -11,7 +11,7 @@ Binary frame message: a 4-byte big-endian length ``L``, then ``L`` bytes of UTF-
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -247,15 +247,3 @@ ServerMessage = Annotated[
     | ErrorMessage,
     Field(discriminator="type"),
 ]
-
-
-def problem_doc(code: str, title: str, status: int, detail: str, **extra: Any) -> dict[str, Any]:
-    """An RFC 9457 problem document of type ``https://eigenscope.dev/problems/<code>``."""
-    return {
-        "type": f"https://eigenscope.dev/problems/{code}",
-        "title": title,
-        "status": status,
-        "detail": detail,
-        "code": code,
-        **extra,
-    }

@@ -5,7 +5,9 @@ Each subcommand lives in its own module under :mod:`eigenscope.commands` and exp
 ``eigenscope --help`` is fast and ``serve`` never loads the pipeline into the API process.
 
 Errors the user can fix print one line to stderr and exit with status 2; no traceback reaches the user
-unless ``EIGENSCOPE_DEBUG=1``.
+unless ``EIGENSCOPE_DEBUG=1``. A reader that stops reading (``eigenscope analyze CLIP --json | head``) ends
+the command quietly with status 141, as the shell reports a command killed by ``SIGPIPE`` (128 + 13): the
+output was not all delivered, which is no internal error either.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from eigenscope import __version__
+from eigenscope._help import clean_help
 
 #: Modules under eigenscope.commands, in help order.
 COMMAND_MODULES = (
@@ -33,6 +36,9 @@ COMMAND_MODULES = (
 
 Handler = Callable[[argparse.Namespace], int]
 
+#: Exit status when standard output's reader went away: 128 + SIGPIPE, as a shell reports it.
+EXIT_BROKEN_PIPE = 141
+
 
 class UsageError(Exception):
     """A mistake in the command line or its input that the user can fix; printed as one line."""
@@ -42,6 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="eigenscope",
         description="Measure eigenfrequency, damping, stiffness and mass of objects from RGB-D clips.",
+        epilog="Exit status: 0 done; 1 the job failed (submit) or a file is stale (export-openapi --check); "
+        "2 bad input or usage (one line on "
+        "stderr says what to fix); 70 internal error; 130 interrupted; 141 standard output was closed by "
+        "its reader (e.g. | head).",
     )
     parser.add_argument("--version", action="version", version=f"eigenscope {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -53,6 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # command not built yet in this tree
             raise
         module.register(sub)
+    clean_help(parser)
     return parser
 
 
@@ -70,7 +81,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     handler: Handler = args.handler
     try:
-        return handler(args)
+        code = handler(args)
+        sys.stdout.flush()  # a reader that went away shows here, not at exit
+        return code
+    except BrokenPipeError:
+        return _reader_gone()
     except KeyboardInterrupt:
         print("eigenscope: interrupted", file=sys.stderr)
         return 130
@@ -91,6 +106,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 70
+
+
+def _reader_gone() -> int:
+    """Standard output's reader went away: drop what is still buffered for it, quietly."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # later flushes (at exit) write nowhere instead of failing
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+    return EXIT_BROKEN_PIPE
 
 
 #: Commands that run once and are done: the process ends without the interpreter's teardown.

@@ -14,6 +14,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
+from eigenscope import __version__
 from service.bodies import BodyLimits
 from service.context import ServiceContext
 from service.logs import configure_logging
@@ -24,8 +25,9 @@ from service.routes import clips, health, jobs, page, streams
 from service.routes.docs import install_docs
 from service.settings import Settings
 
-#: Version of the HTTP API (the OpenAPI ``info.version``), independent of the package version.
-API_VERSION = "1.0.0"
+#: The OpenAPI and AsyncAPI ``info.version``: the package version, written once in ``eigenscope/__init__``
+#: (the URL's ``/v1`` is the API's major version).
+API_VERSION = __version__
 
 DESCRIPTION = (
     "Eigenscope measures eigenfrequency, damping, stiffness and mass of objects from RGB-D clips. Upload a "

@@ -22,7 +22,7 @@ import math
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
-from service.errors import PROBLEM_BASE, PayloadTooLargeError, RequestTimeoutError, ServiceError
+from service.errors import InvalidInputError, PayloadTooLargeError, RequestTimeoutError, ServiceError
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -222,14 +222,10 @@ def _replay(body: bytes, receive: Receive) -> Receive:
 
 
 def _non_finite(scope: Scope, message: str) -> dict[str, Any]:
-    return {
-        "type": PROBLEM_BASE + "invalid-request",
-        "title": "Unprocessable content",
-        "status": 422,
-        "detail": f"body: {message}",
-        "instance": scope["path"],
-        "errors": [{"loc": ["body"], "msg": message, "type": "finite_number"}],
-    }
+    error = InvalidInputError(
+        f"body: {message}", errors=[{"loc": ["body"], "msg": message, "type": "finite_number"}]
+    )
+    return error.problem(instance=scope["path"])
 
 
 async def _problem(

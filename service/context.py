@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from service.auth import FailedAuthLimiter, KeyRing
+from service.broker import ensure_broker_folders
 from service.errors import UnavailableError
 from service.metrics import Metrics
 from service.queue import JobQueue
@@ -90,9 +91,8 @@ class ServiceContext:
         """
         try:
             self.storage.ensure()
-            if self.settings.embedded:  # the folders the embedded broker's producer and consumers share
-                for sub in ("queue", "processed", "control"):
-                    (self.settings.broker_dir / sub).mkdir(parents=True, exist_ok=True)
+            if self.settings.embedded:
+                ensure_broker_folders(self.settings)
         except OSError as exc:
             log.error("storage %s cannot be prepared: %s", self.storage.root, exc)
         self.ensure_schema()

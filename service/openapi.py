@@ -24,6 +24,7 @@ from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 
 from api_schemas import Problem
+from service.errors import PROBLEM_BASE, PROBLEM_TYPES
 
 PROBLEM_REF = {"$ref": "#/components/schemas/Problem"}
 
@@ -81,6 +82,7 @@ def finalize_openapi(spec: dict[str, Any]) -> dict[str, Any]:
                 response["content"] = {"application/problem+json": {"schema": PROBLEM_REF}}
                 if str(status) == "422":
                     response["description"] = "Unprocessable Content"
+    _problem_types(schemas)
     schemas.pop("HTTPValidationError", None)
     schemas.pop("ValidationError", None)
     _security(spec)
@@ -89,6 +91,29 @@ def finalize_openapi(spec: dict[str, Any]) -> dict[str, Any]:
     spec = _rename_to_titles(spec)
     _request_defaults_optional(spec)
     return spec
+
+
+def problem_types_extension() -> dict[str, dict[str, Any]]:
+    """Every problem type the server reports, with its status and title (from
+    :data:`service.errors.PROBLEM_TYPES`)."""
+    return {
+        PROBLEM_BASE + code: {"status": kind.status, "title": kind.title}
+        for code, kind in sorted(PROBLEM_TYPES.items())
+    }
+
+
+def _problem_types(schemas: dict[str, Any]) -> None:
+    """List the problem types on the ``Problem`` schema (``x-problem-types``): clients can switch on them."""
+    problem = schemas.get("Problem")
+    if problem is None:
+        return
+    problem["x-problem-types"] = problem_types_extension()
+    member = problem.get("properties", {}).get("type")
+    if member is not None:
+        member["description"] = (
+            "URI identifying the problem type: one of `x-problem-types` (its last segment is the error "
+            "code), or `about:blank` for a plain HTTP error."
+        )
 
 
 def _security(spec: dict[str, Any]) -> None:

@@ -11,7 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.errors import PROBLEM_BASE, ServiceError
+from service.errors import PROBLEM_BASE, ServiceError, problem_type
 
 log = logging.getLogger(__name__)
 
@@ -27,6 +27,12 @@ def _phrase(status: int) -> str:
         return HTTPStatus(status).phrase
     except ValueError:
         return "Error"
+
+
+def _head(code: str) -> dict[str, Any]:
+    """``type``, ``title`` and ``status`` of ``code`` (from :data:`service.errors.PROBLEM_TYPES`)."""
+    kind = problem_type(code)
+    return {"type": PROBLEM_BASE + code, "title": kind.title, "status": kind.status}
 
 
 def problem_response(doc: dict[str, Any], headers: dict[str, str] | None = None) -> ProblemResponse:
@@ -57,9 +63,7 @@ async def _validation_error(request: Request, exc: Exception) -> ProblemResponse
     errors = _validation_errors(exc)
     parts = [f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in errors[:5]]
     doc = {
-        "type": PROBLEM_BASE + "invalid-request",
-        "title": "Unprocessable content",
-        "status": 422,
+        **_head("invalid-request"),
         "detail": "; ".join(parts) or "the request is not valid",
         "instance": request.url.path,
         "errors": errors,
@@ -74,9 +78,7 @@ async def _http_error(request: Request, exc: Exception) -> ProblemResponse:
         # FastAPI's answer to a body that is not UTF-8: the same 422 as any other malformed JSON body.
         return problem_response(
             {
-                "type": PROBLEM_BASE + "invalid-request",
-                "title": "Unprocessable content",
-                "status": 422,
+                **_head("invalid-request"),
                 "detail": "the request body cannot be parsed: send UTF-8 JSON",
                 "instance": request.url.path,
                 "errors": [{"loc": ["body"], "msg": "JSON decode error", "type": "json_invalid"}],
@@ -99,9 +101,7 @@ async def _http_error(request: Request, exc: Exception) -> ProblemResponse:
 async def _unexpected_error(request: Request, exc: Exception) -> ProblemResponse:
     log.exception("%s %s failed", request.method, request.url.path, exc_info=exc)
     doc = {
-        "type": PROBLEM_BASE + "internal-error",
-        "title": "Internal error",
-        "status": 500,
+        **_head("internal-error"),
         "detail": "the server failed to handle this request; the error is in the server log",
         "instance": request.url.path,
     }

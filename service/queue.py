@@ -7,13 +7,14 @@ import threading
 import uuid
 from typing import Any
 
+from service.broker import TASK_RUN_JOB, create_producer
 from service.settings import Settings
 
 log = logging.getLogger(__name__)
 
 
 class JobQueue:
-    """Publishes ``run_job`` messages through a Celery app built from the settings (created lazily)."""
+    """Publishes ``run_job`` messages through a producer-only Celery app (created lazily)."""
 
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
@@ -24,15 +25,11 @@ class JobQueue:
     def app(self) -> Any:
         with self._lock:
             if self._app is None:
-                from workers.celery_app import create_celery
-
-                self._app = create_celery(self.settings)
+                self._app = create_producer(self.settings)
             return self._app
 
     def publish(self, job_id: str) -> None:
         """Send ``run_job(job_id)``; raises if the broker cannot take it."""
-        from workers.celery_app import TASK_RUN_JOB
-
         # The task id starts with the job id, so Celery's own log lines name the job.
         task_id = f"{job_id}-{uuid.uuid4().hex[:8]}"
         self.app.send_task(

@@ -58,6 +58,7 @@ from service.errors import (
     InvalidInputError,
     NotFoundError,
     QuotaExceededError,
+    problem_document,
 )
 
 ACTIVE = ("queued", "running")
@@ -441,15 +442,11 @@ def _ended(values: dict[str, Any], now: float) -> dict[str, Any]:
 
 
 def _problem_worker_lost(attempts: int) -> dict[str, Any]:
-    return {
-        "type": "https://eigenscope.dev/problems/worker-lost",
-        "title": "Worker lost",
-        "status": 500,
-        "detail": (
-            f"the worker running this job stopped {attempts} time(s) (crash, out of memory or time limit); "
-            "the clip may be too large for the workers' memory"
-        ),
-    }
+    return problem_document(
+        "worker-lost",
+        f"the worker running this job stopped {attempts} time(s) (crash, out of memory or time limit); "
+        "the clip may be too large for the workers' memory",
+    )
 
 
 class Store:
@@ -692,7 +689,7 @@ class Store:
     def get_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord:
         clip = self.find_clip(clip_id, owner)
         if clip is None:
-            raise NotFoundError(f"no clip with id {clip_id!r}", code="clip-not-found")
+            raise NotFoundError(f"no clip with id {clip_id!r}", code="no-such-clip")
         return clip
 
     def delete_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord:
@@ -700,7 +697,7 @@ class Store:
         with self._tx() as s:
             row = s.get(ClipRow, clip_id)
             if row is None or (owner is not None and row.owner != owner):
-                raise NotFoundError(f"no clip with id {clip_id!r}", code="clip-not-found")
+                raise NotFoundError(f"no clip with id {clip_id!r}", code="no-such-clip")
             active = s.scalars(
                 select(JobRow.id).where(JobRow.clip_id == clip_id, JobRow.status.in_(ACTIVE)).limit(5)
             ).all()

@@ -26,9 +26,8 @@ from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from api_schemas import StreamCreate, StreamModel
-from api_schemas.stream import problem_doc
 from service.context import ServiceContext
-from service.errors import InvalidInputError, ServiceError
+from service.errors import InvalidInputError, ServiceError, UnavailableError, problem_document
 from service.jobs import excitation_json
 from service.retention import expiry
 from service.store import StreamRecord, new_id
@@ -145,13 +144,9 @@ async def create_stream(
     try:
         await ctx.stream_transport.dispatch(stream_id)
     except Exception as exc:
-        problem = problem_doc(
-            "unavailable", "Service unavailable", 503, f"the stream transport failed: {exc}"
-        )
+        problem = problem_document("unavailable", f"the stream transport failed: {exc}")
         await run_in_threadpool(ctx.store.fail_stream_job, job.id, problem)
-        raise ServiceError(
-            "the stream workers cannot be reached; try again shortly", code="unavailable"
-        ) from exc
+        raise UnavailableError("the stream workers cannot be reached; try again shortly") from exc
     ctx.metrics.jobs_created.inc()
     log.info("stream %s: created (job %s, clip %s)", stream_id, job.id, clip_id)
     return stream_view(stream, ws_url=websocket_url(base_url, root_path, stream_id), token=token)
@@ -199,8 +194,8 @@ class Relay:
         with contextlib.suppress(Exception):
             await self.ws.send_text(json.dumps(message, separators=(",", ":")))
 
-    async def fatal(self, code: str, title: str, status: int, detail: str, *, fail_job: bool) -> None:
-        problem = problem_doc(code, title, status, detail)
+    async def fatal(self, code: str, detail: str, *, fail_job: bool) -> None:
+        problem = problem_document(code, detail)
         await self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
         if fail_job:
             await run_in_threadpool(self.ctx.store.fail_stream_job, self.stream.job_id, problem)
@@ -252,8 +247,6 @@ class Relay:
                     return None, cursor
         await self.fatal(
             "no-worker",
-            "No stream worker",
-            503,
             f"no worker took the stream up within {self.settings.stream_start_timeout_s:g} s; start "
             "`eigenscope worker` processes (or more of them) and open a new stream",
             fail_job=True,
@@ -270,8 +263,6 @@ class Relay:
             elif now - self.last_worker > timeout:
                 await self.fatal(
                     "worker-lost",
-                    "Worker lost",
-                    503,
                     f"the worker running this stream has been silent for {timeout:g} s (it crashed or was "
                     "stopped); the stream's job is failed: open a new stream",
                     fail_job=True,
@@ -318,10 +309,8 @@ class Relay:
                     "type": "error",
                     "fatal": False,
                     "frame": None,
-                    "problem": problem_doc(
+                    "problem": problem_document(
                         "invalid-message",
-                        "Invalid message",
-                        422,
                         'text messages must be {"type": "end"}; frames are binary messages (see the AsyncAPI '
                         "document)",
                     ),
@@ -336,10 +325,8 @@ class Relay:
                     "type": "error",
                     "fatal": False,
                     "frame": frame,
-                    "problem": problem_doc(
+                    "problem": problem_document(
                         "frame-too-large",
-                        "Frame too large",
-                        413,
                         f"frame {frame}: a frame message of {len(data)} bytes exceeds "
                         f"{max_bytes // (1024 * 1024)} MiB (EIGENSCOPE_STREAM_MAX_FRAME_MB)",
                         frame=frame,
@@ -402,26 +389,20 @@ async def serve_websocket(ctx: ServiceContext, ws: WebSocket, stream_id: str) ->
     resumed = False
     problem: dict[str, Any] | None = None
     if stream.status not in ("waiting", "streaming"):
-        problem = problem_doc(
+        problem = problem_document(
             "stream-ended",
-            "Stream ended",
-            409,
             f"stream {stream_id} is {stream.status}; see its job {stream.job_id}",
         )
     elif token is not None:
         if not hmac.compare_digest(token_digest(token), stream.token_digest):
-            problem = problem_doc(
+            problem = problem_document(
                 "invalid-resume-token",
-                "Invalid resume token",
-                403,
                 "the resume_token does not belong to this stream",
             )
         resumed = True
     elif not await run_in_threadpool(_first_connection, ctx, stream_id):
-        problem = problem_doc(
+        problem = problem_document(
             "stream-connected",
-            "Stream already connected",
-            409,
             f"stream {stream_id} already had a connection; reconnect with ?resume_token=",
         )
     if problem is not None:

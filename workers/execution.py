@@ -43,7 +43,7 @@ from api_schemas import (
     ImpulseExcitation,
     StepReleaseExcitation,
 )
-from service.errors import PROBLEM_BASE, UnavailableError, redact_paths
+from service.errors import PROBLEM_TYPES, UnavailableError, problem_document
 from service.logs import job_id_var
 from service.store import ClaimOutcome, ClipRecord, JobRecord, Store, lease_owner_token
 
@@ -55,8 +55,6 @@ _EXCITATION: TypeAdapter[
     StepReleaseExcitation | ImpulseExcitation | list[StepReleaseExcitation | ImpulseExcitation]
 ] = TypeAdapter(ExcitationSpec)
 
-#: HTTP-ish status recorded in a failed job's problem, by domain error code.
-_ERROR_STATUS = {"unsupported-format": 415, "clip-too-large": 413}
 #: Messages of native libraries (OpenCV, threads) that ran out of memory or address space.
 _EXHAUSTION_MARKERS = (
     "insufficient memory",
@@ -67,14 +65,6 @@ _EXHAUSTION_MARKERS = (
 #: With ``EIGENSCOPE_TEST_HOOKS=1`` only: a clip uploaded under a name starting with this kills the
 #: worker process that runs its job, every time (fault-injection for the test suite).
 KILL_WORKER_MARKER = "__eigenscope_kill_worker__"
-
-_ERROR_TITLE = {
-    "invalid-clip": "Invalid clip",
-    "unsupported-format": "Unsupported clip format",
-    "clip-too-large": "Clip too large",
-    "invalid-parameter": "Invalid parameter",
-    "analysis-failed": "Analysis failed",
-}
 
 
 class Runner(Protocol):
@@ -155,17 +145,6 @@ class Outcome:
 
     status: str
     retry_in_s: float | None = None
-
-
-def problem(code: str, title: str, status: int, detail: str) -> dict[str, Any]:
-    """A failed job's problem document (server paths cut from ``detail``)."""
-    return {
-        "type": PROBLEM_BASE + code,
-        "title": title,
-        "status": status,
-        "detail": redact_paths(detail),
-        "code": code,
-    }
 
 
 def _vm_size_bytes() -> int:
@@ -370,10 +349,8 @@ def _execute(
     clip_path = storage.clip_path(clip.path) if clip is not None else None
     if clip_path is None or not clip_path.is_file():
         return fail(
-            problem(
+            problem_document(
                 "clip-gone",
-                "Clip gone",
-                410,
                 f"clip {job.clip_id} was deleted before the job ran; upload it again and create a new job",
             )
         )
@@ -381,7 +358,7 @@ def _execute(
         excitation = _EXCITATION.validate_python(job.excitation) if job.excitation is not None else None
         parameters = AnalysisParameters.model_validate(job.parameters)
     except ValidationError as exc:
-        return fail(problem("invalid-parameter", "Invalid parameter", 422, f"stored job is invalid: {exc}"))
+        return fail(problem_document("invalid-parameter", f"stored job is invalid: {exc}"))
 
     if test_hooks and clip is not None:
         _fault_injection(clip)
@@ -412,10 +389,8 @@ def _execute(
                 return Outcome("aborted")
             except timeout_errors:
                 return fail(
-                    problem(
+                    problem_document(
                         "time-limit",
-                        "Time limit exceeded",
-                        500,
                         f"the analysis ran longer than the limit of {soft_time_limit_s or 0:g} s; analyse a "
                         "shorter window (parameters.frames) or ask the operator to raise "
                         "EIGENSCOPE_TASK_SOFT_TIME_LIMIT_S",
@@ -439,8 +414,7 @@ def _failed(
     """What one attempt that raised ``exc`` comes to (see the module docstring on retries)."""
     code = getattr(exc, "code", None)
     if _is_domain_error(exc) and isinstance(code, str):
-        status = _ERROR_STATUS.get(code, 422)
-        return fail(problem(code, _ERROR_TITLE.get(code, "Analysis failed"), status, str(exc)))
+        return fail(problem_document(code if code in PROBLEM_TYPES else "analysis-failed", str(exc)))
     if is_exhaustion(exc):
         log.warning("job %s: over its memory budget (%s: %s)", job_id, type(exc).__name__, exc)
         detail = (
@@ -450,27 +424,23 @@ def _failed(
             "space (EIGENSCOPE_JOB_MEMORY_MB); analyse a shorter window (parameters.frames) or a smaller "
             "clip, or ask the operator to raise the budget"
         )
-        return fail(problem("resources-exhausted", "Resources exhausted", 413, detail))
+        return fail(problem_document("resources-exhausted", detail))
     if is_infrastructure_fault(exc):
         log.warning("job %s: attempt %d met an infrastructure fault", job_id, attempts, exc_info=True)
         if attempts < store.max_attempts:
             store.release_job(job_id, owner)
             return Outcome("retry", retry_in_s=float(2**attempts))
         return fail(
-            problem(
+            problem_document(
                 "internal-error",
-                "Internal error",
-                500,
                 f"the analysis failed {attempts} time(s) on a fault of the server; last error: "
                 f"{type(exc).__name__}: {exc}",
             )
         )
     log.exception("job %s: attempt %d failed with an unexpected error (not retried)", job_id, attempts)
     return fail(
-        problem(
+        problem_document(
             "analysis-crashed",
-            "Analysis crashed",
-            500,
             f"the analysis failed with an unexpected error ({type(exc).__name__}: {exc}); it would fail "
             "the same way again, so it is not retried -- please report it with the clip",
         )

@@ -371,10 +371,13 @@ def job_runner(settings: Settings) -> Callable[..., AnalysisResult]:
 
 
 def _atomic_write_text(path: Path, text: str) -> None:
+    from workers.pipeline._files import artifact_mode
+
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
+        os.chmod(tmp, artifact_mode())  # as the images (mkstemp creates 0600 files)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from api_schemas import AnalysisParameters, FrameHeader, StreamCreate
-from api_schemas.stream import problem_doc
+from service.errors import PROBLEM_TYPES, problem_document
 from service.settings import Settings
 from service.storage import Storage, tree_bytes
 from service.store import ClaimOutcome, Store, StreamRecord, lease_owner_token
@@ -209,16 +209,7 @@ class Session:
     def send(self, message: dict[str, Any]) -> None:
         self.transport.send(self.stream_id, message)
 
-    def error(
-        self,
-        code: str,
-        title: str,
-        detail: str,
-        *,
-        frame: int | None = None,
-        fatal: bool = False,
-        status: int = 422,
-    ) -> None:
+    def error(self, code: str, detail: str, *, frame: int | None = None, fatal: bool = False) -> None:
         extra = {"frame": frame} if frame is not None else {}
         self.send(
             {
@@ -226,7 +217,7 @@ class Session:
                 "fatal": fatal,
                 "frame": frame,
                 "messages": self.messages,
-                "problem": problem_doc(code, title, status, detail, **extra),
+                "problem": problem_document(code, detail, **extra),
             }
         )
 
@@ -242,11 +233,7 @@ class Session:
         claim = self.store.claim_job(record.job_id, owner)
         if claim.outcome is not ClaimOutcome.CLAIMED:
             self.error(
-                "stream-ended",
-                "Stream ended",
-                f"stream {self.stream_id} cannot be run ({claim.outcome.value})",
-                fatal=True,
-                status=409,
+                "stream-ended", f"stream {self.stream_id} cannot be run ({claim.outcome.value})", fatal=True
             )
             return
         from workers.execution import _Lease
@@ -262,7 +249,7 @@ class Session:
                 workdir = self.storage.new_job_workdir(record.job_id, 1)
                 self._finish(request, owner, workdir)
         except _AbortError as exc:
-            self.error("stream-aborted", "Stream aborted", str(exc), fatal=True, status=409)
+            self.error("stream-aborted", str(exc), fatal=True)
             self._discard_clip()
         except _FailedError as exc:
             self.store.fail_job(record.job_id, owner, exc.problem)
@@ -271,9 +258,7 @@ class Session:
             self._discard_clip()
         except Exception as exc:
             log.exception("stream %s failed", self.stream_id)
-            problem = problem_doc(
-                "internal-error", "Internal error", 500, f"the stream failed: {type(exc).__name__}: {exc}"
-            )
+            problem = problem_document("internal-error", f"the stream failed: {type(exc).__name__}: {exc}")
             self.store.fail_job(record.job_id, owner, problem)
             self.store.update_stream(self.stream_id, status="failed", error=problem)
             self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
@@ -326,18 +311,14 @@ class Session:
             ):
                 self.error(
                     "max-duration",
-                    "Stream too long",
                     f"the capture reached max_duration_s={max_duration:g} s; the stream is analysed as it is",
-                    status=413,
                 )
                 self._end_reason = "max-duration"
             elif self.attached and now - self.last_input > s.stream_client_timeout_s:
                 self.error(
                     "client-timeout",
-                    "Client silent",
                     f"no frame or message for {s.stream_client_timeout_s:g} s; the stream is analysed as it "
                     "is",
-                    status=408,
                 )
                 self._end_reason = "client-timeout"
             elif not self.attached and now - (self.detached_at or self.started) > max(
@@ -370,7 +351,7 @@ class Session:
         try:
             self._frame(item.data, request)
         except FrameError as exc:
-            self.error(exc.code, "Invalid frame", exc.detail, frame=exc.frame)
+            self.error(exc.code, exc.detail, frame=exc.frame)
 
     # Frames ------------------------------------------------------------------------------------
     def _frame(self, data: bytes, request: StreamCreate) -> None:
@@ -598,10 +579,8 @@ class Session:
             self._pending = None
         if self._live is None:
             raise _FailedError(
-                problem_doc(
+                problem_document(
                     "analysis-failed",
-                    "Analysis failed",
-                    422,
                     f"the stream ended ({self._end_reason}) before any frame arrived",
                 )
             )
@@ -611,9 +590,7 @@ class Session:
         try:
             analysis = self._live.finish(analysis_config=config, excitations=pipeline_excitations(requested))
         except EigenscopeError as exc:
-            raise _FailedError(
-                problem_doc(getattr(exc, "code", "analysis-failed"), "Analysis failed", 422, str(exc))
-            ) from exc
+            raise _FailedError(problem_document(_job_code(exc), str(exc))) from exc
         analysis.timings_s["stream_frames"] = float(self._live.frames_received)
         result = build_result(analysis, excitation=requested, parameters=params, artifacts=ARTIFACT_FILES)
         job_id = self.record.job_id
@@ -674,6 +651,12 @@ class Session:
 
 class _AbortError(Exception):
     """The stream's job is no longer this worker's."""
+
+
+def _job_code(exc: BaseException) -> str:
+    """The error code of a pipeline error, ``analysis-failed`` when it has none of the table's."""
+    code = getattr(exc, "code", None)
+    return code if isinstance(code, str) and code in PROBLEM_TYPES else "analysis-failed"
 
 
 class _FailedError(Exception):

@@ -15,7 +15,8 @@ import workers.pipeline.analysis
 import workers.pipeline.clipio
 import workers.pipeline.flow
 import workers.pipeline.render  # noqa: F401 - preloaded here so that no job pays for the imports
-from workers.celery_app import TASK_RUN_JOB, EigenscopeCelery
+from service.broker import TASK_RUN_JOB
+from workers.celery_app import EigenscopeCelery
 from workers.execution import execute_job
 from workers.runner import job_runner
 

@@ -5,12 +5,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
 
 
 def register(sub: Any) -> None:
+    from eigenscope.commands._options import PARAMETER_HELP as HELP
+
     p: argparse.ArgumentParser = sub.add_parser(
         "analyze",
         help="measure eigenfrequency, damping, stiffness, mass and a mask from a clip",
@@ -18,38 +21,51 @@ def register(sub: Any) -> None:
     )
     p.add_argument("clip", help="the clip (.npz bundle or another supported format)")
     exc = p.add_mutually_exclusive_group()
-    exc.add_argument("--force-n", type=float, help="held force before release, newtons (step release)")
-    exc.add_argument("--impulse-ns", type=float, help="impulse that struck the object, newton-seconds")
-    p.add_argument("--force-uncertainty", type=float, default=0.0, help="standard uncertainty of F or J")
+    exc.add_argument("--force-n", type=float, help=HELP["force_n"])
+    exc.add_argument("--impulse-ns", type=float, help=HELP["impulse_ns"])
+    p.add_argument(
+        "--force-uncertainty",
+        type=float,
+        default=0.0,
+        help="standard uncertainty of --force-n (N) or --impulse-ns (N·s), in the same unit (default 0)",
+    )
     p.add_argument("--object-id", type=int, help="object the excitation applies to (default: the main one)")
     p.add_argument(
-        "--point", type=float, nargs=2, metavar=("X", "Y"), help="... or a point on that object, pixels"
+        "--point",
+        type=float,
+        nargs=2,
+        metavar=("X", "Y"),
+        help="the object the excitation applies to, by a point on it: x y, pixels",
     )
     p.add_argument(
-        "--box", type=float, nargs=4, metavar=("X", "Y", "W", "H"), help="... or a box around it, pixels"
+        "--box",
+        type=float,
+        nargs=4,
+        metavar=("X", "Y", "W", "H"),
+        help="the object the excitation applies to, by a box around it: x y width height, pixels",
     )
-    p.add_argument("--fps", type=float, help="true recording frame rate (wins over the file's)")
-    for name in ("fx", "fy", "cx", "cy"):
-        p.add_argument(f"--{name}", type=float, help=f"camera intrinsic {name}, pixels")
-    p.add_argument("--depth-scale", type=float, help="metres per depth unit")
+    for name in ("fps", "fx", "fy", "cx", "cy", "depth_scale"):
+        p.add_argument(f"--{name.replace('_', '-')}", type=float, help=HELP[name])
     p.add_argument(
         "--depth", metavar="PATH", help="depth companion of a video: .npz with 'depth' or zip of PNGs"
     )
     p.add_argument("--color-topic", help="bag topic of the colour images (default: automatic)")
     p.add_argument("--depth-topic", help="bag topic of the depth images ('none' ignores depth)")
-    p.add_argument("--depth-m", type=float, help="object distance for clips without depth, metres")
-    p.add_argument("--frames", type=int, help="analysis window length in frames (default: up to 256)")
-    p.add_argument("--start-frame", type=int, help="first frame of the window (default 0)")
-    p.add_argument("--min-frequency-hz", type=float)
-    p.add_argument("--max-frequency-hz", type=float)
-    p.add_argument("--method", choices=["default", "paper"], default="default")
-    p.add_argument("--flow", choices=["farneback", "dis"], help="optical flow (default: the method's)")
+    p.add_argument("--depth-m", type=float, help=HELP["depth_m"])
+    p.add_argument("--frames", type=int, help=HELP["frames"])
+    p.add_argument("--start-frame", type=int, help=HELP["start_frame"])
+    p.add_argument("--min-frequency-hz", type=float, help=HELP["min_frequency_hz"])
+    p.add_argument("--max-frequency-hz", type=float, help=HELP["max_frequency_hz"])
+    p.add_argument("--method", choices=["default", "paper"], default="default", help=HELP["method"])
+    p.add_argument("--flow", choices=["farneback", "dis"], help=HELP["flow"])
     p.add_argument(
         "--flow-threads",
         type=int,
         help="frame pairs whose optical flow is computed at once (default 2; 1 runs it as the paper did)",
     )
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument(
+        "--out", required=True, help="output folder (created if missing; removed again if the run fails)"
+    )
     p.add_argument("--json", action="store_true", help="print result.json instead of a summary")
     p.set_defaults(handler=run)
 
@@ -72,6 +88,17 @@ def text_cache_path() -> Path | None:
 
 #: The file of rendered strings in the cache folder.
 TEXT_CACHE_FILE = "figure-text.pickle"
+
+
+def first_missing_folder(out: Path) -> Path | None:
+    """The outermost folder of ``out`` that does not exist yet (the one a run creates), or None."""
+    out = Path(os.path.abspath(out))
+    missing = None
+    for folder in (out, *out.parents):
+        if folder.exists():
+            break
+        missing = folder
+    return missing
 
 
 def run(args: argparse.Namespace) -> int:
@@ -131,15 +158,21 @@ def run(args: argparse.Namespace) -> int:
         where = ".".join(str(x) for x in err["loc"]) or "input"
         raise UsageError(f"--{where.replace('_', '-')}: {err['msg']}") from None
 
-    result = run_analysis(
-        args.clip,
-        args.out,
-        excitation=excitation,
-        parameters=params,
-        depth_path=args.depth,
-        flow_threads=args.flow_threads,
-        draw_elsewhere=True,
-    )
+    created = first_missing_folder(Path(args.out))
+    try:
+        result = run_analysis(
+            args.clip,
+            args.out,
+            excitation=excitation,
+            parameters=params,
+            depth_path=args.depth,
+            flow_threads=args.flow_threads,
+            draw_elsewhere=True,
+        )
+    except BaseException:
+        if created is not None:  # a failed run leaves no folder it made behind
+            shutil.rmtree(created, ignore_errors=True)
+        raise
     if args.json:
         json.dump(result.model_dump(mode="json"), sys.stdout, indent=2)
         print()

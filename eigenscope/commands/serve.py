@@ -168,9 +168,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     check_exposure(args.host, settings, keys=ring.enabled)
 
+    from service.broker import ensure_broker_folders
     from service.storage import Storage
     from service.store import Store
-    from workers.celery_app import broker_options
 
     # Prepare the shared state once, before children race for it.
     Storage(settings.data_path).ensure()
@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         store.dispose()
     if settings.embedded:
-        broker_options(settings)
+        ensure_broker_folders(settings)
 
     # The children get the keys' digests in a private file, never the plain keys in their environment.
     env = {

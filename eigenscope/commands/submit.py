@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from eigenscope.cli import UsageError
+from eigenscope.commands._options import PARAMETER_HELP as HELP
 
 if TYPE_CHECKING:
     from eigenscope_client import Client, Job
@@ -38,17 +39,19 @@ def register(subparsers: Any) -> None:
         help="API key of a server that requires one (default: the EIGENSCOPE_API_KEY environment variable)",
     )
     exc = parser.add_mutually_exclusive_group()
-    exc.add_argument("--force-n", type=float, default=None, help="holding force before release, N")
-    exc.add_argument("--impulse-ns", type=float, default=None, help="impulse of the strike, N·s")
-    parser.add_argument("--method", choices=("default", "paper"), default=None)
-    parser.add_argument("--flow", choices=("farneback", "dis"), default=None)
-    parser.add_argument("--frames", type=int, default=None, help="analysis window length N")
-    parser.add_argument("--start-frame", type=int, default=None)
+    exc.add_argument("--force-n", type=float, default=None, help=HELP["force_n"])
+    exc.add_argument("--impulse-ns", type=float, default=None, help=HELP["impulse_ns"])
+    parser.add_argument("--method", choices=("default", "paper"), default=None, help=HELP["method"])
+    parser.add_argument("--flow", choices=("farneback", "dis"), default=None, help=HELP["flow"])
+    parser.add_argument("--frames", type=int, default=None, help=HELP["frames"])
+    parser.add_argument("--start-frame", type=int, default=None, help=HELP["start_frame"])
     for name in _PARAMS:
-        parser.add_argument(f"--{name.replace('_', '-')}", type=float, default=None)
+        parser.add_argument(f"--{name.replace('_', '-')}", type=float, default=None, help=HELP[name])
     parser.add_argument("--callback-url", default=None, help="URL the server tells when the job ends")
     parser.add_argument("--wait", action="store_true", help="wait for the result and print it")
-    parser.add_argument("--timeout", type=float, default=3600.0, help="seconds to wait with --wait")
+    parser.add_argument(
+        "--timeout", type=float, default=3600.0, help="how long --wait waits, seconds (default 3600)"
+    )
     parser.add_argument("--out", type=Path, default=None, help="with --wait: download the artifacts here")
     parser.add_argument("--json", action="store_true", help="print the job as JSON on stdout")
     parser.set_defaults(handler=run)

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline import _drawing_process
 from workers.pipeline._agg import add_strings, cache_mark, caching_canvas, load_added, save_added
+from workers.pipeline._files import artifact_mode
 
 if TYPE_CHECKING:
     from workers.pipeline.model import Analysis, ObjectMeasurement
@@ -155,8 +156,8 @@ def _atomic_write_bytes(path: Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
-        # mkstemp creates 0600 files; artifacts are ordinary readable files.
-        os.chmod(tmp, 0o644)
+        # mkstemp creates 0600 files; artifacts are ordinary files, as the umask asks.
+        os.chmod(tmp, artifact_mode())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -1,4 +1,5 @@
-"""Fixtures for the service unit tests: settings in a temp dir, a real SQLite store, small clips."""
+"""Fixtures shared by the unit tests of the service and the workers: settings in a temp dir, a real SQLite
+store, small clips."""
 
 from __future__ import annotations
 

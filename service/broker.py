@@ -1,0 +1,95 @@
+"""The Celery broker both sides talk through: its options, the app configuration and the task names.
+
+The API publishes jobs by task name with the small producer app of :func:`create_producer`; it never
+imports :mod:`workers` (the task code, the runner or the pipeline). The workers build their consuming app
+(:func:`workers.celery_app.create_celery`) from the same :func:`celery_config`, so both sides agree on the
+broker, the queue and the serializer by construction.
+
+Reliability settings: late acks, reject on worker lost, prefetch 1, soft and hard time limits, a Redis
+visibility timeout above the hard limit, no result backend (the job row in the SQL store is the state).
+Without ``EIGENSCOPE_REDIS_URL`` the broker is kombu's filesystem transport in ``DATA_DIR/broker``,
+polled every ``broker_polling_interval_s`` seconds.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from service.settings import Settings
+
+#: The one task the API publishes: ``run_job(job_id)`` (registered by :mod:`workers.tasks`).
+TASK_RUN_JOB = "eigenscope.run_job"
+
+#: Name of the Celery app on both sides.
+APP_NAME = "eigenscope"
+
+
+def ensure_broker_folders(settings: Settings) -> None:
+    """Create the folders the embedded broker's producer and consumers share (``DATA_DIR/broker``)."""
+    for sub in ("queue", "processed", "control"):
+        (settings.broker_dir / sub).mkdir(parents=True, exist_ok=True)
+
+
+def broker_options(settings: Settings) -> tuple[str, dict[str, Any]]:
+    """Broker URL and transport options for ``settings`` (creating the embedded broker's folders)."""
+    if settings.redis_url:
+        return settings.redis_url, {
+            "visibility_timeout": settings.effective_visibility_timeout_s,
+            "socket_connect_timeout": 5,
+            "socket_timeout": 30,
+        }
+    ensure_broker_folders(settings)
+    root = settings.broker_dir
+    queue_dir, processed, control = root / "queue", root / "processed", root / "control"
+    return "filesystem://localhost//", {
+        "data_folder_in": str(queue_dir),
+        "data_folder_out": str(queue_dir),
+        "store_processed": True,  # move (atomic rename) rather than copy to /tmp: one consumer per message
+        "processed_folder": str(processed),
+        "control_folder": str(control),
+        "polling_interval": settings.broker_polling_interval_s,
+    }
+
+
+def celery_config(settings: Settings) -> dict[str, Any]:
+    """The Celery configuration of both the producer (API) and the consumer (workers) for ``settings``."""
+    broker_url, transport_options = broker_options(settings)
+    embedded = settings.embedded
+    return {
+        "broker_url": broker_url,
+        "broker_transport_options": transport_options,
+        "broker_connection_retry_on_startup": True,
+        "broker_connection_timeout": 5,
+        "task_default_queue": settings.queue,
+        "task_routes": {TASK_RUN_JOB: {"queue": settings.queue}},
+        "task_serializer": "json",
+        "accept_content": ["json"],
+        "task_ignore_result": True,
+        "task_store_errors_even_if_ignored": False,
+        "result_backend": None,
+        "task_acks_late": True,
+        "task_reject_on_worker_lost": True,
+        "task_acks_on_failure_or_timeout": True,
+        "worker_prefetch_multiplier": 1,
+        "worker_cancel_long_running_tasks_on_connection_loss": True,
+        "task_soft_time_limit": settings.task_soft_time_limit_s,
+        "task_time_limit": settings.task_hard_time_limit_s,
+        "task_publish_retry": True,
+        "task_publish_retry_policy": {"max_retries": 2, "interval_start": 0, "interval_step": 0.5},
+        "worker_max_tasks_per_child": 200,
+        # Events and remote control feed Flower in Redis mode; the embedded broker skips their polling.
+        "worker_send_task_events": not embedded,
+        "task_send_sent_event": not embedded,
+        "worker_enable_remote_control": not embedded,
+        "timezone": "UTC",
+        "enable_utc": True,
+    }
+
+
+def create_producer(settings: Settings) -> Any:
+    """A Celery app that only publishes (``send_task`` by name): no task modules, no worker code."""
+    from celery import Celery
+
+    app = Celery(APP_NAME, set_as_current=False)
+    app.conf.update(celery_config(settings))
+    return app

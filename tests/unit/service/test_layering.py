@@ -1,0 +1,92 @@
+"""Dependencies point one way: ``service`` never imports ``workers`` (it enqueues by task name).
+
+The workers may use the service's job store, storage and settings; the API process must stay free of the
+task code, the pipeline, OpenCV and FFTW.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[3]
+SERVICE = ROOT / "service"
+FORBIDDEN_IN_API = ("workers", "cv2", "pyfftw")
+
+
+def _imported_modules(tree: ast.AST) -> list[tuple[int, str]]:
+    """Every module ``tree`` imports, anywhere (top level, functions, ``TYPE_CHECKING`` blocks), and every
+    string handed to ``importlib.import_module`` / ``__import__``."""
+    found: list[tuple[int, str]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.append((node.lineno, node.module))
+        elif isinstance(node, ast.Call):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            if name in ("import_module", "__import__") and node.args:
+                arg = node.args[0]
+                if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+                    found.append((node.lineno, arg.value))
+    return found
+
+
+def test_the_scan_sees_every_kind_of_import() -> None:
+    tree = ast.parse(
+        "import workers.tasks\n"
+        "def f():\n    from workers.celery_app import create_celery\n"
+        "import importlib\nimportlib.import_module('workers.runner')\n"
+    )
+    assert {m for _, m in _imported_modules(tree)} == {
+        "workers.tasks",
+        "workers.celery_app",
+        "importlib",
+        "workers.runner",
+    }
+
+
+def test_no_service_module_imports_workers() -> None:
+    files = sorted(SERVICE.rglob("*.py"))
+    assert len(files) > 20, files
+    offenders = []
+    for path in files:
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        for line, module in _imported_modules(tree):
+            if module == "workers" or module.startswith("workers."):
+                offenders.append(f"{path.relative_to(ROOT)}:{line} imports {module}")
+    assert not offenders, (
+        "service must not import workers (publish by task name, see service/broker.py): "
+        + "; ".join(offenders)
+    )
+
+
+def test_building_the_app_and_publishing_a_job_loads_no_worker_code(tmp_path: Path) -> None:
+    """In a fresh interpreter: build the app, publish a job on the embedded broker, list what was loaded."""
+    script = f"""
+import json, sys
+from service.app import create_app
+from service.settings import Settings
+app = create_app(Settings(data_dir={str(tmp_path / "data")!r}))
+app.openapi()
+app.state.ctx.queue.publish("job-layering")
+app.state.ctx.queue.close()
+print(json.dumps(sorted(sys.modules)))
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=120, check=False
+    )
+    assert out.returncode == 0, out.stderr
+    loaded = json.loads(out.stdout.strip().splitlines()[-1])
+    assert "service.app" in loaded
+    assert "celery" in loaded, "the producer app should have been built"
+    bad = [m for m in loaded if m.split(".", 1)[0] in FORBIDDEN_IN_API]
+    assert not bad, f"the API process loaded {bad}"
+    messages = list((tmp_path / "data" / "broker" / "queue").iterdir())
+    assert len(messages) == 1, messages
+    body = messages[0].read_text()
+    assert "eigenscope.run_job" in body
