@@ -196,9 +196,11 @@ class Relay:
 
     async def fatal(self, code: str, detail: str, *, fail_job: bool) -> None:
         problem = problem_document(code, detail)
-        await self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
+        # The job fails before the client hears of it: a client told `worker-lost` may read the job at once.
         if fail_job:
             await run_in_threadpool(self.ctx.store.fail_stream_job, self.stream.job_id, problem)
+        await self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
+        if fail_job:
             with contextlib.suppress(Exception):
                 await self.transport.acleanup(self.sid)
         self.done.set()

@@ -205,9 +205,25 @@ class Session:
     _converged_sent: bool = False
     _end_reason: str | None = None
     _has_depth: bool = False
+    _send_lock: threading.Lock = field(default_factory=threading.Lock)
+    _over: threading.Event = field(default_factory=threading.Event)
 
     def send(self, message: dict[str, Any]) -> None:
-        self.transport.send(self.stream_id, message)
+        """Send ``message`` to the client's relay; nothing once ``result`` or a fatal error has gone."""
+        kind = message.get("type")
+        with self._send_lock:
+            if self._over.is_set():
+                return
+            self.transport.send(self.stream_id, message)
+            if kind == "result" or (kind == "error" and message.get("fatal")):
+                self._over.set()
+
+    def _heartbeat(self) -> None:
+        """Tell the relay this worker is alive every HEARTBEAT_S, whatever the session is busy with (a
+        final analysis on a loaded machine may take longer than the relay's patience), until the session
+        is over. A worker that dies stops beating: the relay's ``worker-lost``."""
+        while not self._over.wait(HEARTBEAT_S):
+            self.send({"type": "_heartbeat", "messages": self.messages})
 
     def error(self, code: str, detail: str, *, frame: int | None = None, fatal: bool = False) -> None:
         extra = {"frame": frame} if frame is not None else {}
@@ -239,6 +255,8 @@ class Session:
         from workers.execution import _Lease
 
         workdir: Path | None = None
+        beat = threading.Thread(target=self._heartbeat, name=f"stream-{self.stream_id}-beat", daemon=True)
+        beat.start()
         try:
             with _Lease(self.store, record.job_id, owner) as lease:
                 request = StreamCreate.model_validate(record.request)
@@ -264,6 +282,8 @@ class Session:
             self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
             self._discard_clip()
         finally:
+            self._over.set()
+            beat.join()
             if self._live is not None:
                 self._live.close()
             if workdir is not None:
@@ -278,7 +298,6 @@ class Session:
 
     def _loop(self, request: StreamCreate, lease: Any) -> None:
         s = self.settings
-        next_beat = 0.0
         next_estimate = 0.0
         next_record = 0.0
         max_duration = min(request.max_duration_s, s.stream_max_duration_s)
@@ -294,9 +313,6 @@ class Session:
             if items:
                 self.send({"type": "_progress", "messages": self.messages})
             now = time.monotonic()
-            if now >= next_beat:
-                self.send({"type": "_heartbeat", "messages": self.messages})
-                next_beat = now + HEARTBEAT_S
             live = self._live
             # Once the client has ended the stream, the result is what it waits for: no more estimates.
             if self._end_reason is None and live is not None and live.motion_seen and now >= next_estimate:
