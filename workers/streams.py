@@ -693,13 +693,11 @@ def run_stream_worker(settings: Settings, *, stop: threading.Event | None = None
     from workers.allocator import tune_malloc
 
     tune_malloc()
-    # Results are drawn by this process's drawing process: started now (and the pipeline imported), not
-    # after a stream's last frame.
+    # The pipeline and matplotlib are imported now, not after a stream's last frame.
     import workers.pipeline.live  # noqa: F401 - imported before any session needs it
-    import workers.pipeline.render as render
+    from workers.drawing import warm_up
 
-    render.start_drawing_process()
-    render.warm_up()
+    warm_up()
     stop = stop or threading.Event()
     transport = transport_for(settings)
     store = Store(settings.effective_database_url, lease_s=settings.lease_s, max_attempts=1)
