@@ -135,12 +135,10 @@ def run_analysis(
         Subclasses for bad clips (``ClipError``), bad parameters (``ParameterError``) and clips that
         cannot be analysed (``AnalysisError``); their messages are meant for the user.
     """
-    from workers.allocator import tune_malloc
     from workers.drawing import warm_up
     from workers.pipeline.analysis import analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
 
-    tune_malloc()  # once per process: freed buffers are reused instead of faulted in afresh
     report = _warming_up_for_images(progress, warm_up)
 
     params = parameters or AnalysisParameters()

@@ -690,9 +690,6 @@ def live_estimate_json(values: dict[str, Any]) -> dict[str, Any]:
 
 def run_stream_worker(settings: Settings, *, stop: threading.Event | None = None) -> None:
     """Take stream sessions and run them, ``stream_sessions_per_worker`` at a time, until ``stop``."""
-    from workers.allocator import tune_malloc
-
-    tune_malloc()
     # The pipeline and matplotlib are imported now, not after a stream's last frame.
     import workers.pipeline.live  # noqa: F401 - imported before any session needs it
     from workers.drawing import warm_up

@@ -49,7 +49,7 @@ def load_matplotlib() -> None:
         _import_matplotlib()
 
 
-#: Held while :func:`_matplotlib` imports, so that one thread's temporary changes are not taken by another
+#: Held while :func:`load_matplotlib` imports, so that one thread's temporary changes are not taken by another
 #: for the originals.
 _MATPLOTLIB_IMPORT = threading.Lock()
 
