@@ -27,6 +27,7 @@ a variant that needs a device the code no longer has is reported as ``n/a``.
     python bench/devices.py                         # both figures, 5 rounds, 640x480x256
     python bench/devices.py --figures cli --rounds 7
     python bench/devices.py --size 320x240x128      # quicker
+    python bench/devices.py --report run1.txt run2.txt  # earlier runs' tables, and all their rounds together
 
 Timing never fails anything: this prints figures, it does not assert them.
 """
@@ -237,12 +238,17 @@ def _make_clip(spec: str, path: Path) -> None:
     subprocess.run([sys.executable, "-c", code, str(ROOT), spec, str(path)], check=True)
 
 
+def _ratios(times: dict[str, list[float]], on: str, off: str) -> list[float]:
+    """Per-round ratios (without / with) of a device: both runs of a round were made back to back."""
+    return [b / a for a, b in zip(times[on], times[off], strict=False)]
+
+
 def _report(
     figure: str, size: str, rounds: int, wanted: list[str], times: dict[str, list[float]], missing: set[str]
 ) -> None:
     """One row per device: median seconds with and without it, and the median of the per-round ratios
-    (without / with, both runs of a round made back to back): the load of a shared machine drifts over a
-    run, and a ratio within a round cancels most of that drift."""
+    (without / with): the load of a shared machine drifts over a run, and a ratio within a round cancels
+    most of that drift."""
     print(f"\n{figure} ({size}, {rounds} rounds; seconds are medians, ratio the median of per-round ratios):")
     print(f"{'device':<18}{'with':>8}{'without':>9}{'ratio':>8}{'saves':>8}  verdict")
     for d in wanted:
@@ -250,25 +256,40 @@ def _report(
         if on in missing or off in missing:
             print(f"{d:<18}{'n/a':>8}{'n/a':>9}{'':>8}{'':>8}  not in this code")
             continue
-        ratio = statistics.median(b / a for a, b in zip(times[on], times[off], strict=False))
-        saving = 1 - 1 / ratio
-        verdict = "pays (>= 10 %)" if saving >= 0.10 else "does not pay"
+        ratio = statistics.median(_ratios(times, on, off))
         a, b = statistics.median(times[on]), statistics.median(times[off])
-        print(f"{d:<18}{a:8.3f}{b:9.3f}{ratio:8.3f}{saving:8.1%}  {verdict}")
+        print(f"{d:<18}{a:8.3f}{b:9.3f}{ratio:8.3f}{1 - 1 / ratio:8.1%}  {_verdict(ratio)}")
+
+
+def _verdict(ratio: float) -> str:
+    return "pays (>= 10 %)" if 1 - 1 / ratio >= 0.10 else "does not pay"
+
+
+def _report_files(paths: list[str]) -> None:
+    """The tables of earlier runs again, from their ``raw`` lines, and per figure and device the median of
+    the per-round ratios of all those runs together (more rounds, the same pairing)."""
+    pooled: dict[tuple[str, str], list[float]] = {}
+    for path in paths:
+        for line in Path(path).read_text().splitlines():
+            if not line.startswith("raw "):
+                continue
+            _, figure, size, rounds, data = line.split(" ", 4)
+            times = json.loads(data)
+            wanted = [
+                d for d, (on, off, figs) in DEVICES.items() if figure in figs and on in times and off in times
+            ]
+            _report(figure, size, int(rounds), wanted, times, set())
+            for d in wanted:
+                pooled.setdefault((figure, d), []).extend(_ratios(times, *DEVICES[d][:2]))
+    print("\nall runs together (median of every per-round ratio):")
+    for (figure, d), ratios in pooled.items():
+        ratio = statistics.median(ratios)
+        print(f"{figure:<7}{d:<18}{len(ratios):>4} rounds{ratio:8.3f}{1 - 1 / ratio:8.1%}  {_verdict(ratio)}")
 
 
 def main() -> None:
-    if len(sys.argv) > 2 and sys.argv[1] == "--report":  # the tables again, from a run's "raw:" lines
-        for line in Path(sys.argv[2]).read_text().splitlines():
-            if line.startswith("raw "):
-                _, figure, size, rounds, data = line.split(" ", 4)
-                times = json.loads(data)
-                wanted = [
-                    d
-                    for d, (on, off, figs) in DEVICES.items()
-                    if figure in figs and on in times and off in times
-                ]
-                _report(figure, size, int(rounds), wanted, times, set())
+    if len(sys.argv) > 2 and sys.argv[1] == "--report":  # bench/devices.py --report RUN.txt [RUN2.txt ...]
+        _report_files(sys.argv[2:])
         return
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         _child(*sys.argv[2:7])
