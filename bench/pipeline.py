@@ -3,8 +3,7 @@
 Renders ground-truth clips of several sizes, writes them as uncompressed npz bundles, then runs
 ``eigenscope analyze`` on each in a fresh process (start-up, decoding and images included) and prints one
 table measured in this run: wall time, real-time factor (clip duration / wall time), per-stage times, peak
-memory (the command's, and beside it that of the drawing process it starts) and accuracy, for three methods
-per clip:
+memory and accuracy, for three methods per clip:
 
 - ``default``: the default method;
 - ``seed recipe``: the paper's recipe as the issue measured it (Farnebäck at full resolution one frame
@@ -14,8 +13,7 @@ per clip:
 
 Each method runs ``--repeat`` times (3 by default) on each clip, one after the other; its row shows the run of
 median wall time (with that run's stages and memory) and the range of all its runs, since one run on a
-shared two-core machine can be a quarter off. The command line's cache of figure text starts empty, so
-the first run draws its strings afresh, as on a fresh machine. The ratios of both paper rows' median
+shared two-core machine can be a quarter off. The ratios of both paper rows' median
 times to the default's are printed below each clip.
 
     python bench/pipeline.py                       # 320x240x64, 640x480x256, 1280x720x128
@@ -48,40 +46,9 @@ RUNS = {
 }
 
 
-def _become_subreaper() -> bool:
-    """Make this process the one that orphaned descendants are handed to (Linux), so that the drawing
-    process ``eigenscope analyze`` leaves behind for a moment (it saves its text cache after the last
-    reply) can be waited for and its memory counted."""
-    import ctypes
-
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        return libc.prctl(36, 1, 0, 0, 0) == 0  # PR_SET_CHILD_SUBREAPER
-    except (OSError, AttributeError):
-        return False
-
-
-def _reap_descendants(timeout_s: float = 10.0) -> float:
-    """Wait for the orphaned descendants handed to this process; the largest peak resident set among
-    them, in MB (0 when there were none)."""
-    peak = 0.0
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        try:
-            pid, _, usage = os.wait4(-1, os.WNOHANG)
-        except ChildProcessError:
-            break
-        if pid == 0:
-            time.sleep(0.01)
-            continue
-        peak = max(peak, usage.ru_maxrss / 1024)
-    return peak
-
-
 def run_analyze(clip: Path, out: Path, extra: list[str], force: float) -> dict[str, object]:
     """``eigenscope analyze`` in a fresh process, exactly as a user runs it: wall time (until the command
-    exits), peak memory (the command's own maximum resident set, from ``wait4``, and that of the drawing
-    process it starts, once that has exited too) and the result JSON."""
+    exits), peak memory (the command's own maximum resident set, from ``wait4``) and the result JSON."""
     cmd = [sys.executable, "-m", "eigenscope", "analyze", str(clip), "--force-n", str(force)]
     cmd += ["--out", str(out), *extra, "--json"]
     with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
@@ -90,14 +57,13 @@ def run_analyze(clip: Path, out: Path, extra: list[str], force: float) -> dict[s
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - start
         proc.returncode = os.waitstatus_to_exitcode(status)
-        drawing_mb = _reap_descendants()
         stdout.seek(0)
         stderr.seek(0)
         text, errors = stdout.read(), stderr.read()
     if proc.returncode != 0:
         raise SystemExit(f"bench: analyze failed ({' '.join(extra)}): {errors.strip().splitlines()[-1:]}")
     result = json.loads(text)
-    return {"wall_s": wall, "peak_mb": usage.ru_maxrss / 1024, "drawing_mb": drawing_mb, "result": result}
+    return {"wall_s": wall, "peak_mb": usage.ru_maxrss / 1024, "result": result}
 
 
 def _write_clip(spec: str, path: Path) -> tuple[dict[str, float], float]:
@@ -154,11 +120,8 @@ def main() -> None:
     if args.repeat < 1:
         parser.error(f"--repeat={args.repeat} must be at least 1")
 
-    _become_subreaper()
     rows = []
     with tempfile.TemporaryDirectory(prefix="eigenscope-bench-") as tmp:
-        # The command line's cache of rendered strings starts empty: the first run of a fresh machine.
-        os.environ["EIGENSCOPE_CACHE_DIR"] = str(Path(tmp) / "cache")
         for spec in args.sizes.split(","):
             path = Path(tmp) / f"clip-{spec}.npz"
             truth, fps = _write_clip(spec, path)
@@ -191,7 +154,6 @@ def main() -> None:
                     "wall_range_s": "{:.2f}-{:.2f}".format(*spread[method]),
                     "x_realtime": duration / float(m["wall_s"]),  # type: ignore[arg-type]
                     "peak_mb": m["peak_mb"],
-                    "drawing_mb": m["drawing_mb"],
                     "f_err_%": abs(f / truth["eigenfrequency_hz"] - 1) * 100 if f else float("nan"),
                     "k_err_%": abs(k / truth["stiffness_n_per_m"] - 1) * 100 if k else float("nan"),
                     **{f"{stage}_s": t for stage, t in result["timings_s"].items()},

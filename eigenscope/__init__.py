@@ -13,7 +13,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPEN
 # numpy asks the kernel for transparent huge pages on every large array. Where the kernel then compacts
 # memory synchronously to find them (THP defrag "madvise", the common default), the first touch of an
 # analysis's buffers costs more than the small pages it saves: 640x480x256 end to end took 0.2-0.25 s
-# longer with it, over repeated runs.
+# longer with it, over repeated runs; a warm worker's analysis with images 15-17 % (bench/devices.py).
 os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 
 # The one place the version is written: pyproject.toml reads it from here (``[tool.setuptools.dynamic]``).

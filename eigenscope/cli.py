@@ -119,24 +119,6 @@ def _reader_gone() -> int:
     return EXIT_BROKEN_PIPE
 
 
-#: Commands that run once and are done: the process ends without the interpreter's teardown.
-_ONE_SHOT_COMMANDS = frozenset({"analyze"})
-
-
 def console_main() -> None:
-    """The ``eigenscope`` executable: :func:`main`, then exit with its status.
-
-    After an analysis, the interpreter's teardown (freeing hundreds of megabytes of arrays, unloading
-    OpenCV, FFTW and matplotlib) took 0.15 s of a 2.5 s run; every result file is written and closed by
-    then, so a one-shot command flushes its output and leaves at once.
-    """
-    argv = sys.argv[1:]
-    code = main(argv)
-    if argv[:1] and argv[0] in _ONE_SHOT_COMMANDS:
-        import logging
-
-        logging.shutdown()
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
-    raise SystemExit(code)
+    """The ``eigenscope`` executable: :func:`main`, then exit with its status."""
+    raise SystemExit(main(sys.argv[1:]))

@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -83,10 +81,6 @@ def _ringdown(o: ObjectMeasurement) -> RingdownResult | None:
     )
 
 
-def _finite(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else float(x)
-
-
 #: Stages from which the image library is loaded in the background: the stream of frames before them
 #: keeps both cores busy (an import there, holding the interpreter, slowed it by a quarter), while the
 #: registration after them mostly waits on OpenCV threads.
@@ -123,8 +117,6 @@ def run_analysis(
     depth_path: str | Path | None = None,
     scratch_dir: str | Path | None = None,
     flow_threads: int | None = None,
-    drawing_process: bool = True,
-    draw_elsewhere: bool = False,
     limits: ReadLimits | None = None,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
@@ -132,11 +124,9 @@ def run_analysis(
     Files are written to a temporary name and renamed, so a reader never sees half a result.
     ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``scratch_dir`` is where a
     zipped ROS 2 bag may be unpacked (default: the system temporary folder). ``flow_threads`` bounds the
-    frame pairs whose flow is computed at once (default two). ``drawing_process``: draw part of the
-    images in this process's long-lived drawing process (see :func:`workers.pipeline.render.render_all`);
-    a process that analyses one clip and exits passes False, or starts that process in the background
-    as it starts (:func:`workers.pipeline.render.start_drawing_process`) and passes ``draw_elsewhere``:
-    every figure is then drawn there, and matplotlib is never imported here. ``limits`` caps what the
+    frame pairs whose flow is computed at once (default two). The images are drawn by
+    :func:`workers.drawing.draw_all`; matplotlib is imported in the background from the mechanics stage
+    on (:func:`workers.drawing.warm_up`). ``limits`` caps what the
     clip may hold and decode to (default :class:`~workers.pipeline.clipio.ReadLimits`).
 
     Raises
@@ -145,13 +135,11 @@ def run_analysis(
         Subclasses for bad clips (``ClipError``), bad parameters (``ParameterError``) and clips that
         cannot be analysed (``AnalysisError``); their messages are meant for the user.
     """
-    from workers.allocator import tune_malloc
+    from workers.drawing import warm_up
     from workers.pipeline.analysis import analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
-    from workers.pipeline.render import warm_up
 
-    tune_malloc()  # once per process: freed buffers are reused instead of faulted in afresh
-    report = _warming_up_for_images(progress, (lambda: None) if draw_elsewhere else warm_up)
+    report = _warming_up_for_images(progress, warm_up)
 
     params = parameters or AnalysisParameters()
     overrides = ClipOverrides(
@@ -180,8 +168,6 @@ def run_analysis(
         out,
         excitation=requested,
         parameters=params,
-        drawing_process=drawing_process,
-        draw_elsewhere=draw_elsewhere,
     )
     report("done", 1.0)
     return result
@@ -234,25 +220,15 @@ def write_result(
     *,
     excitation: Sequence[StepReleaseExcitation | ImpulseExcitation],
     parameters: AnalysisParameters,
-    drawing_process: bool = True,
-    draw_elsewhere: bool = False,
 ) -> AnalysisResult:
-    """Draw the images of ``analysis`` into ``out`` and write ``result.json`` there; returns the result.
-
-    ``drawing_process`` and ``draw_elsewhere`` as for :func:`run_analysis`.
-    """
+    """Draw the images of ``analysis`` into ``out`` and write ``result.json`` there; returns the result."""
     from time import perf_counter
 
-    from workers.pipeline.render import render_all
+    from workers.drawing import draw_all
 
     started = perf_counter()
     # mask.png (MASK_FILE) and every other image
-    artifacts = render_all(
-        analysis,
-        out,
-        drawing_process=drawing_process or draw_elsewhere,
-        everything_elsewhere=draw_elsewhere,
-    )
+    artifacts = draw_all(analysis, out)
     analysis.timings_s["render"] = perf_counter() - started
     result = build_result(analysis, excitation=excitation, parameters=parameters, artifacts=artifacts)
     write_result_json(out, result)
@@ -260,8 +236,10 @@ def write_result(
 
 
 def write_result_json(out: Path, result: AnalysisResult) -> None:
-    """Write ``result`` as ``out``/``result.json`` (atomically)."""
-    _atomic_write_text(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
+    """Write ``result`` as ``out``/``result.json`` (atomically, with the images' permissions)."""
+    from workers.pipeline._files import write_atomically
+
+    write_atomically(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
 
 
 def build_result(
@@ -273,32 +251,34 @@ def build_result(
 ) -> AnalysisResult:
     """The :class:`AnalysisResult` of ``analysis``, naming the image files ``artifacts`` (key -> file name);
     nothing is drawn or written (a live stream sends it before its images are drawn)."""
+    from workers.pipeline.model import finite_or_none
+
     requested, params = list(excitation), parameters
     objects = [
         ObjectResult(
             id=o.id,
             eigenfrequency_hz=o.eigenfrequency_hz,
             regime=o.regime,
-            eigenfrequency_uncertainty_hz=_finite(o.eigenfrequency_sd_hz),
-            natural_frequency_hz=_finite(o.natural_frequency_hz),
+            eigenfrequency_uncertainty_hz=finite_or_none(o.eigenfrequency_sd_hz),
+            natural_frequency_hz=finite_or_none(o.natural_frequency_hz),
             angular_frequency_rad_s=o.angular_frequency_rad_s,
-            damping_ratio=_finite(o.damping_ratio),
-            damping_ratio_uncertainty=_finite(o.damping_ratio_sd),
-            amplitude_px=_finite(o.amplitude_px),
+            damping_ratio=finite_or_none(o.damping_ratio),
+            damping_ratio_uncertainty=finite_or_none(o.damping_ratio_sd),
+            amplitude_px=finite_or_none(o.amplitude_px),
             amplitude_source=o.amplitude_source,
-            amplitude_m=_finite(o.amplitude_m),
-            amplitude_uncertainty_m=_finite(o.amplitude_sd_m),
-            depth_m=_finite(o.depth_m),
+            amplitude_m=finite_or_none(o.amplitude_m),
+            amplitude_uncertainty_m=finite_or_none(o.amplitude_sd_m),
+            depth_m=finite_or_none(o.depth_m),
             motion_direction=list(o.motion_direction) if o.motion_direction else None,
-            stiffness_n_per_m=_finite(o.stiffness_n_per_m),
-            stiffness_uncertainty_n_per_m=_finite(o.stiffness_sd),
-            mass_kg=_finite(o.mass_kg),
-            mass_uncertainty_kg=_finite(o.mass_sd),
+            stiffness_n_per_m=finite_or_none(o.stiffness_n_per_m),
+            stiffness_uncertainty_n_per_m=finite_or_none(o.stiffness_sd),
+            mass_kg=finite_or_none(o.mass_kg),
+            mass_uncertainty_kg=finite_or_none(o.mass_sd),
             pixel_count=o.pixel_count,
             bbox_px=list(o.bbox_px),
             harmonics_hz=o.harmonics_hz,
-            release_time_s=_finite(o.release_time_s),
-            snr_db=_finite(o.snr_db),
+            release_time_s=finite_or_none(o.release_time_s),
+            snr_db=finite_or_none(o.snr_db),
             null_reasons=o.null_reasons,
             notes=o.notes,
             ringdown=_ringdown(o),
@@ -368,17 +348,3 @@ def job_runner(settings: Settings) -> Callable[..., AnalysisResult]:
             shutil.rmtree(scratch, ignore_errors=True)
 
     return run
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    from workers.pipeline._files import artifact_mode
-
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.chmod(tmp, artifact_mode())  # as the images (mkstemp creates 0600 files)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -579,8 +579,9 @@ class Session:
         that wants the images waits for the job (``GET /v1/jobs/{id}?wait=``).
         """
         from service.jobs import artifact_url
+        from workers.drawing import draw_all
         from workers.pipeline.errors import EigenscopeError
-        from workers.pipeline.render import ARTIFACT_FILES, render_all
+        from workers.pipeline.figures import ARTIFACT_FILES
         from workers.runner import (
             analysis_config,
             build_result,
@@ -618,7 +619,7 @@ class Session:
         self.send({"type": "result", "job_id": job_id, "clip_id": self.record.clip_id, "result": served})
         # Then the images, the job (the same result as sent), and the frames filed as a clip that can be
         # analysed again: the stream has succeeded once all three are done.
-        render_all(analysis, workdir)
+        draw_all(analysis, workdir)
         write_result_json(workdir, result)
         self.storage.publish_job_outputs(job_id, workdir)
         if not self.store.complete_job(
@@ -700,16 +701,11 @@ def live_estimate_json(values: dict[str, Any]) -> dict[str, Any]:
 
 def run_stream_worker(settings: Settings, *, stop: threading.Event | None = None) -> None:
     """Take stream sessions and run them, ``stream_sessions_per_worker`` at a time, until ``stop``."""
-    from workers.allocator import tune_malloc
-
-    tune_malloc()
-    # Results are drawn by this process's drawing process: started now (and the pipeline imported), not
-    # after a stream's last frame.
+    # The pipeline and matplotlib are imported now, not after a stream's last frame.
     import workers.pipeline.live  # noqa: F401 - imported before any session needs it
-    import workers.pipeline.render as render
+    from workers.drawing import warm_up
 
-    render.start_drawing_process()
-    render.warm_up()
+    warm_up()
     stop = stop or threading.Event()
     transport = transport_for(settings)
     store = Store(settings.effective_database_url, lease_s=settings.lease_s, max_attempts=1)

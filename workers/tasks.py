@@ -11,10 +11,6 @@ import logging
 from celery import Task, shared_task
 from celery.exceptions import MaxRetriesExceededError, SoftTimeLimitExceeded
 
-import workers.pipeline.analysis
-import workers.pipeline.clipio
-import workers.pipeline.flow
-import workers.pipeline.render  # noqa: F401 - preloaded here so that no job pays for the imports
 from service.broker import TASK_RUN_JOB
 from workers.celery_app import EigenscopeCelery
 from workers.execution import execute_job

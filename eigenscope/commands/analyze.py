@@ -70,26 +70,6 @@ def register(sub: Any) -> None:
     p.set_defaults(handler=run)
 
 
-def text_cache_path() -> Path | None:
-    """Where the command line keeps the strings its figures rendered (see
-    :func:`workers.pipeline.render.start_drawing_process`): ``$EIGENSCOPE_CACHE_DIR``, else
-    ``$XDG_CACHE_HOME/eigenscope``, else ``~/.cache/eigenscope``; None (no file) when
-    ``EIGENSCOPE_CACHE_DIR`` is set empty or no home folder is known."""
-    folder = os.environ.get("EIGENSCOPE_CACHE_DIR")
-    if folder is None:
-        xdg = os.environ.get("XDG_CACHE_HOME")
-        try:
-            base = Path(xdg) if xdg and os.path.isabs(xdg) else Path.home() / ".cache"
-        except RuntimeError:  # no home folder
-            return None
-        return base / "eigenscope" / TEXT_CACHE_FILE
-    return Path(folder) / TEXT_CACHE_FILE if folder else None
-
-
-#: The file of rendered strings in the cache folder.
-TEXT_CACHE_FILE = "figure-text.pickle"
-
-
 def first_missing_folder(out: Path) -> Path | None:
     """The outermost folder of ``out`` that does not exist yet (the one a run creates), or None."""
     out = Path(os.path.abspath(out))
@@ -102,12 +82,6 @@ def first_missing_folder(out: Path) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from workers.pipeline.render import start_drawing_process
-
-    # The images are drawn by a process started first, at the lowest priority: it imports matplotlib on
-    # the core time this process leaves idle (from its own imports on), and this process never does.
-    # Bad arguments, found below, end both.
-    start_drawing_process(background=True, text_cache=text_cache_path())
     from pydantic import ValidationError
 
     from api_schemas import AnalysisParameters, ImpulseExcitation, StepReleaseExcitation
@@ -167,7 +141,6 @@ def run(args: argparse.Namespace) -> int:
             parameters=params,
             depth_path=args.depth,
             flow_threads=args.flow_threads,
-            draw_elsewhere=True,
         )
     except BaseException:
         if created is not None:  # a failed run leaves no folder it made behind

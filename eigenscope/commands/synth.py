@@ -37,7 +37,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from workers.pipeline.clipio import write_npz
-    from workers.pipeline.render import write_label_png
+    from workers.pipeline.figures import write_label_png
     from workers.pipeline.synth import Scene, SceneObject, render
 
     w, h = args.width, args.height

@@ -16,7 +16,7 @@ No Celery, FastAPI, Redis or settings imports live below this package. One job p
 - :mod:`~workers.pipeline.metric`, :mod:`~workers.pipeline.mechanics`, :mod:`~workers.pipeline.measure` --
   amplitude in metres, stiffness and mass, one object's figures;
 - :mod:`~workers.pipeline.quality` -- why a figure may be unreliable;
-- :mod:`~workers.pipeline.render` -- images of the result;
+- :mod:`~workers.pipeline.figures` -- images of the result, one pure function per figure;
 - :mod:`~workers.pipeline.analysis` -- the stages wired together (:func:`analyze`);
 - :mod:`~workers.pipeline.paper` -- the paper's recipe, for comparison;
 - :mod:`~workers.pipeline.synth` -- ground-truth RGB-D scenes for tests, demos and benchmarks.

@@ -1,5 +1,5 @@
 """FFT plumbing: FFTW plans built once per shape and reused, the fast transform length, and the FFT
-library's import (pyfftw without its scipy interfaces).
+library's import.
 """
 
 from __future__ import annotations
@@ -17,25 +17,11 @@ if TYPE_CHECKING:
 @functools.cache
 def _fftw() -> Any:
     """``pyfftw`` with its builders, imported on first use, or None where pyfftw is missing (numpy is only
-    a fallback for exotic platforms).
-
-    Importing pyfftw also loads its ``interfaces`` package, which imports scipy.fftpack and so scipy.fft
-    when scipy is installed: 0.2 to 0.4 s of CPU in every analysis, for interfaces this project does not
-    use. scipy.fftpack is marked absent for the length of the import (pyfftw then skips those
-    interfaces) unless something has loaded it already; nothing else in an analysis imports it.
-    """
-    import sys
-
-    hide = "scipy.fftpack" not in sys.modules
-    if hide:
-        sys.modules["scipy.fftpack"] = None  # type: ignore[assignment]
+    a fallback for exotic platforms)."""
     try:
         import pyfftw.builders
     except ImportError:  # pragma: no cover
         return None
-    finally:
-        if hide and sys.modules.get("scipy.fftpack", False) is None:
-            del sys.modules["scipy.fftpack"]
     return pyfftw
 
 

@@ -314,6 +314,20 @@ class Analysis:
         return self.fps / self.frame_step
 
 
+def finite_or_none(x: float | None) -> float | None:
+    """``x`` as a float, or None when it is None, NaN or infinite (a figure that was not measured).
+
+    Parameters
+    ----------
+    x : float or None
+
+    Returns
+    -------
+    float or None
+    """
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
 class Stopwatch:
     """Seconds per stage of an analysis (``Analysis.timings_s``), each lap adding to its stage."""
 
@@ -346,4 +360,5 @@ __all__ = [
     "QualityNote",
     "RejectedPeak",
     "Stopwatch",
+    "finite_or_none",
 ]

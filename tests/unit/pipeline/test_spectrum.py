@@ -113,23 +113,3 @@ def test_fast_length_is_scipys_next_fast_len_for_real_transforms():
     assert [fast_length(n) for n in range(1, 3000)] == [next_fast_len(n, real=True) for n in range(1, 3000)]
     with pytest.raises(ValueError, match="positive"):
         fast_length(0)
-
-
-def test_spectra_import_fftw_without_scipy_and_leave_scipy_importable():
-    """pyfftw's own import would load scipy.fftpack and scipy.fft for interfaces the spectra do not use;
-    a fresh process computing spectra loads neither, and can still import scipy.fftpack afterwards."""
-    import subprocess
-    import sys
-
-    code = (
-        "import sys, numpy as np\n"
-        "from workers.pipeline.spectra import pixel_spectra\n"
-        "flow = np.random.default_rng(0).normal(size=(64, 8, 8, 2)).astype(np.float32)\n"
-        "s = pixel_spectra(flow, fps=30.0)\n"
-        "assert s.power.shape[1] == 64, s.power.shape\n"
-        "loaded = sorted(m for m in sys.modules if m.startswith(('scipy.fft', 'scipy.fftpack')))\n"
-        "assert 'pyfftw' in sys.modules and not loaded, loaded\n"
-        "import scipy.fftpack\n"
-        "assert scipy.fftpack.fft([1.0, 0.0]).shape == (2,)\n"
-    )
-    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from workers.pipeline.render import (
+from workers.pipeline.figures import (
     display_scale,
     format_quantity,
     object_color,
@@ -105,7 +105,7 @@ def test_drawing_leaves_out_the_3d_toolkit_and_keeps_it_importable():
     code = (
         "import sys, warnings\n"
         "warnings.simplefilter('error')\n"
-        "from workers.pipeline.render import warm_up\n"
+        "from workers.drawing import warm_up\n"
         "warm_up().join()\n"
         "assert 'matplotlib.figure' in sys.modules\n"
         "assert not any(m.startswith('mpl_toolkits.mplot3d') for m in sys.modules)\n"

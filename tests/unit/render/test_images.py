@@ -18,8 +18,9 @@ import pytest
 
 from tests.unit.render.conftest import Analysed
 from tests.unit.render.helpers import assert_not_blank, colour_mask, decode, size_of
+from workers.drawing import draw_all
 from workers.pipeline.analysis import Analysis
-from workers.pipeline.render import (
+from workers.pipeline.figures import (
     ARTIFACT_FILES,
     NO_OBJECT_NOTE,
     PLOT_SIZE_PX,
@@ -27,7 +28,6 @@ from workers.pipeline.render import (
     frequency_map_size,
     object_color,
     panel_figure_size,
-    render_all,
     write_displacement_png,
     write_frequency_map_png,
     write_label_png,
@@ -51,7 +51,7 @@ def expected_sizes(analysis: Analysis) -> dict[str, tuple[int, int]]:
 
 
 def check_all(analysis: Analysis, out: Path) -> dict[str, np.ndarray]:
-    names = render_all(analysis, out)
+    names = draw_all(analysis, out)
     assert names == ARTIFACT_FILES
     images = {}
     for key, name in names.items():
@@ -68,12 +68,7 @@ def check_all(analysis: Analysis, out: Path) -> dict[str, np.ndarray]:
 
 @pytest.fixture
 def texts(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """Every string matplotlib lays out while the test runs (in this process: figures are drawn here,
-    not in the other process that shares the drawing otherwise; test_forked_drawing and
-    test_drawing_process check both give the same pixels)."""
-    from workers.pipeline import render
-
-    monkeypatch.setattr(render, "_draw_elsewhere", lambda *args, **kwargs: None)
+    """Every string matplotlib lays out while the test runs (every figure is drawn in this process)."""
     seen: list[str] = []
     original = matplotlib.text.Text.set_text
 
@@ -157,7 +152,7 @@ def test_mask_of_more_than_255_objects_stays_exact_in_16_bits(tmp_path: Path):
 
 def test_files_are_written_atomically_and_readable(one_object: Analysed, tmp_path: Path):
     out = tmp_path / "new" / "dir"
-    names = render_all(one_object.analysis, out)
+    names = draw_all(one_object.analysis, out)
     assert sorted(p.name for p in out.iterdir()) == sorted(names.values())  # no temporary leftovers
     for name in names.values():
         mode = stat.S_IMODE(os.stat(out / name).st_mode)
@@ -255,12 +250,12 @@ def test_small_frames_are_upscaled_and_unknowns_say_so(small: Analysed, tmp_path
 
 def test_rendering_is_thread_safe_and_deterministic(two_objects: Analysed, tmp_path: Path):
     a = two_objects.analysis
-    reference = {k: decode(tmp_path / "ref" / v) for k, v in render_all(a, tmp_path / "ref").items()}
+    reference = {k: decode(tmp_path / "ref" / v) for k, v in draw_all(a, tmp_path / "ref").items()}
     errors: list[BaseException] = []
 
     def work(i: int) -> None:
         try:
-            render_all(a, tmp_path / f"t{i}")
+            draw_all(a, tmp_path / f"t{i}")
         except BaseException as exc:  # pragma: no cover - reported below
             errors.append(exc)
 
@@ -279,4 +274,4 @@ def test_write_errors_surface(one_object: Analysed, tmp_path: Path):
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
     with pytest.raises(FileExistsError):
-        render_all(one_object.analysis, blocker)
+        draw_all(one_object.analysis, blocker)

@@ -8,7 +8,7 @@ from pathlib import Path
 from api_schemas import AnalysisParameters, StepReleaseExcitation
 from tests.unit.render.conftest import Analysed
 from tests.unit.render.helpers import decode
-from workers.pipeline.render import ARTIFACT_FILES
+from workers.pipeline.figures import ARTIFACT_FILES
 from workers.runner import MASK_FILE, RESULT_FILE, run_analysis
 
 
