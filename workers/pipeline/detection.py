@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.light import FLICKER_ROWS, FLICKER_SNR, flickering_rows, floor_of
 from workers.pipeline.model import ObjectMeasurement, QualityNote, RejectedPeak
-from workers.pipeline.peaks import Peak, find_peaks, fold_harmonics, noise_floor
+from workers.pipeline.peaks import Peak, PeakPolicy, detect_peaks, find_peaks
 from workers.pipeline.segmentation import Segmentation, band_mask
 from workers.pipeline.spectra import PixelSpectra, background_spectrum, whitened_spectrum
 
@@ -67,50 +67,6 @@ CAMERA_RATIO = 4.0
 CAMERA_OVERTONE_POWER = 0.1
 
 
-@dataclass(frozen=True)
-class PeakPolicy:
-    """How peaks of a motion spectrum are found: the detectors and their thresholds.
-
-    Up to three detectors look at one spectrum: the *summed* spectrum against static background finds
-    strong motion, however damped; the *whitened* spectrum (each pixel against its own noise) finds weak,
-    sub-pixel vibration spread over many pixels; the *median pixel* (a survey only) finds a vibration of
-    most of the picture (a compressor shaking everything near it) that a stronger peak beside it hides in
-    the sums. The first detector's peaks keep the harmonics they folded; the others' are folded in as
-    found, up to ``max_order`` (with many peaks about, a higher multiple matches a weak object's frequency
-    by chance; the segmentation and :func:`judge_objects` recognise a real overtone by the pixels it
-    shares).
-
-    Attributes
-    ----------
-    strong_min_snr_db : float
-        A peak of the summed spectrum stands this far above the background's.
-    weak_min_snr_db : float
-        A peak of the whitened (and median) spectrum stands this far above its running median.
-    weak_floor_bins, weak_floor_fraction : int
-        That running median spans ``max(weak_floor_bins, F // weak_floor_fraction)`` bins.
-    median_pixel : bool
-        Run the median-pixel detector.
-    min_separation_bins : float
-        Peaks closer than this (in bins) are one.
-    max_order : int
-        Highest harmonic order folded in.
-    min_bins : float
-        Peaks below this many bins (unresolved from the mean and slow drift) are dropped.
-    peaks_per_object : int
-        Candidates kept per object sought (peaks that give no region drop out in the segmentation).
-    """
-
-    strong_min_snr_db: float
-    weak_min_snr_db: float
-    weak_floor_bins: int
-    weak_floor_fraction: int
-    median_pixel: bool
-    min_separation_bins: float
-    max_order: int
-    min_bins: float
-    peaks_per_object: int
-
-
 #: The analysis window's detectors.
 WINDOW_PEAKS = PeakPolicy(
     strong_min_snr_db=10.0,
@@ -138,81 +94,6 @@ SURVEY_PEAKS = PeakPolicy(
 )
 
 
-def detect_peaks(
-    frequencies_hz: NDArray[np.float64],
-    *,
-    summed: NDArray[np.float64],
-    background: NDArray[np.float64],
-    whitened: NDArray[np.float64],
-    median_snr: NDArray[np.float64] | None = None,
-    band_hz: tuple[float, float],
-    bin_hz: float,
-    max_objects: int = 8,
-    policy: PeakPolicy = WINDOW_PEAKS,
-) -> list[Peak]:
-    """Peaks of a motion spectrum that may be objects, strongest first, harmonics folded in.
-
-    Parameters
-    ----------
-    frequencies_hz : ndarray of float64, shape (F,)
-    summed : ndarray of float64, shape (F,)
-        Power summed over pixels.
-    background : ndarray of float64, shape (F,)
-        What ``summed`` would be over static background.
-    whitened : ndarray of float64, shape (F,)
-        Mean over pixels of each pixel's power over its own noise.
-    median_snr : ndarray of float64, shape (F,), optional
-        The median pixel's power over its noise (for ``policy.median_pixel``).
-    band_hz : (float, float)
-        Band searched.
-    bin_hz : float
-        Spectral resolution.
-    max_objects : int
-        Objects sought (``policy.peaks_per_object`` candidates each, at most 8 per detector when 1).
-    policy : PeakPolicy
-        :data:`WINDOW_PEAKS` or :data:`SURVEY_PEAKS`.
-    """
-    cap = policy.peaks_per_object * max_objects
-
-    def floor(power: NDArray[np.float64]) -> NDArray[np.float64]:
-        return noise_floor(power, width=max(policy.weak_floor_bins, len(power) // policy.weak_floor_fraction))
-
-    strong = find_peaks(
-        frequencies_hz,
-        summed,
-        band_hz=band_hz,
-        noise=background,
-        min_snr_db=policy.strong_min_snr_db,
-        max_peaks=cap,
-    )
-    others = find_peaks(
-        frequencies_hz,
-        whitened,
-        band_hz=band_hz,
-        noise=floor(whitened),
-        min_snr_db=policy.weak_min_snr_db,
-        max_peaks=cap,
-    )
-    if policy.median_pixel and median_snr is not None:
-        others += find_peaks(
-            frequencies_hz,
-            median_snr,
-            band_hz=band_hz,
-            noise=np.maximum(floor(median_snr), 1.0),
-            min_snr_db=policy.weak_min_snr_db,
-            max_peaks=cap,
-        )
-    candidates = [*strong, *(Peak(**{**vars(p), "harmonics_hz": []}) for p in others)]
-    candidates = [p for p in candidates if p.frequency_hz >= policy.min_bins * bin_hz]
-    return fold_harmonics(
-        candidates,
-        bin_hz=bin_hz,
-        max_peaks=cap,
-        min_separation_bins=policy.min_separation_bins,
-        max_order=policy.max_order,
-    )
-
-
 def candidate_peaks(
     spectra: PixelSpectra, *, band_hz: tuple[float, float], max_peaks: int
 ) -> tuple[list[Peak], NDArray[np.float64], NDArray[np.float64]]:
@@ -238,6 +119,7 @@ def candidate_peaks(
         band_hz=band_hz,
         bin_hz=spectra.bin_hz,
         max_objects=max_peaks,
+        policy=WINDOW_PEAKS,
     )
     return peaks, summed, noise
 
@@ -863,12 +745,10 @@ __all__ = [
     "MIN_RINGDOWN_SNR_DB",
     "SURVEY_PEAKS",
     "WINDOW_PEAKS",
-    "PeakPolicy",
     "WindowEvidence",
     "block_coverage",
     "candidate_peaks",
     "clip_regime",
-    "detect_peaks",
     "drop_objects",
     "folded_image",
     "folded_verdicts",

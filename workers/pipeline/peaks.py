@@ -1,6 +1,7 @@
 """Peaks of spectra: position to a fraction of a bin, prominence and height above a noise floor, width,
 and the harmonics and folded-back overtones that belong to a stronger peak rather than to an object of
-their own.
+their own; :func:`detect_peaks` runs the detectors a :class:`PeakPolicy` names (the thresholds of the
+window and of the survey are part of the detection policy, :mod:`workers.pipeline.detection`).
 """
 
 from __future__ import annotations
@@ -44,6 +45,50 @@ class Peak:
     """Half of the peak's full width at half power, in bins."""
 
 
+@dataclass(frozen=True)
+class PeakPolicy:
+    """How peaks of a motion spectrum are found: the detectors and their thresholds.
+
+    Up to three detectors look at one spectrum: the *summed* spectrum against static background finds
+    strong motion, however damped; the *whitened* spectrum (each pixel against its own noise) finds weak,
+    sub-pixel vibration spread over many pixels; the *median pixel* (a survey only) finds a vibration of
+    most of the picture (a compressor shaking everything near it) that a stronger peak beside it hides in
+    the sums. The first detector's peaks keep the harmonics they folded; the others' are folded in as
+    found, up to ``max_order`` (with many peaks about, a higher multiple matches a weak object's frequency
+    by chance; the segmentation and :func:`judge_objects` recognise a real overtone by the pixels it
+    shares).
+
+    Attributes
+    ----------
+    strong_min_snr_db : float
+        A peak of the summed spectrum stands this far above the background's.
+    weak_min_snr_db : float
+        A peak of the whitened (and median) spectrum stands this far above its running median.
+    weak_floor_bins, weak_floor_fraction : int
+        That running median spans ``max(weak_floor_bins, F // weak_floor_fraction)`` bins.
+    median_pixel : bool
+        Run the median-pixel detector.
+    min_separation_bins : float
+        Peaks closer than this (in bins) are one.
+    max_order : int
+        Highest harmonic order folded in.
+    min_bins : float
+        Peaks below this many bins (unresolved from the mean and slow drift) are dropped.
+    peaks_per_object : int
+        Candidates kept per object sought (peaks that give no region drop out in the segmentation).
+    """
+
+    strong_min_snr_db: float
+    weak_min_snr_db: float
+    weak_floor_bins: int
+    weak_floor_fraction: int
+    median_pixel: bool
+    min_separation_bins: float
+    max_order: int
+    min_bins: float
+    peaks_per_object: int
+
+
 def interpolate_peak(power: NDArray[np.floating[Any]], k: int) -> float:
     """Sub-bin peak offset by a parabola through the log power of bins k-1, k, k+1.
 
@@ -79,6 +124,82 @@ def noise_floor(power: NDArray[np.floating[Any]], *, width: int = 9) -> NDArray[
     padded = np.pad(values, width // 2, mode="edge")
     windows = np.lib.stride_tricks.sliding_window_view(padded, width)
     return np.asarray(np.median(windows, axis=1), np.float64)
+
+
+def detect_peaks(
+    frequencies_hz: NDArray[np.float64],
+    *,
+    summed: NDArray[np.float64],
+    background: NDArray[np.float64],
+    whitened: NDArray[np.float64],
+    median_snr: NDArray[np.float64] | None = None,
+    band_hz: tuple[float, float],
+    bin_hz: float,
+    max_objects: int = 8,
+    policy: PeakPolicy,
+) -> list[Peak]:
+    """Peaks of a motion spectrum that may be objects, strongest first, harmonics folded in.
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray of float64, shape (F,)
+    summed : ndarray of float64, shape (F,)
+        Power summed over pixels.
+    background : ndarray of float64, shape (F,)
+        What ``summed`` would be over static background.
+    whitened : ndarray of float64, shape (F,)
+        Mean over pixels of each pixel's power over its own noise.
+    median_snr : ndarray of float64, shape (F,), optional
+        The median pixel's power over its noise (for ``policy.median_pixel``).
+    band_hz : (float, float)
+        Band searched.
+    bin_hz : float
+        Spectral resolution.
+    max_objects : int
+        Objects sought (``policy.peaks_per_object`` candidates each, at most 8 per detector when 1).
+    policy : PeakPolicy
+        The detectors and thresholds (:data:`workers.pipeline.detection.WINDOW_PEAKS` or
+        :data:`~workers.pipeline.detection.SURVEY_PEAKS`).
+    """
+    cap = policy.peaks_per_object * max_objects
+
+    def floor(power: NDArray[np.float64]) -> NDArray[np.float64]:
+        return noise_floor(power, width=max(policy.weak_floor_bins, len(power) // policy.weak_floor_fraction))
+
+    strong = find_peaks(
+        frequencies_hz,
+        summed,
+        band_hz=band_hz,
+        noise=background,
+        min_snr_db=policy.strong_min_snr_db,
+        max_peaks=cap,
+    )
+    others = find_peaks(
+        frequencies_hz,
+        whitened,
+        band_hz=band_hz,
+        noise=floor(whitened),
+        min_snr_db=policy.weak_min_snr_db,
+        max_peaks=cap,
+    )
+    if policy.median_pixel and median_snr is not None:
+        others += find_peaks(
+            frequencies_hz,
+            median_snr,
+            band_hz=band_hz,
+            noise=np.maximum(floor(median_snr), 1.0),
+            min_snr_db=policy.weak_min_snr_db,
+            max_peaks=cap,
+        )
+    candidates = [*strong, *(Peak(**{**vars(p), "harmonics_hz": []}) for p in others)]
+    candidates = [p for p in candidates if p.frequency_hz >= policy.min_bins * bin_hz]
+    return fold_harmonics(
+        candidates,
+        bin_hz=bin_hz,
+        max_peaks=cap,
+        min_separation_bins=policy.min_separation_bins,
+        max_order=policy.max_order,
+    )
 
 
 def topographic_prominence(power: NDArray[np.float64], k: int) -> float:
@@ -334,6 +455,8 @@ def explained(frequency_hz: float, peaks: list[Peak], *, bin_hz: float, toleranc
 
 __all__ = [
     "Peak",
+    "PeakPolicy",
+    "detect_peaks",
     "explained",
     "find_peaks",
     "fold_aliased_harmonics",

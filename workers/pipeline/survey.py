@@ -32,10 +32,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing
-from workers.pipeline.detection import SURVEY_PEAKS, detect_peaks
+from workers.pipeline.detection import SURVEY_PEAKS
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, FLICKER_ROWS, flickering_rows
-from workers.pipeline.peaks import Peak
+from workers.pipeline.peaks import Peak, detect_peaks
 
 #: Floats held by the survey's segment buffer (flow of every survey pixel over one Welch segment).
 SURVEY_BUFFER_FLOATS = 8_000_000
