@@ -324,10 +324,15 @@ def _serve(request_fd: int, reply_fd: int, background: bool, text_cache: str | N
         with contextlib.suppress(OSError, AttributeError):
             os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
 
+    # Held from a reply until the text cache it may have grown is saved: a parent that exits as soon as it
+    # has its reply (``eigenscope analyze``) must not end this process halfway through the save.
+    saving = threading.Lock()
+
     def watch_parent() -> None:  # a parent killed while this process starts cannot close the pipe yet
         while os.getppid() == parent:
             time.sleep(0.1)
-        os._exit(0)
+        with saving:
+            os._exit(0)
 
     threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
     from workers.pipeline import _agg, render
@@ -363,14 +368,15 @@ def _serve(request_fd: int, reply_fd: int, background: bool, text_cache: str | N
             error = f"{type(exc).__name__}: {exc}"
         added = _agg.strings_added_since(mark)
         mark = _agg.cache_mark()
-        try:
-            _send(reply_fd, ("done", error, added), time.monotonic() + REPLY_TIMEOUT_S)
-        except _BrokenError:
-            return
-        finally:  # after the reply, which the parent may be waiting for (and then exit)
-            if text_cache is not None and mark != saved:
-                _agg.save_cache(text_cache)
-                saved = mark
+        with saving:
+            try:
+                _send(reply_fd, ("done", error, added), time.monotonic() + REPLY_TIMEOUT_S)
+            except _BrokenError:
+                return
+            finally:  # after the reply, which the parent may be waiting for (and then exit)
+                if text_cache is not None and mark != saved:
+                    _agg.save_cache(text_cache)
+                    saved = mark
 
 
 def _main(argv: list[str]) -> None:

@@ -97,24 +97,41 @@ def test_bad_input_gets_one_line_and_exit_2(make, args, expected, clip, tmp_path
     assert expected.lower() in lines[0].lower()
 
 
+#: Runs the command given in its arguments, then waits for every process it left behind (the figures'
+#: drawing process outlives ``analyze``, which leaves with ``os._exit``): as a child subreaper, this
+#: process inherits them when their parent exits and reaps them one by one until none is left.
+RUN_AND_WAIT_FOR_DESCENDANTS = """
+import ctypes, os, subprocess, sys
+PR_SET_CHILD_SUBREAPER = 36
+if ctypes.CDLL(None, use_errno=True).prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) != 0:
+    sys.exit(f"prctl(PR_SET_CHILD_SUBREAPER) failed: {os.strerror(ctypes.get_errno())}")
+status = subprocess.call(sys.argv[1:])
+while True:
+    try:
+        os.wait()
+    except ChildProcessError:
+        break
+sys.exit(status)
+"""
+
+
 def test_figures_text_is_cached_between_runs_in_the_cache_folder(clip, tmp_path):
     import os
-    import time
 
     env = {**os.environ, "EIGENSCOPE_CACHE_DIR": str(tmp_path / "cache")}
+    analyze = [sys.executable, "-m", "eigenscope", "analyze", str(clip), "--out", str(tmp_path / "out")]
     done = subprocess.run(
-        [sys.executable, "-m", "eigenscope", "analyze", str(clip), "--out", str(tmp_path / "out")],
+        [sys.executable, "-c", RUN_AND_WAIT_FOR_DESCENDANTS, *analyze],
         capture_output=True,
         text=True,
         env=env,
         check=False,
+        timeout=300,  # a guard against a hang, not a bound on the time
     )
     assert done.returncode == 0, done.stderr
     assert len(list((tmp_path / "out").glob("*.png"))) == 6
+    # Written by the drawing process after its reply, before it exits: it has exited.
     cache = tmp_path / "cache" / "figure-text.pickle"
-    deadline = time.monotonic() + 10.0  # written by the drawing process after its reply
-    while not cache.is_file() and time.monotonic() < deadline:
-        time.sleep(0.02)
     assert cache.stat().st_size > 1000
 
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from tests.unit.pipeline.conftest import ACCURACY_ROWS
+from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import Excitation
 from workers.pipeline.synth import Scene, SceneObject
 

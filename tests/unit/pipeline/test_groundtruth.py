@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.unit.pipeline.conftest import ACCURACY_ROWS
+from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import AnalysisConfig
 from workers.pipeline.synth import Scene, SceneObject
 

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from tests.unit.pipeline.conftest import ACCURACY_ROWS
+from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import DEFAULT_MAX_FRAMES, AnalysisConfig, analyze
 from workers.pipeline.synth import Scene, SceneObject, SceneReader
 

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from tests.unit.pipeline.conftest import ACCURACY_ROWS
+from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import AnalysisConfig, analyze
 from workers.pipeline.clipio import ClipOverrides, open_clip
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.unit.pipeline.conftest import ACCURACY_ROWS
+from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import AnalysisConfig, analyze
 from workers.pipeline.clipio import ClipOverrides, open_clip, write_npz
 from workers.pipeline.synth import Scene, SceneObject, SceneReader, render
