@@ -40,7 +40,7 @@ def shared_dir() -> Path:
     if not SHARED.is_dir():
         if os.environ.get("CI") == "true":
             pytest.fail(f"shared data folder {SHARED} is missing in CI")
-        pytest.skip(f"shared data folder {SHARED} is missing")
+        pytest.skip(f"shared data folder {SHARED} is missing (the real-footage tests need ../shared)")
     return SHARED
 
 
