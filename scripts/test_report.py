@@ -2,7 +2,8 @@
 
     python scripts/test_report.py REPORTS_FOLDER [--slowest 15]
 
-``REPORTS_FOLDER`` holds a JUnit XML report per tier (``<tier>.xml``) and ``walls``: one line per tier run,
+``REPORTS_FOLDER`` holds a JUnit XML report per tier (``<tier>.xml``, and ``<tier>.serial.xml`` for the
+tests it ran alone) and ``walls``: one line per tier run,
 ``tier started ended exit-status`` (seconds since the epoch). A test's time is its setup, call and teardown
 (a module's services are started in its first test's setup). "Serial" is the sum of the tier's test
 times: what it would take one worker; the wall time is what it took on the workers it had.
@@ -25,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     serial: dict[str, float] = {}
     counts: dict[str, int] = {}
     for xml in sorted(args.reports.glob("*.xml")):
-        tier = xml.stem
+        tier = xml.name.split(".")[0]  # <tier>.xml, and <tier>.serial.xml for its serial tests
         for case in ET.parse(xml).iter("testcase"):
             seconds = float(case.get("time", "0") or 0)
             name = f"{case.get('classname', '')}::{case.get('name', '')}"

@@ -52,6 +52,11 @@ TIERS = {"unit": "unit", "contract": "contract", "integration": "integration", "
 #: that use the shared Redis test database (which the harness flushes) share one worker.
 SERVICE_TIERS = ("integration", "contract", "e2e")
 SHARED_REDIS = "shared-redis"
+#: Modules whose tests need a core left idle: a drawing process runs at SCHED_IDLE priority, and with
+#: every core busy (two xdist workers on two cores) it gets no time, the caller gives up on it after
+#: its reply timeout and draws the figures itself. Marked ``serial``: ``scripts/test.sh`` runs them after
+#: the rest of their tier, alone. (A test elsewhere is marked ``serial`` where it is defined.)
+SERIAL_MODULES = ("unit/render/test_drawing_process.py", "unit/render/test_cost.py")
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -69,6 +74,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             continue
         if tier != "unit" or item.get_closest_marker("accuracy") is None:
             item.add_marker(getattr(pytest.mark, tier))
+        if where.as_posix() in SERIAL_MODULES:
+            item.add_marker(pytest.mark.serial)
         if tier in SERVICE_TIERS and item.get_closest_marker("xdist_group") is None:
             item.add_marker(pytest.mark.xdist_group(where.as_posix()))
 

@@ -119,6 +119,7 @@ sys.exit(status)
 
 
 @pytest.mark.accuracy  # a whole analysis
+@pytest.mark.serial  # its drawing process runs at idle priority: it needs a core nobody else uses
 def test_figures_text_is_cached_between_runs_in_the_cache_folder(clip, tmp_path):
     import os
 
