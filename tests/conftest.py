@@ -61,10 +61,13 @@ SERIAL_MODULES = ("unit/render/test_drawing_process.py", "unit/render/test_cost.
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Mark each test with its tier, from its folder (``accuracy`` is marked by the test modules), and
-    group the service tiers' tests by module for pytest-xdist."""
+    """Give each test exactly one tier marker, from its folder (``accuracy`` for a test under
+    ``tests/unit`` that its module or function marks so), dropping any other tier marker a module
+    declared (the contract tests that start services were marked ``integration``): ``-m TIER`` selects
+    every test once. Group the service tiers' tests by module for pytest-xdist."""
     root = Path(__file__).resolve().parent
-    for item in items:
+    tiers: dict[int, str] = {}
+    for i, item in enumerate(items):
         try:
             where = item.path.resolve().relative_to(root)
         except ValueError:
@@ -72,12 +75,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         tier = TIERS.get(where.parts[0])
         if tier is None:
             continue
-        if tier != "unit" or item.get_closest_marker("accuracy") is None:
-            item.add_marker(getattr(pytest.mark, tier))
+        if tier == "unit" and item.get_closest_marker("accuracy") is not None:
+            tier = "accuracy"
+        tiers[i] = tier
         if where.as_posix() in SERIAL_MODULES:
             item.add_marker(pytest.mark.serial)
         if tier in SERVICE_TIERS and item.get_closest_marker("xdist_group") is None:
             item.add_marker(pytest.mark.xdist_group(where.as_posix()))
+    names = {*TIERS.values(), "accuracy"}
+    for i in tiers:
+        for node in items[i].listchain():
+            node.own_markers[:] = [m for m in node.own_markers if m.name not in names]
+    for i, tier in tiers.items():
+        items[i].add_marker(getattr(pytest.mark, tier))
 
 
 #: The accuracy rows of the tests that ran, as their reports carried them (from xdist workers too).
