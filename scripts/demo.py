@@ -3,10 +3,10 @@
 1. starts ``eigenscope serve`` in embedded mode (no external server) on a free port, data in ./var/demo;
 2. renders a synthetic RGB-D clip of a spring-mass object with known frequency, stiffness and mass;
 3. uploads it, queues a job, follows its progress and prints the result next to the truth, with the
-   artifact URLs;
+   artifact URLs, and saves the result and its images in ./var/demo/results/<job id>/;
 4. streams the same clip live, as a robot's camera would (``eigenscope stream``): estimates as the frames
    arrive, ``converged`` when the robot may stop recording, the result right after the last frame;
-5. stops the server (or keeps it running with ``--keep-serving``).
+5. stops the server, saying so (or keeps it running with ``--keep-serving``, so that its links work).
 """
 
 from __future__ import annotations
@@ -102,6 +102,14 @@ def main(argv: list[str] | None = None) -> int:
             job = client.wait(job, timeout=600, on_progress=bar.job)
             bar.done()
             elapsed = time.monotonic() - started
+            saved: list[Path] = []
+            if job.status == "succeeded" and job.result is not None:
+                folder = data_dir / "results" / job.id
+                folder.mkdir(parents=True, exist_ok=True)
+                for name in ("result.json", *job.result.artifacts):
+                    path = client.download_artifact(job, name, folder)
+                    assert isinstance(path, Path)
+                    saved.append(path)
         print("\n".join(summarize(job, base)))
         print(
             f"truth: f = {truth['eigenfrequency_hz']:.4g} Hz, k = {truth['stiffness_n_per_m']:.4g} N/m, "
@@ -110,6 +118,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"demo: upload to result in {elapsed:.2f} s")
         if job.status != "succeeded":
             return 1
+        results = saved[0].parent
+        print(f"demo: the result and its images are saved in {results}/:")
+        print("      " + ", ".join(p.name for p in saved))
+        print(f"demo: the job's web page (while the server runs): {base}/jobs/{job.id}")
         print(
             "demo: streaming the clip live, as a robot's camera would (eigenscope stream --realtime)",
             flush=True,
@@ -125,9 +137,19 @@ def main(argv: list[str] | None = None) -> int:
         if streamed.returncode != 0:
             return 1
         if args.keep_serving:
-            print(f"demo: still serving on {base} (API docs at {base}/docs); Ctrl-C to stop", flush=True)
+            print(
+                f"demo: still serving on {base}: the job's page {base}/jobs/{job.id}, the web page {base}/, "
+                f"API docs {base}/docs; Ctrl-C to stop",
+                flush=True,
+            )
             with contextlib.suppress(KeyboardInterrupt):
                 server.wait()
+        else:
+            print(
+                f"demo: the server stops now, so the URLs above stop answering; the files stay in {results}/ "
+                "(`./run demo --keep-serving` keeps the server and its links)",
+                flush=True,
+            )
         return 0
     finally:
         if server.poll() is None:

@@ -1,8 +1,64 @@
 #!/usr/bin/env bash
-# The whole test suite: lint, format check, types, then every test (slow ones included).
+# The whole test suite: lint, format check, types, then every tier of tests, one after another, each on
+# pytest-xdist workers. Prints the 15 slowest tests and each tier's wall time at the end.
+#
+#   scripts/test.sh                          everything (what `./run test` and CI run)
+#   scripts/test.sh --tier unit [--tier e2e] only these tiers, no lint (tiers: unit accuracy contract
+#                                            integration e2e fuzz; see pyproject's markers)
+#   scripts/test.sh -m unit tests/unit/cli   any pytest arguments: one pytest run, no lint
+#
+# EIGENSCOPE_TEST_WORKERS sets the number of xdist workers (default 2, one per core; 0 runs serially).
+# EIGENSCOPE_FUZZ_SECONDS sets the fuzzer's time (default 60).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . .venv/bin/activate
-echo "== ruff"; ruff check . && ruff format --check .
-echo "== mypy"; mypy api_schemas workers service eigenscope client/src/eigenscope_client
-echo "== pytest"; pytest "$@"
+
+ALL_TIERS=(unit accuracy contract integration e2e fuzz)
+tiers=()
+args=()
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --tier) tiers+=("$2"); shift 2 ;;
+        --tier=*) tiers+=("${1#--tier=}"); shift ;;
+        *) args+=("$1"); shift ;;
+    esac
+done
+for tier in "${tiers[@]}"; do
+    case " ${ALL_TIERS[*]} " in
+        *" $tier "*) ;;
+        *) echo "test.sh: unknown tier '$tier'; the tiers are: ${ALL_TIERS[*]}" >&2; exit 2 ;;
+    esac
+done
+
+workers=${EIGENSCOPE_TEST_WORKERS:-2}
+xdist=()
+if [ "$workers" != 0 ]; then
+    # Tests of a module that starts services stay on one worker, and those that share the Redis test
+    # database share one (xdist_group marks, set in tests/conftest.py).
+    xdist=(-n "$workers" --dist loadgroup)
+fi
+
+if [ ${#tiers[@]} -eq 0 ] && [ ${#args[@]} -gt 0 ]; then
+    exec pytest "${xdist[@]}" --durations=15 "${args[@]}"
+fi
+if [ ${#tiers[@]} -eq 0 ]; then
+    echo "== ruff"; ruff check . && ruff format --check .
+    echo "== mypy"; mypy api_schemas workers service eigenscope client/src/eigenscope_client
+    tiers=("${ALL_TIERS[@]}")
+fi
+
+reports=$(mktemp -d)
+trap 'rm -rf "$reports"' EXIT
+status=0
+for tier in "${tiers[@]}"; do
+    echo "== pytest: the $tier tier"
+    started=$(date +%s.%N)
+    rc=0
+    pytest -m "$tier" "${xdist[@]}" --junitxml="$reports/$tier.xml" "${args[@]}" || rc=$?
+    [ "$rc" = 5 ] && rc=0  # no test was selected
+    ended=$(date +%s.%N)
+    [ "$rc" != 0 ] && status=$rc
+    echo "$tier $started $ended $rc" >> "$reports/walls"
+done
+python scripts/test_report.py "$reports" --slowest 15
+exit $status

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -24,37 +25,87 @@ def _seeded() -> None:
     np.random.seed(1234)  # noqa: NPY002 - legacy global state, for third-party code that uses it
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _own_cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    """The command line's cache (rendered strings of figures) in a folder of the test session's, for
-    every command the tests run: never the user's ``~/.cache``."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("EIGENSCOPE_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
-        yield
-
-
 @pytest.fixture(scope="session")
 def shared_dir() -> Path:
     """``../shared`` beside the checkout. Missing in CI is a failure, locally a visible skip."""
     if not SHARED.is_dir():
         if os.environ.get("CI") == "true":
             pytest.fail(f"shared data folder {SHARED} is missing in CI")
-        pytest.skip(f"shared data folder {SHARED} is missing")
+        pytest.skip(f"shared data folder {SHARED} is missing (the real-footage tests need ../shared)")
     return SHARED
 
 
-def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
-    """Print the ground-truth accuracy table collected by the pipeline tests."""
-    try:
-        from tests.unit.pipeline.conftest import ACCURACY_ROWS
-    except ImportError:
+#: Tiers by folder (``./run test --tier NAME`` or ``pytest -m NAME``). A test under ``tests/unit`` marked
+#: ``accuracy`` (a whole analysis of a scene) is in the accuracy tier, not the unit tier.
+TIERS = {"unit": "unit", "contract": "contract", "integration": "integration", "e2e": "e2e", "fuzz": "fuzz"}
+#: Under pytest-xdist (``-n 2 --dist loadgroup``, as ``scripts/test.sh`` runs it) the tests of a module that
+#: starts services stay on one worker (its module-scoped services are started once), and the modules
+#: that use the shared Redis test database (which the harness flushes) share one worker.
+SERVICE_TIERS = ("integration", "contract", "e2e")
+SHARED_REDIS = "shared-redis"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Give each test exactly one tier marker, from its folder (``accuracy`` for a test under
+    ``tests/unit`` that its module or function marks so), dropping any other tier marker a module
+    declared (the contract tests that start services were marked ``integration``): ``-m TIER`` selects
+    every test once. Group the service tiers' tests by module for pytest-xdist."""
+    root = Path(__file__).resolve().parent
+    tiers: dict[int, str] = {}
+    for i, item in enumerate(items):
+        try:
+            where = item.path.resolve().relative_to(root)
+        except ValueError:
+            continue
+        tier = TIERS.get(where.parts[0])
+        if tier is None:
+            continue
+        if tier == "unit" and item.get_closest_marker("accuracy") is not None:
+            tier = "accuracy"
+        tiers[i] = tier
+        if tier in SERVICE_TIERS and item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(where.as_posix()))
+    names = {*TIERS.values(), "accuracy"}
+    for i in tiers:
+        for node in items[i].listchain():
+            node.own_markers[:] = [m for m in node.own_markers if m.name not in names]
+    for i, tier in tiers.items():
+        items[i].add_marker(getattr(pytest.mark, tier))
+
+
+#: The accuracy rows of the tests that ran, as their reports carried them (from xdist workers too).
+_REPORTED_ROWS: list[dict[str, object]] = []
+_ROWS_PROPERTY = "eigenscope_accuracy_row"
+_rows_seen = 0
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    """Hand the accuracy rows a test added (in any phase) to its report."""
+    global _rows_seen
+    outcome = yield
+    scenes = sys.modules.get("tests.scenes")  # imported by the tests that add rows
+    if scenes is None:
         return
-    if not ACCURACY_ROWS:
+    report = outcome.get_result()
+    for row in scenes.ACCURACY_ROWS[_rows_seen:]:
+        report.user_properties.append((_ROWS_PROPERTY, row))
+    _rows_seen = len(scenes.ACCURACY_ROWS)
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    _REPORTED_ROWS.extend(value for name, value in report.user_properties if name == _ROWS_PROPERTY)
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Print the ground-truth accuracy table collected by the accuracy tests."""
+    if not _REPORTED_ROWS:
         return
     tr = terminalreporter
     tr.section("ground-truth accuracy (relative errors; default vs the paper's recipe)")
     groups: dict[tuple[str, ...], list[dict[str, object]]] = {}
-    for row in ACCURACY_ROWS:
+    for row in _REPORTED_ROWS:
         groups.setdefault(tuple(row), []).append(row)
     for cols, rows in groups.items():
         tr.write_line(" | ".join(f"{c:>14}" for c in cols))

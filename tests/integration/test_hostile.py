@@ -149,10 +149,11 @@ def test_hostile_requests(embedded: h.LiveService) -> None:
     cut = client.post("/v1/clips", content=raw, headers={"content-type": "multipart/form-data; boundary=zz"})
     assert cut.status_code == 422
     # A client that disappears mid-upload leaves nothing behind either, once the server has seen the
-    # connection close (which it learns after the client has given up: a short wait, not an instant).
+    # connection close (which it learns after the client has given up: a short wait, not an instant; the
+    # deadline only ends the wait, generously for a loaded machine).
     with pytest.raises(httpx.HTTPError):
         _abort_upload(embedded.base_url)
-    deadline = time.monotonic() + 5.0
+    deadline = time.monotonic() + 30.0
     while list((embedded.data_dir / "tmp").glob("upload-*")) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert list((embedded.data_dir / "tmp").glob("upload-*")) == []

@@ -14,7 +14,11 @@ from typing import Any
 import pytest
 import service_harness as h
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+pytestmark = [
+    pytest.mark.integration,
+    pytest.mark.xdist_group("shared-redis"),  # uses the Redis test database, which the harness flushes
+    pytest.mark.slow,
+]
 
 
 def run_job_and_check(service: h.LiveService, clip: Path, truth: dict[str, Any]) -> dict[str, float]:
@@ -67,22 +71,22 @@ def report(mode: str, figures: dict[str, float]) -> None:
     )
 
 
-def best_of(service: h.LiveService, clip: Path, truth: dict[str, Any], runs: int = 3) -> dict[str, float]:
+def best_of(service: h.LiveService, clip: Path, truth: dict[str, Any], runs: int = 2) -> dict[str, float]:
+    """Two jobs (a worker's first, and one with its drawing process ready); the figures of the faster.
+    The latency is printed, never asserted: ``bench/overhead.py`` measures it."""
     figures = [run_job_and_check(service, clip, truth) for _ in range(runs)]
     return min(figures, key=lambda f: f["overhead_s"])
 
 
 def test_embedded_sqlite(embedded: h.LiveService, truth_clip: tuple[Path, dict[str, Any]]) -> None:
-    figures = best_of(embedded, *truth_clip)
-    report("embedded+sqlite", figures)
-    assert figures["overhead_s"] < 1.0, figures
+    report("embedded+sqlite", best_of(embedded, *truth_clip))
 
 
 def test_embedded_postgres(tmp_path: Path, truth_clip: tuple[Path, dict[str, Any]]) -> None:
     with h.postgres_database() as url:
         service = h.start_embedded(tmp_path, database_url=url)
         try:
-            report("embedded+postgres", best_of(service, *truth_clip, runs=2))
+            report("embedded+postgres", best_of(service, *truth_clip))
         finally:
             service.stop()
 
@@ -94,14 +98,12 @@ def test_redis(store: str, tmp_path: Path, truth_clip: tuple[Path, dict[str, Any
         with h.postgres_database() as url:
             service = h.start_split(tmp_path, redis_url=redis_url, database_url=url)
             try:
-                report(f"redis+{store}", best_of(service, *truth_clip, runs=2))
+                report(f"redis+{store}", best_of(service, *truth_clip))
             finally:
                 service.stop()
         return
     service = h.start_split(tmp_path, redis_url=redis_url)
     try:
-        figures = best_of(service, *truth_clip)
-        report(f"redis+{store}", figures)
-        assert figures["overhead_s"] < 1.0, figures
+        report(f"redis+{store}", best_of(service, *truth_clip))
     finally:
         service.stop()

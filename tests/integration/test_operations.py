@@ -15,7 +15,12 @@ import pytest
 import service_harness as h
 from eigenscope_client import Client, StepRelease
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(300)]
+pytestmark = [
+    pytest.mark.integration,
+    pytest.mark.xdist_group("shared-redis"),  # uses the Redis test database, which the harness flushes
+    pytest.mark.slow,
+    pytest.mark.timeout(300),
+]
 
 
 def metric(text: str, name: str, **labels: str) -> float | None:

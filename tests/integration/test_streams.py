@@ -19,7 +19,11 @@ import service_harness as h
 from eigenscope_client import StreamError, StreamSession
 from stream_helpers import RawSocket, scene_frames, send_scene, session_kwargs
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+pytestmark = [
+    pytest.mark.integration,
+    pytest.mark.xdist_group("shared-redis"),  # uses the Redis test database, which the harness flushes
+    pytest.mark.slow,
+]
 
 #: Short timeouts, so that the failure paths end quickly.
 STREAM_SETTINGS = {

@@ -30,6 +30,7 @@ def clip(tmp_path_factory):
     return out
 
 
+@pytest.mark.accuracy  # a whole analysis
 def test_analyze_writes_result_and_mask_and_prints_a_summary(clip, tmp_path):
     done = eigenscope("analyze", clip, "--force-n", 10, "--out", tmp_path / "out")
     assert done.returncode == 0, done.stderr
@@ -42,6 +43,7 @@ def test_analyze_writes_result_and_mask_and_prints_a_summary(clip, tmp_path):
     assert result["parameters"]["excitation"][0]["force_n"] == 10
 
 
+@pytest.mark.accuracy  # a whole analysis
 def test_point_excitation_names_the_object(clip, tmp_path):
     done = eigenscope(
         "analyze", clip, "--force-n", 10, "--point", 160, 120, "--out", tmp_path / "o", "--json"
@@ -50,6 +52,7 @@ def test_point_excitation_names_the_object(clip, tmp_path):
     assert json.loads(done.stdout)["objects"][0]["stiffness_n_per_m"] is not None
 
 
+@pytest.mark.accuracy  # whole analyses
 @pytest.mark.parametrize("threads", [1, 3])
 def test_flow_threads_are_the_users_choice_and_give_the_same_result(clip, tmp_path, threads):
     """One thread runs the flow a pair at a time (as the paper's recipe did); the result is the same as
@@ -97,12 +100,14 @@ def test_bad_input_gets_one_line_and_exit_2(make, args, expected, clip, tmp_path
     assert expected.lower() in lines[0].lower()
 
 
+@pytest.mark.accuracy  # a whole analysis
 def test_analyze_writes_every_image(clip, tmp_path):
     done = subprocess.run(
         [sys.executable, "-m", "eigenscope", "analyze", str(clip), "--out", str(tmp_path / "out")],
         capture_output=True,
         text=True,
         check=False,
+        timeout=300,  # a guard against a hang, not a bound on the time
     )
     assert done.returncode == 0, done.stderr
     assert len(list((tmp_path / "out").glob("*.png"))) == 6

@@ -1,5 +1,6 @@
-"""A corpus of malformed and hostile clips: each is refused with its own one-line message, within seconds,
-writing nothing outside the test's folder."""
+"""A corpus of malformed and hostile clips: each is refused with its own one-line message, writing nothing
+outside the test's folder. A refusal that hangs fails on the test's timeout; how fast each is refused is
+printed by ``bench/refusal.py``."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ import json
 import os
 import struct
 import tempfile
-import time
 import zipfile
 import zlib
 from collections.abc import Callable
@@ -431,14 +431,11 @@ def test_malformed_clip_is_refused(
     monkeypatch.setattr(tempfile, "tempdir", str(private_tmp))
     before = _outside_snapshot()
     listing = sorted(p.name for p in work.rglob("*"))
-    started = time.monotonic()
     with pytest.raises(error) as caught:
         _consume(path, kwargs)
-    elapsed = time.monotonic() - started
     text = str(caught.value)
     assert message in text
     assert "\n" not in text
-    assert elapsed < 5.0
     assert _outside_snapshot() == before
     assert sorted(p.name for p in work.rglob("*")) == listing
     assert list(run_dir.iterdir()) == []

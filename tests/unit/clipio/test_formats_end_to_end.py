@@ -18,7 +18,8 @@ from workers.pipeline.clipio import writers as w
 from workers.pipeline.synth import Scene, SceneObject, SyntheticClip, render
 from workers.runner import run_analysis
 
-pytestmark = pytest.mark.slow
+#: A whole analysis of one scene in every format: the accuracy tier.
+pytestmark = [pytest.mark.slow, pytest.mark.accuracy]
 
 FPS = 30.0
 T0 = 1_700_000_000_000_000_000

@@ -8,6 +8,9 @@ import pytest
 
 from workers.pipeline.synth import Scene, SceneObject
 
+#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
+pytestmark = pytest.mark.accuracy
+
 ARTEFACTS = {
     "camera-shake": {"shake_px": 1.5, "shake_hz": 8.3},
     "slow-drift": {"drift_px_per_s": (6.0, 2.0)},
@@ -29,7 +32,8 @@ def test_true_frequency_is_found_despite(name, run_scene):
 
 
 def test_flicker_is_reported_as_an_artefact(run_scene):
-    scene = Scene(objects=(SceneObject(frequency_hz=5.0),), seed=8, flicker=0.05, flicker_hz=11.0)
+    # The scene of test_true_frequency_is_found_despite["lighting-flicker"]: its analysis is shared.
+    scene = Scene(objects=(SceneObject(frequency_hz=5.0),), seed=7, **ARTEFACTS["lighting-flicker"])
     run = run_scene(scene)
     notes = [q for q in run.analysis.quality if q.code == "artefact_peak"]
     assert any("11" in q.message and "background" in q.message for q in notes)

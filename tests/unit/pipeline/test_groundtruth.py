@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import pytest
 
-from tests.unit.pipeline.conftest import ACCURACY_ROWS
+from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import AnalysisConfig
 from workers.pipeline.synth import Scene, SceneObject
+
+#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
+pytestmark = pytest.mark.accuracy
 
 # (name, frequency_hz, mass_kg, depth_m, frames, release_frame, excitation, value, size)
 CASES = [

@@ -20,6 +20,9 @@ from workers.pipeline.survey import (
 from workers.pipeline.synth import Scene, SceneObject, SceneReader
 from workers.pipeline.window import plan_window
 
+#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
+pytestmark = pytest.mark.accuracy
+
 FPS = 30.0
 
 

@@ -1,0 +1,56 @@
+"""The end of ``scripts/test.sh``: the slowest tests of every tier run and each tier's wall time.
+
+    python scripts/test_report.py REPORTS_FOLDER [--slowest 15]
+
+``REPORTS_FOLDER`` holds a JUnit XML report per tier (``<tier>.xml``, and ``<tier>.serial.xml`` for the
+tests it ran alone) and ``walls``: one line per tier run,
+``tier started ended exit-status`` (seconds since the epoch). A test's time is its setup, call and teardown
+(a module's services are started in its first test's setup). "Serial" is the sum of the tier's test
+times: what it would take one worker; the wall time is what it took on the workers it had.
+"""
+
+from __future__ import annotations
+
+import argparse
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("reports", type=Path)
+    parser.add_argument("--slowest", type=int, default=15)
+    args = parser.parse_args(argv)
+
+    tests: list[tuple[float, str, str]] = []
+    serial: dict[str, float] = {}
+    counts: dict[str, int] = {}
+    for xml in sorted(args.reports.glob("*.xml")):
+        tier = xml.name.split(".")[0]  # <tier>.xml, and <tier>.serial.xml for its serial tests
+        for case in ET.parse(xml).iter("testcase"):
+            seconds = float(case.get("time", "0") or 0)
+            name = f"{case.get('classname', '')}::{case.get('name', '')}"
+            tests.append((seconds, tier, name))
+            serial[tier] = serial.get(tier, 0.0) + seconds
+            counts[tier] = counts.get(tier, 0) + 1
+
+    print(f"\n== the {args.slowest} slowest tests (setup + call + teardown)")
+    for seconds, tier, name in sorted(tests, reverse=True)[: args.slowest]:
+        print(f"{seconds:9.2f} s  {tier:<12} {name}")
+
+    print("\n== wall time per tier")
+    print(f"{'tier':<12} {'tests':>6} {'wall s':>9} {'serial s':>9}  result")
+    total = 0.0
+    walls = args.reports / "walls"
+    for line in walls.read_text().splitlines() if walls.is_file() else []:
+        tier, started, ended, status = line.split()
+        wall = float(ended) - float(started)
+        total += wall
+        result = "passed" if status == "0" else f"exit {status}"
+        print(f"{tier:<12} {counts.get(tier, 0):>6} {wall:>9.1f} {serial.get(tier, 0.0):>9.1f}  {result}")
+    print(f"{'all':<12} {sum(counts.values()):>6} {total:>9.1f} {sum(serial.values()):>9.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
