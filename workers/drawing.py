@@ -7,7 +7,8 @@ writing release the GIL; matplotlib does not). :func:`warm_up` imports matplotli
 while an analysis runs, so the figures after it do not pay for the import.
 
 Drawing in a helper process, forking a child per render and a cache of rendered text were measured
-(``bench/devices.py``, ``bench/README.md``) and removed: none saved 10 % of an analysis with its images.
+(``bench/devices.py``, ``bench/README.md``) under load and removed; re-measured on an idle machine, the
+command line's end-to-end figure is 1.29x what it was with them (``bench/README.md``; issue 18).
 """
 
 from __future__ import annotations
