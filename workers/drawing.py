@@ -8,7 +8,8 @@ while an analysis runs, so the figures after it do not pay for the import.
 
 Drawing in a helper process, forking a child per render and a cache of rendered text were measured
 (``bench/devices.py``, ``bench/README.md``) under load and removed; re-measured on an idle machine, the
-command line's end-to-end figure is 1.29x what it was with them (``bench/README.md``; issue 18).
+command line's end-to-end figure was 1.29x what it was with them, and is 1.12x with ``os._exit`` restored
+(``bench/README.md``; issue 18).
 """
 
 from __future__ import annotations
