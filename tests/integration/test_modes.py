@@ -72,7 +72,7 @@ def report(mode: str, figures: dict[str, float]) -> None:
 
 
 def best_of(service: h.LiveService, clip: Path, truth: dict[str, Any], runs: int = 2) -> dict[str, float]:
-    """Two jobs (a worker's first, and one with its drawing process ready); the figures of the faster.
+    """Two jobs (a worker's first, and one with matplotlib already loaded); the figures of the faster.
     The latency is printed, never asserted: ``bench/overhead.py`` measures it."""
     figures = [run_job_and_check(service, clip, truth) for _ in range(runs)]
     return min(figures, key=lambda f: f["overhead_s"])
