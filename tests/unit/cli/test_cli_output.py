@@ -79,32 +79,28 @@ def test_analyze_json_into_a_closed_pipe_keeps_its_files_with_the_images_permiss
     assert set(modes.values()) == {0o640}, {n: oct(m) for n, m in modes.items()}
 
 
-def test_a_failed_run_leaves_no_folder_it_made(tmp_path: Path) -> None:
+def _analyze_a_bad_clip(tmp_path: Path, out: Path) -> subprocess.CompletedProcess[str]:
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a clip at all" * 100)
-    out = tmp_path / "new" / "out"
-    done = subprocess.run(
+    return subprocess.run(
         [sys.executable, "-m", "eigenscope", "analyze", str(bad), "--force-n", "10", "--out", str(out)],
         capture_output=True,
         text=True,
         check=False,
     )
+
+
+def test_a_failed_run_leaves_no_folder_it_made(tmp_path: Path) -> None:
+    done = _analyze_a_bad_clip(tmp_path, tmp_path / "new" / "out")
     assert done.returncode == 2, done.stderr
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert not (tmp_path / "new").exists()
 
 
 def test_a_failed_run_keeps_a_folder_that_was_there(tmp_path: Path) -> None:
-    bad = tmp_path / "bad.npz"
-    bad.write_bytes(b"not a clip at all" * 100)
     out = tmp_path / "mine"
     out.mkdir()
     (out / "notes.txt").write_text("the user's")
-    done = subprocess.run(
-        [sys.executable, "-m", "eigenscope", "analyze", str(bad), "--force-n", "10", "--out", str(out)],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    done = _analyze_a_bad_clip(tmp_path, out)
     assert done.returncode == 2, done.stderr
     assert (out / "notes.txt").read_text() == "the user's"
