@@ -18,9 +18,7 @@ it saves at least 10 % (ratio >= 1.11). Devices:
 - ``mallopt``: glibc malloc tuning (``workers/allocator.py``);
 - ``fftpack_block``: ``sys.modules["scipy.fftpack"] = None`` while pyfftw imports;
 - ``hugepage_off``: ``NUMPY_MADVISE_HUGEPAGE=0``;
-- ``os_exit``: the command line leaves with ``os._exit`` instead of the interpreter's teardown;
-- ``drawing_child``: the command line forks a child that imports matplotlib and draws the images
-  (``workers/drawing_child.py``) vs drawing them itself.
+- ``os_exit``: the command line leaves with ``os._exit`` instead of the interpreter's teardown.
 
 The bench applies the toggles itself (monkeypatching the code where the device lives, or redoing what the
 device does where the code no longer has it), so it runs on the code before and after a device is removed;
@@ -62,7 +60,6 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "fftpack_loaded": {"fftpack_block": False},
     "hugepage_on": {"hugepage_off": False},
     "no_os_exit": {"os_exit": False},
-    "no_drawing_child": {"drawing_child": False},
 }
 
 #: Device -> (variant with it, variant without it, figures it applies to).
@@ -76,7 +73,6 @@ DEVICES: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "fftpack_block": ("shipped", "fftpack_loaded", ("cli",)),
     "hugepage_off": ("shipped", "hugepage_on", ("worker", "cli")),
     "os_exit": ("shipped", "no_os_exit", ("cli",)),
-    "drawing_child": ("shipped", "no_drawing_child", ("cli",)),
 }
 
 
@@ -135,13 +131,6 @@ def _apply(variant: dict[str, Any], figure: str) -> dict[str, Any]:
         _mallopt()
     if hasattr(fft, "_fftw"):
         fft._fftw = _fftw_importer(variant.get("fftpack_block", True))
-
-    if not variant.get("drawing_child", True):
-        if importlib.util.find_spec("workers.drawing_child") is None:
-            raise UnavailableError("the code has no drawing child")
-        from workers.drawing_child import DrawingChild
-
-        DrawingChild.fork = classmethod(lambda cls: None)  # type: ignore[method-assign,assignment]
 
     draw = variant.get("draw", "shipped")
     text_cache = variant.get("text_cache", True)

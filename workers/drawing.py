@@ -6,11 +6,10 @@ after the other, while one helper thread encodes and writes the previous figure'
 writing release the GIL; matplotlib does not). :func:`warm_up` imports matplotlib in a background thread
 while an analysis runs, so the figures after it do not pay for the import.
 
-Who draws is a :class:`Drawer`: :data:`IN_PROCESS` (a worker, a live stream) or, for the one-shot
-``eigenscope analyze``, a child forked as the command starts (:mod:`workers.drawing_child`, a performance
-device that imports matplotlib and draws off the analysing process; it saves about 11 % of the command
-end to end, ``bench/README.md``). A long-lived helper drawing process, a child forked per render and a
-cache of rendered text were measured and removed (issue 18).
+Drawing in a helper process, forking a child per render and a cache of rendered text were measured
+(``bench/devices.py``, ``bench/README.md``) under load and removed; re-measured on an idle machine, the
+command line's end-to-end figure was 1.29x what it was with them, and is 1.12x with ``os._exit`` restored
+(``bench/README.md``; issue 18).
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ import threading
 from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from workers.pipeline.model import Analysis
@@ -111,29 +110,4 @@ def warm_up() -> threading.Thread:
     return thread
 
 
-class Drawer(Protocol):
-    """Who draws an analysis's images: :data:`IN_PROCESS` (this process), or a one-shot command's
-    :class:`workers.drawing_child.DrawingChild`. :func:`workers.runner.run_analysis` calls
-    :meth:`warm_up` when the analysis reaches its mechanics stage, then :meth:`draw_all` once."""
-
-    def warm_up(self) -> object:
-        """Get ready to draw (import matplotlib) while the analysis finishes."""
-
-    def draw_all(self, analysis: Analysis, out_dir: str | Path) -> dict[str, str]:
-        """As :func:`draw_all`."""
-
-
-class _InProcess:
-    """Draw in the calling process: :func:`warm_up` in a background thread, then :func:`draw_all`."""
-
-    def warm_up(self) -> object:
-        return warm_up()
-
-    def draw_all(self, analysis: Analysis, out_dir: str | Path) -> dict[str, str]:
-        return draw_all(analysis, out_dir)
-
-
-#: The default :class:`Drawer`: this process draws.
-IN_PROCESS: Drawer = _InProcess()
-
-__all__ = ["ALL_KEYS", "IN_PROCESS", "Drawer", "draw_all", "warm_up"]
+__all__ = ["ALL_KEYS", "draw_all", "warm_up"]

@@ -29,7 +29,6 @@ from api_schemas import (
 
 if TYPE_CHECKING:
     from service.settings import Settings
-    from workers.drawing import Drawer
     from workers.pipeline.analysis import Analysis, ObjectMeasurement
     from workers.pipeline.analysis import AnalysisConfig as PipelineConfig
     from workers.pipeline.analysis import Excitation as PipelineExcitation
@@ -119,17 +118,15 @@ def run_analysis(
     scratch_dir: str | Path | None = None,
     flow_threads: int | None = None,
     limits: ReadLimits | None = None,
-    drawer: Drawer | None = None,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
 
     Files are written to a temporary name and renamed, so a reader never sees half a result.
     ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``scratch_dir`` is where a
     zipped ROS 2 bag may be unpacked (default: the system temporary folder). ``flow_threads`` bounds the
-    frame pairs whose flow is computed at once (default two). The images are drawn by ``drawer``
-    (default :data:`workers.drawing.IN_PROCESS`: this process), told to get ready (import matplotlib) from
-    the mechanics stage on; a one-shot command passes a
-    :class:`~workers.drawing_child.DrawingChild`, which draws in a child process. ``limits`` caps what the
+    frame pairs whose flow is computed at once (default two). The images are drawn by
+    :func:`workers.drawing.draw_all`; matplotlib is imported in the background from the mechanics stage
+    on (:func:`workers.drawing.warm_up`). ``limits`` caps what the
     clip may hold and decode to (default :class:`~workers.pipeline.clipio.ReadLimits`).
 
     Raises
@@ -138,12 +135,11 @@ def run_analysis(
         Subclasses for bad clips (``ClipError``), bad parameters (``ParameterError``) and clips that
         cannot be analysed (``AnalysisError``); their messages are meant for the user.
     """
-    from workers.drawing import IN_PROCESS
+    from workers.drawing import warm_up
     from workers.pipeline.analysis import analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
 
-    drawer = drawer or IN_PROCESS
-    report = _warming_up_for_images(progress, drawer.warm_up)
+    report = _warming_up_for_images(progress, warm_up)
 
     params = parameters or AnalysisParameters()
     overrides = ClipOverrides(
@@ -172,7 +168,6 @@ def run_analysis(
         out,
         excitation=requested,
         parameters=params,
-        drawer=drawer,
     )
     report("done", 1.0)
     return result
@@ -225,17 +220,15 @@ def write_result(
     *,
     excitation: Sequence[StepReleaseExcitation | ImpulseExcitation],
     parameters: AnalysisParameters,
-    drawer: Drawer | None = None,
 ) -> AnalysisResult:
-    """Draw the images of ``analysis`` into ``out`` (by ``drawer``, default
-    :data:`workers.drawing.IN_PROCESS`) and write ``result.json`` there; returns the result."""
+    """Draw the images of ``analysis`` into ``out`` and write ``result.json`` there; returns the result."""
     from time import perf_counter
 
-    from workers.drawing import IN_PROCESS
+    from workers.drawing import draw_all
 
     started = perf_counter()
     # mask.png (MASK_FILE) and every other image
-    artifacts = (drawer or IN_PROCESS).draw_all(analysis, out)
+    artifacts = draw_all(analysis, out)
     analysis.timings_s["render"] = perf_counter() - started
     result = build_result(analysis, excitation=excitation, parameters=parameters, artifacts=artifacts)
     write_result_json(out, result)

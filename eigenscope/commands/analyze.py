@@ -86,7 +86,6 @@ def run(args: argparse.Namespace) -> int:
 
     from api_schemas import AnalysisParameters, ImpulseExcitation, StepReleaseExcitation
     from eigenscope.cli import UsageError
-    from workers.drawing_child import DrawingChild
     from workers.runner import run_analysis
 
     if args.flow_threads is not None and args.flow_threads < 1:
@@ -134,8 +133,6 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--{where.replace('_', '-')}: {err['msg']}") from None
 
     created = first_missing_folder(Path(args.out))
-    # Before any thread starts: the child that will draw the images (a performance device).
-    drawer = DrawingChild.fork()
     try:
         result = run_analysis(
             args.clip,
@@ -144,15 +141,11 @@ def run(args: argparse.Namespace) -> int:
             parameters=params,
             depth_path=args.depth,
             flow_threads=args.flow_threads,
-            drawer=drawer,
         )
     except BaseException:
         if created is not None:  # a failed run leaves no folder it made behind
             shutil.rmtree(created, ignore_errors=True)
         raise
-    finally:
-        if drawer is not None:
-            drawer.close()
     if args.json:
         json.dump(result.model_dump(mode="json"), sys.stdout, indent=2)
         print()
