@@ -18,11 +18,14 @@ it saves at least 10 % (ratio >= 1.11). Devices:
 - ``mallopt``: glibc malloc tuning (``workers/allocator.py``);
 - ``fftpack_block``: ``sys.modules["scipy.fftpack"] = None`` while pyfftw imports;
 - ``hugepage_off``: ``NUMPY_MADVISE_HUGEPAGE=0``;
-- ``os_exit``: the command line leaves with ``os._exit`` instead of the interpreter's teardown.
+- ``os_exit``: the command line leaves with ``os._exit`` instead of the interpreter's teardown;
+- ``drawing_child``: the command line forks a child that imports matplotlib and draws the images
+  (``workers/drawing_child.py`` of commit 310e125, since removed) vs drawing them itself.
 
 The bench applies the toggles itself (monkeypatching the code where the device lives, or redoing what the
-device does where the code no longer has it), so it runs on the code before and after a device is removed;
-a variant that needs a device the code no longer has is reported as ``n/a``.
+device does where the code no longer has it). "shipped" is the code as it is: the removed devices
+(``mallopt``, ``fftpack_block``) are off in it, and their variants add them back; a variant that needs
+machinery the code no longer has is reported as ``n/a``.
 
     python bench/devices.py                         # both figures, 5 rounds, 640x480x256
     python bench/devices.py --figures cli --rounds 7
@@ -56,10 +59,11 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "forked": {"draw": "forked"},
     "here_no_text_cache": {"draw": "here", "text_cache": False},
     "no_text_cache_file": {"cache_file": False},
-    "no_mallopt": {"mallopt": False},
-    "fftpack_loaded": {"fftpack_block": False},
+    "mallopt_on": {"mallopt": True},
+    "fftpack_blocked": {"fftpack_block": True},
     "hugepage_on": {"hugepage_off": False},
     "no_os_exit": {"os_exit": False},
+    "no_drawing_child": {"drawing_child": False},
 }
 
 #: Device -> (variant with it, variant without it, figures it applies to).
@@ -68,11 +72,21 @@ DEVICES: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "forked_children": ("forked", "here", ("worker", "cli")),
     "text_cache": ("here", "here_no_text_cache", ("worker", "cli")),
     "text_cache_file": ("shipped", "no_text_cache_file", ("cli",)),
-    "mallopt": ("shipped", "no_mallopt", ("worker", "cli")),
+    # Removed devices (issue 18): the bench adds them back to measure them again.
+    "mallopt": ("mallopt_on", "shipped", ("worker", "cli")),
     # A warm worker imported pyfftw in its first analysis: the block cannot change its second one.
-    "fftpack_block": ("shipped", "fftpack_loaded", ("cli",)),
+    "fftpack_block": ("fftpack_blocked", "shipped", ("cli",)),
     "hugepage_off": ("shipped", "hugepage_on", ("worker", "cli")),
     "os_exit": ("shipped", "no_os_exit", ("cli",)),
+    "drawing_child": ("shipped", "no_drawing_child", ("cli",)),
+}
+
+
+#: Device -> (variant with it, variant without it) in runs made while the code still had it (their variants
+#: were named after the toggle that turned the device off).
+_LEGACY: dict[str, tuple[str, str]] = {
+    "mallopt": ("shipped", "no_mallopt"),
+    "fftpack_block": ("shipped", "fftpack_loaded"),
 }
 
 
@@ -127,10 +141,17 @@ def _apply(variant: dict[str, Any], figure: str) -> dict[str, Any]:
         import workers.allocator as allocator
 
         allocator.tune_malloc = lambda: False  # type: ignore[assignment]
-    if variant.get("mallopt", True):
+    if variant.get("mallopt", False):
         _mallopt()
     if hasattr(fft, "_fftw"):
-        fft._fftw = _fftw_importer(variant.get("fftpack_block", True))
+        fft._fftw = _fftw_importer(variant.get("fftpack_block", False))
+
+    if not variant.get("drawing_child", True):
+        if importlib.util.find_spec("workers.drawing_child") is None:
+            raise UnavailableError("the code has no drawing child")
+        from workers.drawing_child import DrawingChild
+
+        DrawingChild.fork = classmethod(lambda cls: None)  # type: ignore[method-assign,assignment]
 
     draw = variant.get("draw", "shipped")
     text_cache = variant.get("text_cache", True)
@@ -244,7 +265,13 @@ def _ratios(times: dict[str, list[float]], on: str, off: str) -> list[float]:
 
 
 def _report(
-    figure: str, size: str, rounds: int, wanted: list[str], times: dict[str, list[float]], missing: set[str]
+    figure: str,
+    size: str,
+    rounds: int,
+    wanted: list[str],
+    times: dict[str, list[float]],
+    missing: set[str],
+    pairs: dict[str, tuple[str, str]] | None = None,
 ) -> None:
     """One row per device: median seconds with and without it, and the median of the per-round ratios
     (without / with): the load of a shared machine drifts over a run, and a ratio within a round cancels
@@ -252,7 +279,7 @@ def _report(
     print(f"\n{figure} ({size}, {rounds} rounds; seconds are medians, ratio the median of per-round ratios):")
     print(f"{'device':<18}{'with':>8}{'without':>9}{'ratio':>8}{'saves':>8}  verdict")
     for d in wanted:
-        on, off, _ = DEVICES[d]
+        on, off = pairs[d] if pairs else DEVICES[d][:2]
         if on in missing or off in missing:
             print(f"{d:<18}{'n/a':>8}{'n/a':>9}{'':>8}{'':>8}  not in this code")
             continue
@@ -275,12 +302,14 @@ def _report_files(paths: list[str]) -> None:
                 continue
             _, figure, size, rounds, data = line.split(" ", 4)
             times = json.loads(data)
-            wanted = [
-                d for d, (on, off, figs) in DEVICES.items() if figure in figs and on in times and off in times
-            ]
-            _report(figure, size, int(rounds), wanted, times, set())
+            pairs = {d: (on, off) for d, (on, off, figs) in DEVICES.items() if figure in figs}
+            for d, legacy in _LEGACY.items():  # runs made while the code still had the device
+                if legacy[1] in times and d in pairs:
+                    pairs[d] = legacy
+            wanted = [d for d, (on, off) in pairs.items() if on in times and off in times]
+            _report(figure, size, int(rounds), wanted, times, set(), pairs)
             for d in wanted:
-                pooled.setdefault((figure, d), []).extend(_ratios(times, *DEVICES[d][:2]))
+                pooled.setdefault((figure, d), []).extend(_ratios(times, *pairs[d]))
     print("\nall runs together (median of every per-round ratio):")
     for (figure, d), ratios in pooled.items():
         ratio = statistics.median(ratios)

@@ -119,17 +119,6 @@ def _reader_gone() -> int:
     return EXIT_BROKEN_PIPE
 
 
-#: Commands that run once and are done: the process ends without the interpreter's teardown
-#: (:mod:`eigenscope._exit`).
-_ONE_SHOT_COMMANDS = frozenset({"analyze"})
-
-
 def console_main() -> None:
     """The ``eigenscope`` executable: :func:`main`, then exit with its status."""
-    argv = sys.argv[1:]
-    code = main(argv)
-    if argv[:1] and argv[0] in _ONE_SHOT_COMMANDS:
-        from eigenscope._exit import leave
-
-        leave(code)
-    raise SystemExit(code)
+    raise SystemExit(main(sys.argv[1:]))

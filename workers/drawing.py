@@ -6,10 +6,10 @@ after the other, while one helper thread encodes and writes the previous figure'
 writing release the GIL; matplotlib does not). :func:`warm_up` imports matplotlib in a background thread
 while an analysis runs, so the figures after it do not pay for the import.
 
-Drawing in a helper process, forking a child per render and a cache of rendered text were measured
-(``bench/devices.py``, ``bench/README.md``) under load and removed; re-measured on an idle machine, the
-command line's end-to-end figure was 1.29x what it was with them, and is 1.12x with ``os._exit`` restored
-(``bench/README.md``; issue 18).
+Drawing in a helper process, forking a child per render or a child forked as the command line starts,
+a cache of rendered text and leaving the command line with ``os._exit`` were each measured
+(``bench/devices.py``, ``bench/README.md``) to save less than 10 % of a figure a user sees, and removed
+(issue 18).
 """
 
 from __future__ import annotations

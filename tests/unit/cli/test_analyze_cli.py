@@ -56,7 +56,7 @@ def test_point_excitation_names_the_object(clip, tmp_path):
 @pytest.mark.parametrize("threads", [1, 3])
 def test_flow_threads_are_the_users_choice_and_give_the_same_result(clip, tmp_path, threads):
     """One thread runs the flow a pair at a time (as the paper's recipe did); the result is the same as
-    with the default two, bit for bit, and the output is complete (the command leaves without teardown)."""
+    with the default two, bit for bit, and the output is complete."""
     runs = {}
     for name, extra in (("default", []), ("chosen", ["--flow-threads", threads])):
         done = eigenscope("analyze", clip, "--force-n", 10, *extra, "--out", tmp_path / name, "--json")
