@@ -306,6 +306,17 @@ def bench_coverage(scenes: int) -> None:
     )
 
 
+def _final_status(client: Any, job_id: str, timeout_s: float = 120.0) -> str:
+    """The job's status once it has ended (long-polling), or its status when ``timeout_s`` runs out."""
+    deadline = time.monotonic() + timeout_s
+    status = "unknown"
+    while time.monotonic() < deadline:
+        status = client.get(f"/v1/jobs/{job_id}", params={"wait": 30}, timeout=40).json()["status"]
+        if status in ("succeeded", "failed", "cancelled"):
+            break
+    return str(status)
+
+
 def bench_concurrency(tmp: Path) -> None:
     url = os.environ.get("EIGENSCOPE_BENCH_REDIS_URL", "redis://127.0.0.1:6379/12")
     service = h.start_split(tmp / "concurrency", workers=0, redis_url=url, queue="bench-streams")
@@ -327,7 +338,8 @@ def bench_concurrency(tmp: Path) -> None:
             t.start()
         for t in threads:
             t.join()
-        jobs = [service.client.get(f"/v1/jobs/{r['job_id']}").json()["status"] for r in results]
+        # The result goes out before the images are drawn: each job completes a moment later.
+        jobs = [_final_status(service.client, r["job_id"]) for r in results]
         print(
             "concurrency: 4 streams of 640x480 at 30 fps on 2 stream workers (Redis): "
             f"{len(results)} results, "
