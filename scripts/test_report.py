@@ -2,11 +2,12 @@
 
     python scripts/test_report.py REPORTS_FOLDER [--slowest 15]
 
-``REPORTS_FOLDER`` holds a JUnit XML report per tier (``<tier>.xml``, and ``<tier>.serial.xml`` for the
-tests it ran alone) and ``walls``: one line per tier run,
-``tier started ended exit-status`` (seconds since the epoch). A test's time is its setup, call and teardown
-(a module's services are started in its first test's setup). "Serial" is the sum of the tier's test
-times: what it would take one worker; the wall time is what it took on the workers it had.
+``REPORTS_FOLDER`` holds JUnit XML reports (``<tier>.xml`` per tier run alone, or ``all.xml`` for every
+tier in one run) and ``walls``: one line per run, ``tier-or-all started ended exit-status`` (seconds since
+the epoch). A test's tier is its ``tier`` property (``tests/conftest.py`` records it), else its report's
+name. A test's time is its setup, call and teardown (a module's services are started in its first test's
+setup). "Serial" is the sum of the tier's test times: what it would take one worker; the wall time is
+what the run took on the workers it had (one figure for all tiers when they ran together).
 """
 
 from __future__ import annotations
@@ -14,6 +15,9 @@ from __future__ import annotations
 import argparse
 import xml.etree.ElementTree as ET
 from pathlib import Path
+
+#: The tiers in the order the README lists them.
+_ORDER = ("unit", "accuracy", "contract", "integration", "e2e", "fuzz")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -26,8 +30,11 @@ def main(argv: list[str] | None = None) -> int:
     serial: dict[str, float] = {}
     counts: dict[str, int] = {}
     for xml in sorted(args.reports.glob("*.xml")):
-        tier = xml.name.split(".")[0]  # <tier>.xml, and <tier>.serial.xml for its serial tests
+        default = xml.name.split(".")[0]  # <tier>.xml
         for case in ET.parse(xml).iter("testcase"):
+            tier = next(
+                (p.get("value", default) for p in case.iter("property") if p.get("name") == "tier"), default
+            )
             seconds = float(case.get("time", "0") or 0)
             name = f"{case.get('classname', '')}::{case.get('name', '')}"
             tests.append((seconds, tier, name))
@@ -42,12 +49,20 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'tier':<12} {'tests':>6} {'wall s':>9} {'serial s':>9}  result")
     total = 0.0
     walls = args.reports / "walls"
-    for line in walls.read_text().splitlines() if walls.is_file() else []:
-        tier, started, ended, status = line.split()
+    runs = [line.split() for line in walls.read_text().splitlines()] if walls.is_file() else []
+    together = [r for r in runs if r[0] == "all"]
+    for tier, started, ended, status in [r for r in runs if r[0] != "all"]:
         wall = float(ended) - float(started)
         total += wall
         result = "passed" if status == "0" else f"exit {status}"
         print(f"{tier:<12} {counts.get(tier, 0):>6} {wall:>9.1f} {serial.get(tier, 0.0):>9.1f}  {result}")
+    for _, started, ended, status in together:
+        result = "passed" if status == "0" else f"exit {status}"
+        for tier in sorted(counts, key=lambda t: (_ORDER.index(t) if t in _ORDER else len(_ORDER), t)):
+            print(f"{tier:<12} {counts[tier]:>6} {'-':>9} {serial[tier]:>9.1f}  (in one run)")
+        wall = float(ended) - float(started)
+        total += wall
+        print(f"{'(one run)':<12} {sum(counts.values()):>6} {wall:>9.1f} {'':>9}  {result}")
     print(f"{'all':<12} {sum(counts.values()):>6} {total:>9.1f} {sum(serial.values()):>9.1f}")
     return 0
 

@@ -72,6 +72,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             node.own_markers[:] = [m for m in node.own_markers if m.name not in names]
     for i, tier in tiers.items():
         items[i].add_marker(getattr(pytest.mark, tier))
+        items[i].user_properties.append(("tier", tier))  # for scripts/test_report.py, via the JUnit report
 
 
 #: The accuracy rows of the tests that ran, as their reports carried them (from xdist workers too).
