@@ -244,7 +244,8 @@ def _run(figure: str, name: str, clip: Path, tmp: Path, cache_dir: Path) -> floa
     return None if "unavailable" in reply else float(reply["seconds"])
 
 
-def _make_clip(spec: str, path: Path) -> None:
+def make_clip(spec: str, path: Path) -> None:
+    """Render the benchmark's clip of one object (``WxHxFRAMES``) as an npz at ``path``."""
     code = (
         "import sys; sys.path.insert(0, sys.argv[1]); import eigenscope\n"
         "from workers.pipeline.clipio import write_npz\n"
@@ -343,7 +344,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="eigenscope-devices-") as name:
         tmp = Path(name)
         clip = tmp / "clip.npz"
-        _make_clip(args.size, clip)
+        make_clip(args.size, clip)
         cache_dir = tmp / "cache"
         cache_dir.mkdir()
         for figure in figures:

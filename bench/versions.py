@@ -25,6 +25,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+
+from devices import make_clip  # noqa: E402 - the same clip as the devices' figures
 
 
 def _run(tree: Path, clip: Path, out: Path) -> tuple[float, dict[str, float]]:
@@ -44,21 +47,6 @@ def _run(tree: Path, clip: Path, out: Path) -> tuple[float, dict[str, float]]:
     wall = time.perf_counter() - started
     timings = json.loads((out / "result.json").read_text()).get("timings_s") or {}
     return wall, timings
-
-
-def _make_clip(spec: str, path: Path) -> None:
-    code = (
-        "import sys; sys.path.insert(0, sys.argv[1]); import eigenscope\n"
-        "from workers.pipeline.clipio import write_npz\n"
-        "from workers.pipeline.synth import Scene, SceneObject, render\n"
-        "w, h, n = (int(v) for v in sys.argv[2].split('x'))\n"
-        "s = w / 640\n"
-        "obj = SceneObject(center_px=(w / 2, h / 2), size_px=(140 * s, 110 * s), frequency_hz=5.0,"
-        " mass_kg=0.5, force_n=10.0, release_frame=10)\n"
-        "clip = render(Scene(width=w, height=h, frames=n, objects=(obj,), seed=1))\n"
-        "write_npz(sys.argv[3], clip.rgb, fps=clip.fps, depth=clip.depth, intrinsics=clip.intrinsics)\n"
-    )
-    subprocess.run([sys.executable, "-c", code, str(ROOT), spec, str(path)], check=True)
 
 
 def main() -> None:
@@ -85,7 +73,7 @@ def main() -> None:
                 )
                 trees[rev] = tree
             clip = tmp / "clip.npz"
-            _make_clip(args.size, clip)
+            make_clip(args.size, clip)
             for name in names:  # one warm-up run each (page cache, bytecode)
                 _run(trees[name], clip, tmp / "out")
             walls: dict[str, list[float]] = {n: [] for n in names}
