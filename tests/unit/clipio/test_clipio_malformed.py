@@ -155,6 +155,17 @@ def truncated_mp4(d: Path) -> tuple[Path, dict[str, Any]]:
     return p, {}
 
 
+def kinect_depth_in_an_unknown_codec(d: Path) -> tuple[Path, dict[str, Any]]:
+    """An Azure Kinect recording whose depth track's FOURCC FFmpeg has no decoder for (found by the
+    fuzzer: the reader read the size of a codec that did not exist)."""
+    depth = np.full((6, 32, 40), 1.0, np.float32)
+    p = w.write_k4a_mkv(d / "kinect.mkv", _rgb(6), depth=depth, fps=30.0, intrinsics=(40.0, 40.0, 20.0, 16.0))
+    data = p.read_bytes()
+    assert data.count(b"b16g") == 1
+    p.write_bytes(data.replace(b"b16g", b"zq9x"))
+    return p, {}
+
+
 def empty_file(d: Path) -> tuple[Path, dict[str, Any]]:
     p = d / "empty.bag"
     p.write_bytes(b"")
@@ -378,6 +389,7 @@ CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (nan_fps_camera_json, ClipError, "zip-frames: the file declares fps=nan"),
     (text_named_mp4, ClipError, "notes.mp4 has a video extension but its content is not a readable video"),
     (truncated_mp4, ClipError, "video: cut.mp4 is an MP4/MOV file but is truncated or corrupt"),
+    (kinect_depth_in_an_unknown_codec, ClipError, "kinect.mkv's depth track is in a codec FFmpeg cannot"),
     (empty_file, ClipError, "empty.bag is empty"),
     (random_bytes, UnsupportedFormatError, "blob.bin: not a clip format"),
     (empty_bag, ClipError, "empty.bag holds no messages"),

@@ -405,6 +405,12 @@ class K4aClip(ClosingReader):
                 f"{FORMAT}: {self.path.name} has a depth track but no colour track; record with the colour "
                 "camera on (k4arecorder --color-mode)"
             )
+        for stream, what in ((color, "colour"), (depth, "depth")):
+            if stream is not None and stream.codec_context is None:  # FFmpeg has no decoder for it
+                raise ClipError(
+                    f"{FORMAT}: {self.path.name}'s {what} track is in a codec FFmpeg cannot decode "
+                    f"({_tag(stream) or 'unknown'}); record with k4arecorder's standard formats"
+                )
         width, height = int(color.codec_context.width), int(color.codec_context.height)
         check_size(FORMAT, width, height, limits)
         self._color_index = color.index
