@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.contract.wheels import build_wheel
+
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 CLIENT = Path(__file__).resolve().parents[2] / "client"
@@ -37,9 +39,8 @@ def _run(cmd: list[str], **kwargs: object) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("wheel")
-    _run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--wheel-dir", str(out), str(CLIENT)])
-    (built,) = out.glob("eigenscope_client-*.whl")
+    built = build_wheel(CLIENT, tmp_path_factory.mktemp("wheel"))
+    assert built.name.startswith("eigenscope_client-")
     return built
 
 

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.contract.wheels import build_wheel
+
 ROOT = Path(__file__).resolve().parents[2]
 #: The typed packages of each distribution.
 PACKAGES = {
@@ -21,17 +23,15 @@ PACKAGES = {
 }
 
 
+#: What each distribution's wheel is built from.
+PARTS = {
+    ROOT: ("pyproject.toml", "README.md", "LICENSE", "api_schemas", "eigenscope", "service", "workers"),
+    ROOT / "client": None,
+}
+
+
 def _wheel(source: Path, out: Path) -> Path:
-    done = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--wheel-dir", str(out), str(source)],
-        capture_output=True,
-        text=True,
-        timeout=540,
-        check=False,
-    )
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    (built,) = out.glob("*.whl")
-    return built
+    return build_wheel(source, out, parts=PARTS[source])
 
 
 def test_the_sources_have_a_licence_and_markers() -> None:
