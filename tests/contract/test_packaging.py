@@ -23,9 +23,9 @@ PACKAGES = {
 }
 
 
-#: What each distribution's wheel is built from.
+#: What each distribution's wheel is built from (None: its whole folder).
 PARTS = {
-    ROOT: ("pyproject.toml", "README.md", "LICENSE", "api_schemas", "eigenscope", "service", "workers"),
+    ROOT: ("pyproject.toml", "README.md", "LICENSE", *PACKAGES[ROOT]),
     ROOT / "client": None,
 }
 
