@@ -6,21 +6,31 @@ record, the analysis result and RFC 9457 problem details.
 
 from api_schemas.clip import CameraIntrinsicsModel, ClipInfoModel, ClipList
 from api_schemas.job import (
-    AnalysisParameters,
     CallbackState,
+    JobCreate,
+    JobEvent,
+    JobList,
+    JobModel,
+    JobStage,
+    JobStatus,
+    JobSummary,
+    ResultSummary,
+)
+from api_schemas.parameters import (
+    AnalysisParameters,
     Excitation,
     ExcitationSpec,
     ImpulseExcitation,
-    JobCreate,
-    JobList,
-    JobModel,
-    JobStatus,
+    ParametersUsed,
     StepReleaseExcitation,
 )
-from api_schemas.problem import Problem
+from api_schemas.problem import FieldError, Problem
 from api_schemas.result import (
+    ARTIFACT_NAMES,
     AnalysisResult,
+    ArtifactName,
     Artifacts,
+    Detection,
     ObjectResult,
     QualityFlag,
     RejectedPeakResult,
@@ -37,26 +47,35 @@ from api_schemas.stream import (
 )
 
 __all__ = [
+    "ARTIFACT_NAMES",
     "AnalysisParameters",
     "AnalysisResult",
+    "ArtifactName",
     "Artifacts",
     "CallbackState",
     "CameraIntrinsicsModel",
     "ClipInfoModel",
     "ClipList",
+    "Detection",
     "Excitation",
     "ExcitationSpec",
+    "FieldError",
     "FrameHeader",
     "ImpulseExcitation",
     "JobCreate",
+    "JobEvent",
     "JobList",
     "JobModel",
+    "JobStage",
     "JobStatus",
+    "JobSummary",
     "LiveEstimateModel",
     "ObjectResult",
+    "ParametersUsed",
     "Problem",
     "QualityFlag",
     "RejectedPeakResult",
+    "ResultSummary",
     "RingdownResult",
     "ServerMessage",
     "Spectrum",

@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+
+#: The containers and layouts the clip readers take (``stream``: a live stream's clip before it is filed).
+ClipFormat = Literal[
+    "npz", "zip-frames", "tum", "open3d", "k4a-mkv", "video", "ros1-bag", "ros2-bag", "stream"
+]
+#: Where a clip's frame rate comes from.
+ClipFpsSource = Literal["user", "bundle", "container", "timestamps", "metadata"]
 
 
 class CameraIntrinsicsModel(BaseModel):
@@ -21,16 +29,23 @@ class CameraIntrinsicsModel(BaseModel):
 class ClipInfoModel(BaseModel):
     """What was detected in an uploaded clip (the same as ``eigenscope probe`` prints)."""
 
-    model_config = ConfigDict(title="Clip", allow_inf_nan=False)
+    model_config = ConfigDict(
+        title="Clip", allow_inf_nan=False, json_schema_serialization_defaults_required=True
+    )
 
     id: str
-    format: str = Field(
+    format: ClipFormat = Field(
         description="Detected container/layout: `npz`, `zip-frames`, `tum`, `open3d`, `k4a-mkv`, `video`, "
         "`ros1-bag` or `ros2-bag`.",
     )
     frames: int = Field(ge=0)
     fps: float | None = Field(description="Frame rate used for analysis, in Hz.")
-    fps_source: str | None = Field(default=None, description="Where `fps` came from: bundle, container, ...")
+    fps_source: ClipFpsSource | None = Field(
+        default=None,
+        description="Where `fps` came from: `user` (given), `bundle` (the npz or `camera.json`), `container` "
+        "(the video or bag), `timestamps` (measured from the frames' times) or `metadata` (a capture rate "
+        "the file records).",
+    )
     width: int
     height: int
     has_depth: bool
@@ -47,7 +62,7 @@ class ClipInfoModel(BaseModel):
 class ClipList(BaseModel):
     """A page of clips, newest first."""
 
-    model_config = ConfigDict(title="ClipList")
+    model_config = ConfigDict(title="ClipList", json_schema_serialization_defaults_required=True)
 
     items: list[ClipInfoModel]
     next_cursor: str | None = None

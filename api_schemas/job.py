@@ -4,86 +4,13 @@ from __future__ import annotations
 
 from datetime import datetime
 from enum import StrEnum
-from typing import Annotated, Literal
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from api_schemas.parameters import AnalysisParameters, ExcitationSpec
 from api_schemas.problem import Problem
-from api_schemas.result import AnalysisResult
-
-
-class StepReleaseExcitation(BaseModel):
-    """Object held by a known force, then released: A = F/k."""
-
-    model_config = ConfigDict(title="StepReleaseExcitation", allow_inf_nan=False, extra="forbid")
-
-    type: Literal["step_release"]
-    force_n: float = Field(gt=0, description="Holding force, newtons.")
-    force_uncertainty_n: float = Field(default=0.0, ge=0)
-    object_id: int | None = Field(default=None, ge=1, description="Which object; default the main one.")
-    point_px: list[float] | None = Field(
-        default=None, min_length=2, max_length=2, description="... or a point [x, y] on the object, pixels."
-    )
-    box_px: list[float] | None = Field(
-        default=None, min_length=4, max_length=4, description="... or a box [x, y, w, h] around it, pixels."
-    )
-
-
-class ImpulseExcitation(BaseModel):
-    """Object struck by a known impulse: v0 = J/m."""
-
-    model_config = ConfigDict(title="ImpulseExcitation", allow_inf_nan=False, extra="forbid")
-
-    type: Literal["impulse"]
-    impulse_ns: float = Field(gt=0, description="Impulse, newton-seconds.")
-    impulse_uncertainty_ns: float = Field(default=0.0, ge=0)
-    object_id: int | None = Field(default=None, ge=1, description="Which object; default the main one.")
-    point_px: list[float] | None = Field(
-        default=None, min_length=2, max_length=2, description="... or a point [x, y] on the object, pixels."
-    )
-    box_px: list[float] | None = Field(
-        default=None, min_length=4, max_length=4, description="... or a box [x, y, w, h] around it, pixels."
-    )
-
-
-Excitation = Annotated[StepReleaseExcitation | ImpulseExcitation, Field(discriminator="type")]
-
-#: One excitation (for the main object, or the one it names), or one per excited object.
-ExcitationSpec = Excitation | Annotated[list[Excitation], Field(min_length=1, max_length=16)]
-
-
-class AnalysisParameters(BaseModel):
-    """Analysis options; every field has a default that works without tuning."""
-
-    model_config = ConfigDict(title="AnalysisParameters", allow_inf_nan=False, extra="forbid")
-
-    method: Literal["default", "paper"] = "default"
-    flow: Literal["farneback", "dis"] | None = Field(
-        default=None, description="Optical flow; default depends on the method."
-    )
-    frames: int | None = Field(default=None, ge=8, le=100_000, description="Analysis window length N.")
-    start_frame: int | None = Field(default=None, ge=0)
-    fps: float | None = Field(default=None, gt=0, le=100_000, description="True recording rate, Hz.")
-    fx: float | None = Field(default=None, gt=0)
-    fy: float | None = Field(default=None, gt=0)
-    cx: float | None = None
-    cy: float | None = None
-    depth_scale: float | None = Field(default=None, gt=0, description="Metres per depth unit.")
-    depth_m: float | None = Field(
-        default=None, gt=0, description="Object distance when the clip has no depth."
-    )
-    color_topic: str | None = Field(
-        default=None,
-        max_length=256,
-        description="Bag topic of the colour images (default: chosen automatically).",
-    )
-    depth_topic: str | None = Field(
-        default=None,
-        max_length=256,
-        description="Bag topic of the depth images (default: chosen automatically; `none` ignores depth).",
-    )
-    min_frequency_hz: float | None = Field(default=None, ge=0)
-    max_frequency_hz: float | None = Field(default=None, gt=0)
+from api_schemas.result import RESPONSE, AnalysisResult
 
 
 class JobCreate(BaseModel):
@@ -110,7 +37,7 @@ class JobCreate(BaseModel):
 class CallbackState(BaseModel):
     """Delivery of a job's webhook."""
 
-    model_config = ConfigDict(title="Callback")
+    model_config = ConfigDict(title="Callback", **RESPONSE)
 
     url: str
     status: Literal["waiting", "pending", "delivered", "failed"] = Field(
@@ -129,16 +56,42 @@ class JobStatus(StrEnum):
     cancelled = "cancelled"
 
 
-class JobModel(BaseModel):
-    """A job record."""
+#: What a job is doing: the store's states (``queued``, ``starting``, ``requeued``, ``retrying``, ``done``,
+#: ``failed``, ``cancelled``) and the analysis's stages in their order (``setup`` or the ``survey`` of a
+#: long clip, ``decode`` and ``flow`` of the frames -- reported together as ``flow`` --, ``spectrum``,
+#: ``segmentation``, ``mechanics``, ``rendering`` of the images). The ``stage`` labels of
+#: ``eigenscope_analysis_stage_seconds`` and the keys of ``AnalysisResult.timings_s`` use the same names.
+JobStage = Literal[
+    "queued",
+    "starting",
+    "setup",
+    "survey",
+    "decode",
+    "flow",
+    "spectrum",
+    "segmentation",
+    "mechanics",
+    "rendering",
+    "done",
+    "requeued",
+    "retrying",
+    "cancelled",
+    "failed",
+]
+#: ``upload``: a job of an uploaded clip; ``stream``: the job a live stream ended as.
+JobSource = Literal["upload", "stream"]
 
-    model_config = ConfigDict(title="Job", allow_inf_nan=False)
+
+class _JobFields(BaseModel):
+    """The members a job and its summary share."""
+
+    model_config = ConfigDict(allow_inf_nan=False, json_schema_serialization_defaults_required=True)
 
     id: str
     clip_id: str
     status: JobStatus
     progress: float = Field(ge=0, le=1)
-    stage: str | None = None
+    stage: JobStage | None = Field(default=None, description="What the job is doing (see the enumeration).")
     attempts: int = 0
     excitation: ExcitationSpec | None = None
     parameters: AnalysisParameters
@@ -146,17 +99,64 @@ class JobModel(BaseModel):
     started_at: datetime | None = None
     finished_at: datetime | None = None
     error: Problem | None = None
-    result: AnalysisResult | None = None
     callback: CallbackState | None = None
-    source: Literal["upload", "stream"] = Field(
+    source: JobSource = Field(
         default="upload", description="`stream`: the job a live stream ended as (see `/v1/streams`)."
     )
 
 
+class JobModel(_JobFields):
+    """A job record."""
+
+    model_config = ConfigDict(title="Job", **RESPONSE)
+
+    result: AnalysisResult | None = None
+
+
+class ResultSummary(BaseModel):
+    """The headline of a succeeded job's result: its main object's figures (each `*_uncertainty` a standard
+    uncertainty) and counts of what else it holds. The whole result is one link away (`result_url`)."""
+
+    model_config = ConfigDict(title="ResultSummary", **RESPONSE)
+
+    eigenfrequency_hz: float | None = Field(description="The main object's eigenfrequency, Hz.")
+    eigenfrequency_uncertainty_hz: float | None = None
+    damping_ratio: float | None = None
+    stiffness_n_per_m: float | None = None
+    mass_kg: float | None = None
+    objects: int = Field(ge=0, description="Objects found.")
+    warnings: int = Field(ge=0, description="Quality flags of severity `warning` or `error`.")
+
+
+class JobSummary(_JobFields):
+    """A job as lists show it: the record without its result, a summary of the result instead, and where
+    the whole result is."""
+
+    model_config = ConfigDict(title="JobSummary", **RESPONSE)
+
+    summary: ResultSummary | None = Field(default=None, description="Present once the job has succeeded.")
+    url: str = Field(description="The job (`GET`: the whole record, its result included).")
+    result_url: str | None = Field(
+        default=None,
+        description="The job's result alone (`GET /v1/jobs/{job_id}/result`, an `AnalysisResult`), once the "
+        "job has succeeded.",
+    )
+
+
 class JobList(BaseModel):
-    """A page of jobs, newest first."""
+    """A page of jobs, newest first (summaries: each job's whole result is at its `result_url`)."""
 
-    model_config = ConfigDict(title="JobList", allow_inf_nan=False)
+    model_config = ConfigDict(title="JobList", **RESPONSE)
 
-    items: list[JobModel]
+    items: list[JobSummary]
     next_cursor: str | None = None
+
+
+class JobEvent(BaseModel):
+    """The body of a job's webhook: the job ended (see the `webhooks` of the OpenAPI document)."""
+
+    model_config = ConfigDict(title="JobEvent", **RESPONSE)
+
+    type: Literal["job.succeeded", "job.failed", "job.cancelled"] = Field(description="How the job ended.")
+    timestamp: datetime = Field(description="When the event was sent (UTC).")
+    data: JobModel = Field(description="The job, as `GET /v1/jobs/{job_id}` serves it.")

@@ -6,23 +6,68 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from api_schemas.parameters import ParametersUsed
+
 Regime = Literal["ring_down", "steady", "growing", "beating"]
+#: Every quality flag the analysis reports (``tests/unit/service/test_enumerations.py`` keeps this equal to
+#: the codes ``workers.pipeline`` writes).
+QualityCode = Literal[
+    "artefact_peak",
+    "band_edge",
+    "blank_frames",
+    "close_frequencies",
+    "damaged_file",
+    "few_periods",
+    "frame_rate",
+    "longer_window",
+    "low_snr",
+    "no_depth",
+    "no_motion",
+    "paper_method",
+    "possibly_aliased",
+    "saturation",
+    "survey_disagrees",
+    "uneven_timing",
+    "window",
+]
+Severity = Literal["info", "warning", "error"]
+#: Why a spectral peak is not reported as an object.
+Evidence = Literal[
+    "camera_motion",
+    "illumination_flicker",
+    "codec_keyframes",
+    "harmonic",
+    "incoherent",
+    "not_significant",
+    "uncertain",
+    "out_of_band",
+]
+#: Where a frame rate came from.
+FpsSource = Literal["user", "bundle", "container", "timestamps", "metadata", "unknown"]
+#: How the amplitude was measured.
+AmplitudeSource = Literal["registration", "flow"]
+
+#: The configuration of a model the API only sends: every member is sent, defaults included, so the
+#: document marks them required (a generated client then has no "unset" state for them).
+RESPONSE = ConfigDict(allow_inf_nan=False, json_schema_serialization_defaults_required=True)
 
 
 class QualityFlag(BaseModel):
     """A reason why (part of) a result may be unreliable."""
 
-    model_config = ConfigDict(title="QualityFlag", allow_inf_nan=False)
+    model_config = ConfigDict(title="QualityFlag", **RESPONSE)
 
-    code: str = Field(description="Stable machine-readable code, e.g. `possibly_aliased`, `no_depth`.")
+    code: QualityCode = Field(
+        description="Stable machine-readable code, e.g. `possibly_aliased`, `no_depth`."
+    )
     message: str = Field(description="What was seen and what to do about it.")
-    severity: str = Field(default="warning", description="`info`, `warning` or `error`.")
+    severity: Severity = Field(default="warning", description="`info`, `warning` or `error`.")
 
 
 class RingdownResult(BaseModel):
     """How an object's oscillation decays: amplitude and frequency over sliding windows."""
 
-    model_config = ConfigDict(title="Ringdown", allow_inf_nan=False)
+    model_config = ConfigDict(title="Ringdown", **RESPONSE)
 
     times_s: list[float] = Field(description="Window centres, seconds from the analysed window's start.")
     amplitude_px: list[float] = Field(description="Displacement amplitude at the object's frequency, pixels.")
@@ -33,7 +78,7 @@ class RingdownResult(BaseModel):
 class ObjectResult(BaseModel):
     """One vibrating object found in the clip."""
 
-    model_config = ConfigDict(title="ObjectResult", allow_inf_nan=False)
+    model_config = ConfigDict(title="ObjectResult", **RESPONSE)
 
     id: int = Field(ge=1, description="The object's value in `mask.png`.")
     eigenfrequency_hz: float = Field(description="Damped eigenfrequency, Hz.")
@@ -49,7 +94,7 @@ class ObjectResult(BaseModel):
     damping_ratio: float | None = None
     damping_ratio_uncertainty: float | None = None
     amplitude_px: float | None = Field(default=None, description="Amplitude at release, image pixels.")
-    amplitude_source: str | None = Field(
+    amplitude_source: AmplitudeSource | None = Field(
         default=None,
         description="`registration` (rigid-body sub-pixel tracking) or `flow` (dense optical flow).",
     )
@@ -68,6 +113,14 @@ class ObjectResult(BaseModel):
     harmonics_hz: list[float] = Field(default_factory=list)
     release_time_s: float | None = Field(default=None, description="When the object was released.")
     snr_db: float | None = None
+    false_alarm_probability: float | None = Field(
+        default=None,
+        ge=0,
+        le=1,
+        description="Probability, per clip, that noise alone (sensor, codec) gives a peak as high as this "
+        "object's anywhere in the analysed band: the detection statistic's (see `detection`). Objects are "
+        "reported when it is at most `detection.max_false_alarm`.",
+    )
     null_reasons: list[str] = Field(
         default_factory=list, description="Why a quantity above is null (e.g. no excitation, no depth)."
     )
@@ -82,21 +135,47 @@ class ObjectResult(BaseModel):
 class RejectedPeakResult(BaseModel):
     """A spectral peak that was not reported as an object, and the evidence why."""
 
-    model_config = ConfigDict(title="RejectedPeak")
+    model_config = ConfigDict(title="RejectedPeak", **RESPONSE)
 
     frequency_hz: float
-    evidence: str = Field(
+    evidence: Evidence = Field(
         description="`camera_motion`, `illumination_flicker`, `codec_keyframes`, `harmonic` (of an object "
-        "reported, possibly folded back below the Nyquist rate), `incoherent` (no single coherent "
-        "oscillation), `uncertain` (frequency uncertainty a quarter of itself or more) or `out_of_band`."
+        "reported, possibly folded back below the Nyquist rate), `not_significant` (noise alone gives a "
+        "peak as high too often), `uncertain` (frequency uncertainty a quarter of itself or more) or "
+        "`out_of_band`."
     )
     reason: str = Field(description="What was seen, in a sentence.")
+    figures: dict[str, float] = Field(
+        default_factory=dict,
+        description="The numbers behind the verdict, named with their units: for `codec_keyframes` the "
+        "period of the keyframes in frames, the comb's spacing, the order, the peak's distance from its "
+        "tooth and the tolerance (its frequency uncertainty); for every artefact `localised_share`; for "
+        "`not_significant` the false-alarm probability and the bound.",
+    )
+
+
+class Detection(BaseModel):
+    """How objects were told from noise: the scan statistic's law on this clip."""
+
+    model_config = ConfigDict(title="Detection", **RESPONSE)
+
+    statistic: str = Field(
+        default="scan",
+        description="`scan`: the largest confidence-weighted, coherently pooled motion power over every "
+        "region of the picture at each frequency, its law (Gumbel, of its logarithm) fitted on the clip's "
+        "own frequencies away from any peak.",
+    )
+    max_false_alarm: float = Field(description="Objects are reported at or below this per-clip probability.")
+    location: float = Field(description="Location of the fitted law of log T.")
+    scale: float = Field(description="Scale of the fitted law of log T.")
+    bins_searched: int = Field(description="Frequencies searched (the per-clip probability allows for each).")
+    bins_fitted: int = Field(description="Frequencies the law was fitted on.")
 
 
 class Spectrum(BaseModel):
     """Summed motion power spectrum of the clip."""
 
-    model_config = ConfigDict(title="Spectrum", allow_inf_nan=False)
+    model_config = ConfigDict(title="Spectrum", **RESPONSE)
 
     frequencies_hz: list[float]
     power: list[float]
@@ -105,10 +184,24 @@ class Spectrum(BaseModel):
     )
 
 
-class Artifacts(BaseModel):
-    """Files produced by the analysis: names relative to the output directory, or URLs when served."""
+#: The files a job serves (``GET /v1/jobs/{job_id}/artifacts/{name}``): its images and ``result.json``.
+ArtifactName = Literal[
+    "mask.png",
+    "overlay.png",
+    "frequency_map.png",
+    "spectrum.png",
+    "displacement.png",
+    "ringdown.png",
+    "result.json",
+]
+ARTIFACT_NAMES: tuple[str, ...] = ArtifactName.__args__  # type: ignore[attr-defined]
 
-    model_config = ConfigDict(title="Artifacts", allow_inf_nan=False, extra="allow")
+
+class Artifacts(BaseModel):
+    """Files produced by the analysis: names relative to the output directory, or URLs when served (the
+    last segment of each URL is one of the artifact names the API serves, `ArtifactName`)."""
+
+    model_config = ConfigDict(title="Artifacts", **RESPONSE)
 
     mask: str = Field(
         default="mask.png",
@@ -135,12 +228,15 @@ class Artifacts(BaseModel):
         "release instant (PNG).",
     )
     ringdown: str | None = Field(default=None, description="Spectrogram of each object's ring-down (PNG).")
+    result: str = Field(
+        default="result.json", description="This result as a file (JSON, an `AnalysisResult`)."
+    )
 
 
 class AnalysisResult(BaseModel):
     """Everything one analysis measured."""
 
-    model_config = ConfigDict(title="AnalysisResult", allow_inf_nan=False)
+    model_config = ConfigDict(title="AnalysisResult", **RESPONSE)
 
     eigenfrequency_hz: float | None = Field(description="The main object's eigenfrequency, Hz.")
     objects: list[ObjectResult]
@@ -150,10 +246,11 @@ class AnalysisResult(BaseModel):
     rejected_peaks: list[RejectedPeakResult] = Field(
         default_factory=list, description="Peaks that are not objects, each with the evidence."
     )
-    method: str
-    parameters: dict[str, object] = Field(description="Every parameter used, defaults included.")
+    detection: Detection | None = Field(default=None, description="How objects were told from noise.")
+    method: Literal["default", "paper"] = Field(description="The analysis method.")
+    parameters: ParametersUsed = Field(description="Every parameter used, defaults included.")
     fps: float = Field(description="The frame rate used, Hz: every frequency scales with it.")
-    fps_source: str = Field(
+    fps_source: FpsSource = Field(
         description="Where the rate came from: `user`, `bundle`, `timestamps`, `container` (a high-speed "
         "camera may have written its playback rate: see the `frame_rate` quality flag) or `metadata` (a "
         "capture rate the file records)."

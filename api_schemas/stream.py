@@ -5,7 +5,7 @@ messages; the server answers with the JSON messages below. The protocol is docum
 document (``openapi/asyncapi.json``) generated from these models.
 
 Binary frame message: a 4-byte big-endian length ``L``, then ``L`` bytes of UTF-8 JSON (a
-:class:`FrameHeader`), then the image bytes.
+:class:`FrameHeader`), then the image bytes. Flow control follows one rule, :data:`FLOW_CONTROL`.
 """
 
 from __future__ import annotations
@@ -15,11 +15,26 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from api_schemas.job import AnalysisParameters, ExcitationSpec
+from api_schemas.parameters import AnalysisParameters, ExcitationSpec
 from api_schemas.problem import Problem
 from api_schemas.result import AnalysisResult
 
 StreamStatus = Literal["waiting", "streaming", "finishing", "succeeded", "failed"]
+
+#: The protocol's flow-control rule, as the AsyncAPI document states it; the server's relay
+#: (``service.streams``) and the Python client (``eigenscope_client.streams``) count by it.
+FLOW_CONTROL = (
+    "Flow control, one rule: a frame message (binary) is in flight from when the client sends it until "
+    "the server acknowledges it. `acked` in `accepted`, `backpressure` and `error` messages counts the frame "
+    "messages of this connection the server is done with (taken by the analysis, or refused: dropped or too "
+    "large), from 0 at `ready`; it never goes down. In flight = frame messages sent on this connection - "
+    "the latest `acked`. Send a frame message only while in flight < `window` (from `ready`). The server "
+    "counts the same way (`in_flight` in those messages: those it has received, less `acked`; yours is "
+    "at least that, by what is still on the wire): it sends `slow_down` when a message arrives with "
+    "3/4 of the window in flight, and refuses a frame message that arrives with the window full "
+    "(`backpressure` `dropped`, which acknowledges it). A client that keeps the rule is never dropped; "
+    "one that cannot wait (a live camera) may send past it and is told which frames were dropped."
+)
 
 
 class StreamCreate(BaseModel):
@@ -47,14 +62,20 @@ class StreamCreate(BaseModel):
     max_duration_s: float = Field(
         default=60.0, gt=0, description="Longest capture (by frame timestamps) before the server ends it."
     )
-    width: int | None = Field(default=None, ge=16, le=8192, description="Frame width; default the first's.")
-    height: int | None = Field(default=None, ge=16, le=8192, description="Frame height; default the first's.")
+    width: int = Field(
+        ge=16,
+        le=8192,
+        description="Frame width, pixels: every frame must declare it (its PNG or JPEG header is read "
+        "before it is decoded). Width x height may not pass the server's pixel cap, and the analysis "
+        "window of such frames must fit the job memory budget.",
+    )
+    height: int = Field(ge=16, le=8192, description="Frame height, pixels (see `width`).")
 
 
 class LiveEstimateModel(BaseModel):
     """The main object's figures from the frames so far (each `*_uncertainty` a standard uncertainty)."""
 
-    model_config = ConfigDict(title="LiveEstimate")
+    model_config = ConfigDict(title="LiveEstimate", json_schema_serialization_defaults_required=True)
 
     frames_received: int
     frames_used: list[int] = Field(description="[first, last) frame indices whose flow was used.")
@@ -83,7 +104,7 @@ class LiveEstimateModel(BaseModel):
 class StreamModel(BaseModel):
     """A live stream session."""
 
-    model_config = ConfigDict(title="Stream")
+    model_config = ConfigDict(title="Stream", json_schema_serialization_defaults_required=True)
 
     id: str
     job_id: str = Field(description="The job the stream ends as (its result, images and clip).")
@@ -110,7 +131,7 @@ class StreamModel(BaseModel):
 class StreamList(BaseModel):
     """A page of streams, newest first."""
 
-    model_config = ConfigDict(title="StreamList")
+    model_config = ConfigDict(title="StreamList", json_schema_serialization_defaults_required=True)
 
     items: list[StreamModel]
 
@@ -119,7 +140,8 @@ class StreamList(BaseModel):
 
 
 class FrameHeader(BaseModel):
-    """The JSON header of a binary frame message.
+    """The JSON header of a binary frame message (bytes 4 to 4 + L of the message; L is the big-endian
+    uint32 of bytes 0-3; the image follows).
 
     Send each frame's colour message first, then (for RGB-D) its depth message with the same `frame`.
     A colour frame is complete when its depth arrives, or when the next colour frame arrives (no depth).
@@ -148,50 +170,64 @@ class EndMessage(BaseModel):
 class ReadyMessage(BaseModel):
     """Server -> client, first on every connection."""
 
-    model_config = ConfigDict(title="ReadyMessage")
+    model_config = ConfigDict(title="ReadyMessage", json_schema_serialization_defaults_required=True)
 
     type: Literal["ready"]
     stream_id: str
     job_id: str
-    window: int = Field(description="Most frame messages in flight (sent but not `accepted`).")
+    window: int = Field(description="Most frame messages in flight (see the flow-control rule).")
     next_frame: int = Field(description="The frame index to send next (after a resume: where to go on).")
     messages: int = Field(
-        description="Frame messages the worker had consumed when this connection opened: a message's "
-        "`messages` minus this, against the frame messages sent on this connection, gives those in flight."
+        description="Frame messages the worker had consumed when this connection opened (of the whole "
+        "stream, earlier connections included). Flow control needs only `acked`."
     )
     resumed: bool = False
 
 
+_ACKED = Field(
+    description="Frame messages of this connection the server is done with, from 0 at `ready`: in flight = "
+    "frame messages sent on this connection - `acked` (see the flow-control rule)."
+)
+_IN_FLIGHT = Field(description="Frame messages in flight as the server counts them (received, less `acked`).")
+
+
 class AcceptedMessage(BaseModel):
-    """Server -> client: a frame was decoded and taken into the analysis (flow control)."""
+    """Server -> client: a frame was decoded and taken into the analysis; it acknowledges (`acked`) every
+    frame message the analysis has taken so far."""
 
     model_config = ConfigDict(title="AcceptedMessage")
 
     type: Literal["accepted"]
     frame: int
-    messages: int = Field(description="Frame messages (colour and depth) the worker has consumed.")
-    in_flight: int = Field(description="Frame messages sent but not yet consumed.")
+    acked: int = _ACKED
+    in_flight: int = _IN_FLIGHT
     window: int
+    messages: int = Field(
+        description="Frame messages (colour and depth) the worker has consumed over the whole stream."
+    )
 
 
 class BackpressureMessage(BaseModel):
-    """Server -> client: the worker is behind. `slow_down`: in-flight messages near the window;
-    `dropped`: this frame message was refused (the window was full) and is not analysed."""
+    """Server -> client: the worker is behind. `slow_down`: a frame message arrived with three quarters of
+    the window in flight; `dropped`: this frame message arrived with the window full and is refused (not
+    analysed; `acked` counts it). Whole frames are dropped: a depth message follows its colour message
+    (dropped with it, or passed on with it even over a full window)."""
 
-    model_config = ConfigDict(title="BackpressureMessage")
+    model_config = ConfigDict(title="BackpressureMessage", json_schema_serialization_defaults_required=True)
 
     type: Literal["backpressure"]
     action: Literal["slow_down", "dropped"]
     frame: int | None = None
     kind: Literal["color", "depth"] | None = None
-    in_flight: int
+    acked: int = _ACKED
+    in_flight: int = _IN_FLIGHT
     window: int
 
 
 class EstimateMessage(BaseModel):
     """Server -> client: the estimate from the frames so far (at least 4 a second once motion is seen)."""
 
-    model_config = ConfigDict(title="EstimateMessage")
+    model_config = ConfigDict(title="EstimateMessage", json_schema_serialization_defaults_required=True)
 
     type: Literal["estimate"]
     estimate: LiveEstimateModel
@@ -200,7 +236,7 @@ class EstimateMessage(BaseModel):
 class ConvergedMessage(BaseModel):
     """Server -> client: the target uncertainty is reached; the robot may stop recording."""
 
-    model_config = ConfigDict(title="ConvergedMessage")
+    model_config = ConfigDict(title="ConvergedMessage", json_schema_serialization_defaults_required=True)
 
     type: Literal["converged"]
     quantity: Literal["eigenfrequency_hz"] = "eigenfrequency_hz"
@@ -216,7 +252,7 @@ class ResultMessage(BaseModel):
     completes (and serves them) a moment later, so wait for the job (`GET /v1/jobs/{id}?wait=`) before
     fetching them."""
 
-    model_config = ConfigDict(title="ResultMessage")
+    model_config = ConfigDict(title="ResultMessage", json_schema_serialization_defaults_required=True)
 
     type: Literal["result"]
     job_id: str
@@ -225,14 +261,17 @@ class ResultMessage(BaseModel):
 
 
 class ErrorMessage(BaseModel):
-    """Server -> client: an RFC 9457 problem naming the frame (`frame`) or field. `fatal`: the session is
-    over (the server closes)."""
+    """Server -> client: an RFC 9457 problem naming the frame (`frame`) or field; a frame message it names
+    is skipped (and acknowledged: `acked`). `fatal`: the session is over (the server closes)."""
 
     model_config = ConfigDict(title="ErrorMessage")
 
     type: Literal["error"]
     fatal: bool
     frame: int | None = None
+    acked: int | None = Field(default=None, description="As in `accepted` (absent before `ready`).")
+    in_flight: int | None = Field(default=None, description="As in `accepted` (absent before `ready`).")
+    window: int | None = Field(default=None, description="As in `accepted` (absent before `ready`).")
     messages: int | None = Field(default=None, description="As in `accepted`, when the worker sent it.")
     problem: Problem
 

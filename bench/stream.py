@@ -6,6 +6,9 @@
 - keepup: 640x480 RGB-D (JPEG colour, raw depth) through ``eigenscope serve`` (embedded): at 30 fps
   (paced like a camera) the frames the server had to drop and its lag behind capture; then as fast as
   flow control lets, the rate the stream sustains (where it stops keeping up).
+- rule: 640x480 RGB-D paced at 30 fps by a client that follows the flow-control rule (waits for room in
+  the window): fps sustained, frames dropped, ``slow_down`` messages, stalls (sends blocked longer than a
+  frame interval), how far it fell behind real time, and the client's and the server's in-flight counts.
 - latency: seconds from the last frame sent to the ``result`` message (median of several streams).
 - early: release to ``converged`` (1 % target) for a 4.5 Hz object at 640x480, in seconds of capture.
 - coverage: on randomised synthetic scenes (2-10 Hz, damping 0.01-0.08, step release or impulse), the
@@ -161,6 +164,64 @@ def bench_keepup(base: str) -> None:
         + ", ".join(f"{r:.1f}" for r in rates)
         + ") = where a stream stops keeping up"
     )
+
+
+def paced_by_the_rule(base: str, fr: Frames) -> dict[str, Any]:
+    """Frames paced at 30 fps by a client that follows the documented flow-control rule (it waits for room
+    in the window rather than send past it): fps sustained, drops, stalls and how far it fell behind."""
+    seen: list[dict[str, Any]] = []
+    counts: list[tuple[int, int]] = []  # (the client's in-flight count, the server's) at each `accepted`
+    holder: dict[str, StreamSession] = {}
+
+    def on_message(m: dict[str, Any]) -> None:
+        seen.append(m)
+        if m["type"] == "accepted" and "session" in holder:
+            counts.append((holder["session"].in_flight, int(m["in_flight"])))
+
+    session = open_session(base, fr, realtime=False, on_message=on_message)
+    holder["session"] = session
+    interval = 1 / 30.0
+    start = time.perf_counter()
+    stalls, behind = 0, 0.0
+    for i, (c, d) in enumerate(zip(fr.color, fr.depth, strict=True)):
+        delay = start + i * interval - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        before = time.perf_counter()
+        session.send_frame(c, timestamp_s=fr.times[i], depth=d, width=fr.width, height=fr.height)
+        after = time.perf_counter()
+        stalls += after - before > interval
+        behind = max(behind, after - (start + (i + 1) * interval))
+    send_s = time.perf_counter() - start
+    session.finish(timeout_s=120)
+    session.close()
+    waits = getattr(session, "stalls", None)  # the client's own count of waits for room (newer clients)
+    return {
+        "waits": waits,
+        "fps": len(fr.color) / send_s,
+        "dropped": sum(m["type"] == "backpressure" and m["action"] == "dropped" for m in seen),
+        "slow_down": sum(m["type"] == "backpressure" and m["action"] == "slow_down" for m in seen),
+        "stalls": stalls,
+        "behind_s": behind,
+        "max_client_in_flight": max((c for c, _ in counts), default=0),
+        "max_server_in_flight": max((s for _, s in counts), default=0),
+        "max_disagreement": max((abs(c - s) for c, s in counts), default=0),
+    }
+
+
+def bench_rule(base: str, runs: int) -> None:
+    fr = scene_frames(width=640, height=480, frames=150)
+    for _ in range(runs):
+        r = paced_by_the_rule(base, fr)
+        print(
+            f"rule: 640x480 RGB-D paced at 30 fps, flow-controlled by the client: {r['fps']:.1f} fps "
+            f"sustained, dropped {r['dropped']}, slow_down {r['slow_down']}, stalls {r['stalls']} "
+            f"(sends blocked over a frame interval; waits for room {r['waits']}), at most "
+            f"{r['behind_s'] * 1000:.0f} ms behind real time; "
+            f"in flight max {r['max_client_in_flight']} by the client's count, {r['max_server_in_flight']} "
+            f"by the server's (largest disagreement {r['max_disagreement']})"
+        )
+        sys.stdout.flush()
 
 
 def bench_latency(base: str, runs: int) -> None:
@@ -362,11 +423,11 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--scenes", type=int, default=30)
     args = parser.parse_args()
-    parts = [args.only] if args.only else ["coverage", "early", "keepup", "latency", "concurrency"]
+    parts = [args.only] if args.only else ["coverage", "early", "keepup", "rule", "latency", "concurrency"]
     with tempfile.TemporaryDirectory(prefix="eigenscope-bench-stream-") as tmp_name:
         tmp = Path(tmp_name)
         service = None
-        if {"keepup", "latency"} & set(parts):
+        if {"keepup", "rule", "latency"} & set(parts):
             service = h.start_embedded(tmp / "embedded")
         try:
             for part in parts:
@@ -377,6 +438,9 @@ def main() -> None:
                 elif part == "keepup":
                     assert service is not None
                     bench_keepup(service.base_url)
+                elif part == "rule":
+                    assert service is not None
+                    bench_rule(service.base_url, args.runs)
                 elif part == "latency":
                     assert service is not None
                     bench_latency(service.base_url, args.runs)

@@ -16,6 +16,12 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPEN
 # longer with it, over repeated runs; a warm worker's analysis with images 15-17 % (bench/devices.py).
 os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 
-# The one place the version is written: pyproject.toml reads it from here (``[tool.setuptools.dynamic]``).
-# A literal rather than importlib.metadata, whose import and lookup cost every command 25 ms at start.
-__version__ = "0.1.0"
+
+def __getattr__(name: str) -> str:
+    """``eigenscope.__version__``, read from :mod:`api_schemas._version` (where it is written) only when
+    asked: importing ``api_schemas`` loads pydantic, which most commands do not need at start."""
+    if name == "__version__":
+        from api_schemas._version import __version__
+
+        return __version__
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

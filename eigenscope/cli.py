@@ -18,7 +18,6 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 
-from eigenscope import __version__
 from eigenscope._help import clean_help
 
 #: Modules under eigenscope.commands, in help order.
@@ -44,6 +43,30 @@ class UsageError(Exception):
     """A mistake in the command line or its input that the user can fix; printed as one line."""
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: prints ``eigenscope VERSION`` and exits, reading the version only then (its module's
+    package loads pydantic, which most commands do not need at start)."""
+
+    def __init__(
+        self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kwargs: object
+    ) -> None:
+        super().__init__(
+            option_strings, dest, nargs=0, default=argparse.SUPPRESS, help="show the version and exit"
+        )
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        from api_schemas._version import __version__
+
+        print(f"eigenscope {__version__}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="eigenscope",
@@ -53,7 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
         "stderr says what to fix); 70 internal error; 130 interrupted; 141 standard output was closed by "
         "its reader (e.g. | head).",
     )
-    parser.add_argument("--version", action="version", version=f"eigenscope {__version__}")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         try:

@@ -46,8 +46,10 @@ reports=$(mktemp -d)
 trap 'rm -rf "$reports"' EXIT
 status=0
 if [ ${#tiers[@]} -eq 0 ]; then
-    echo "== ruff"; ruff check . && ruff format --check .
-    echo "== mypy"; mypy api_schemas workers service eigenscope client/src/eigenscope_client
+    # Lint and types fail the run as a test does (after the tests, so that one run shows everything).
+    lint=0
+    echo "== ruff"; { ruff check . && ruff format --check .; } || lint=1
+    echo "== mypy"; mypy api_schemas workers service eigenscope client/src/eigenscope_client || lint=1
     # Every tier in one pytest run: the workers share out all the tests, so neither waits at the end of
     # a tier for the other's last long test (the report still gives each tier's tests and serial time).
     echo "== pytest: every tier (${ALL_TIERS[*]})"
@@ -57,6 +59,10 @@ if [ ${#tiers[@]} -eq 0 ]; then
     ended=$(date +%s.%N)
     echo "all $started $ended $rc" >> "$reports/walls"
     python scripts/test_report.py "$reports" --slowest 15
+    if [ "$rc" = 0 ] && [ "$lint" != 0 ]; then
+        echo "== ruff or mypy found problems (above): the run fails"
+        rc=1
+    fi
     exit $rc
 fi
 for tier in "${tiers[@]}"; do

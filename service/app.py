@@ -14,10 +14,11 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
-from eigenscope import __version__
+from api_schemas._version import __version__
 from service.bodies import BodyLimits
 from service.context import ServiceContext
 from service.logs import configure_logging
+from service.methods import MethodSemantics, PathMethods
 from service.observability import RequestMiddleware
 from service.openapi import install_openapi
 from service.problems import install_problem_handlers
@@ -25,7 +26,7 @@ from service.routes import clips, health, jobs, page, streams
 from service.routes.docs import install_docs
 from service.settings import Settings
 
-#: The OpenAPI and AsyncAPI ``info.version``: the package version, written once in ``eigenscope/__init__``
+#: The OpenAPI and AsyncAPI ``info.version``: the package version, written once in ``api_schemas/_version``
 #: (the URL's ``/v1`` is the API's major version).
 API_VERSION = __version__
 
@@ -102,5 +103,6 @@ def create_app(settings: Settings | None = None, *, configure_log: bool | None =
     install_docs(app)
     install_openapi(app, version=API_VERSION, description=DESCRIPTION)
 
+    app.add_middleware(MethodSemantics, methods_of=PathMethods(app.openapi))
     app.add_middleware(RequestMiddleware, metrics=ctx.metrics)
     return app

@@ -8,10 +8,13 @@ digest, so it never reveals the key and is stable across restarts.
 With no key configured the service is open and every request belongs to the tenant ``""`` (the app logs
 a warning at start).
 
-A client (IP address) that presents wrong keys more than ``EIGENSCOPE_AUTH_FAILURES_PER_WINDOW`` times in
-``EIGENSCOPE_AUTH_FAILURE_WINDOW_S`` is answered 429 with ``Retry-After`` until the window has passed,
-whatever key it sends meanwhile (a guess that happens to be right tells it nothing). ``eigenscope serve``
-hands its API process the keys' digests in a file (:func:`write_digest_file`), never the keys.
+A client (IP address; behind ``EIGENSCOPE_TRUSTED_PROXIES``, the address they forward) that presents
+wrong keys more than ``EIGENSCOPE_AUTH_FAILURES_PER_WINDOW`` times in ``EIGENSCOPE_AUTH_FAILURE_WINDOW_S``,
+over HTTP or a stream's WebSocket alike (:func:`authenticate`), is answered 429 with ``Retry-After``
+until the window has passed, whatever key it sends meanwhile (a guess that happens to be right tells it
+nothing) -- but a key that authenticated from that address before keeps working
+(:class:`FailedAuthLimiter`). ``eigenscope serve`` hands its API process the keys' digests in a file
+(:func:`write_digest_file`), never the keys.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
+
+from starlette.requests import HTTPConnection
 
 from service.errors import QuotaExceededError, UnauthorizedError
 from service.settings import Settings
@@ -163,34 +168,60 @@ def check_metrics_token(token: str | None, keys_enabled: bool, authorization: st
 
 
 class FailedAuthLimiter:
-    """Counts wrong credentials per client and refuses (429) a client past its limit."""
+    """Counts wrong credentials per client (address) and refuses (429) a client past its limit.
 
-    #: Clients remembered at most (the oldest are forgotten first).
+    A client past its limit is refused whatever key it sends (a guess that happens to be right must look
+    like any other), with one exception: a key that authenticated from this very address before, within
+    ``known_s``, keeps working from it (the other robots behind one NAT or proxy address are not locked
+    out by one that sends wrong keys). A key first seen from a throttled address is refused until the
+    window has passed, and is not remembered as known.
+    """
+
+    #: Clients (and client-key pairs) remembered at most (the oldest are forgotten first).
     MAX_CLIENTS = 10_000
 
-    def __init__(self, limit: int, window_s: float) -> None:
+    def __init__(self, limit: int, window_s: float, *, known_s: float = 0.0) -> None:
         self.limit = limit
         self.window_s = window_s
+        self.known_s = known_s
         self._failures: dict[str, deque[float]] = {}
+        self._known: dict[tuple[str, str], float] = {}
         self._lock = threading.Lock()
+
+    def _wait_s(self, client: str, now: float) -> int | None:
+        """Seconds until ``client`` may try again, None when it is not throttled (lock held)."""
+        failures = self._failures.get(client)
+        if failures is None:
+            return None
+        while failures and failures[0] <= now - self.window_s:
+            failures.popleft()
+        if len(failures) < self.limit:
+            return None
+        return max(1, math.ceil(failures[0] + self.window_s - now))
 
     def check(self, client: str) -> None:
         """Raise :class:`QuotaExceededError` (429) while ``client`` is over its limit."""
+        with self._lock:
+            wait = self._wait_s(client, time.monotonic())
+        if wait is not None:
+            raise _throttled(wait)
+
+    def admit(self, client: str, tenant: str) -> None:
+        """A valid key of ``tenant`` from ``client``: raise 429 while the client is throttled, unless the
+        key is known from it; remember it as known when the client is not throttled."""
         now = time.monotonic()
         with self._lock:
-            failures = self._failures.get(client)
-            if failures is None:
-                return
-            while failures and failures[0] <= now - self.window_s:
-                failures.popleft()
-            if len(failures) < self.limit:
-                return
-            wait = max(1, math.ceil(failures[0] + self.window_s - now))
-        raise QuotaExceededError(
-            f"too many requests with a wrong API key from this client; try again in {wait} s",
-            code="too-many-failed-authentications",
-            retry_after_s=wait,
-        )
+            wait = self._wait_s(client, now)
+            pair = (client, tenant)
+            if wait is not None:
+                seen = self._known.get(pair)
+                if seen is None or now - seen > self.known_s:
+                    raise _throttled(wait)
+            if self.known_s > 0:
+                self._known.pop(pair, None)
+                self._known[pair] = now  # most recent last
+                while len(self._known) > self.MAX_CLIENTS:
+                    del self._known[next(iter(self._known))]
 
     def failed(self, client: str) -> None:
         """Count one wrong credential of ``client``."""
@@ -200,3 +231,38 @@ class FailedAuthLimiter:
             self._failures[client] = failures  # most recent last: the first ones are forgotten first
             while len(self._failures) > self.MAX_CLIENTS:
                 del self._failures[next(iter(self._failures))]
+
+
+def _throttled(wait_s: int) -> QuotaExceededError:
+    return QuotaExceededError(
+        f"too many requests with a wrong API key from this client; try again in {wait_s} s",
+        code="too-many-failed-authentications",
+        retry_after_s=wait_s,
+    )
+
+
+def client_address(connection: HTTPConnection) -> str:
+    """The client's address: the peer's, or the one a trusted proxy forwarded (``eigenscope serve``
+    lets uvicorn read ``X-Forwarded-For`` from ``EIGENSCOPE_TRUSTED_PROXIES`` only)."""
+    return connection.client.host if connection.client is not None else ""
+
+
+def authenticate(keys: KeyRing, limiter: FailedAuthLimiter, client: str, authorization: str | None) -> str:
+    """The tenant of a request or WebSocket from ``client`` (its address, as the trusted proxies give
+    it) with this ``Authorization``: the one path of both, throttled by one limiter.
+
+    Raises :class:`UnauthorizedError` (401) for a missing or wrong key and :class:`QuotaExceededError`
+    (429) while the client is throttled (see :class:`FailedAuthLimiter`). A missing key is not a guess
+    and is not counted.
+    """
+    if not keys.enabled:
+        return OPEN_TENANT
+    try:
+        tenant = keys.tenant(authorization)
+    except UnauthorizedError as exc:
+        limiter.check(client)  # a throttled client gets 429 whatever it sends
+        if exc.code != "missing-api-key":  # a credential was presented, and it was wrong
+            limiter.failed(client)
+        raise
+    limiter.admit(client, tenant)
+    return tenant

@@ -70,6 +70,43 @@ def strict_json_loads(body: bytes | str) -> Any:
     return json.loads(body, parse_constant=_constant, parse_float=_float, parse_int=_int)
 
 
+def json_depth_error(text: str, max_depth: int) -> str | None:
+    """Why ``text`` must not be parsed: nested deeper than ``max_depth`` arrays and objects (a parser
+    would recurse that deep); None when it may be. Brackets inside strings do not count."""
+    depth = 0
+    in_string = escaped = False
+    for char in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif char == "\\":
+                escaped = True
+            elif char == '"':
+                in_string = False
+        elif char == '"':
+            in_string = True
+        elif char in "[{":
+            depth += 1
+            if depth > max_depth:
+                return f"JSON nested more than {max_depth} levels deep"
+        elif char in "]}":
+            depth -= 1
+    return None
+
+
+def loads_shallow(data: bytes | str, *, max_depth: int) -> Any:
+    """``json.loads`` of a message that must be shallow: ``ValueError`` (never ``RecursionError``) for one
+    nested deeper than ``max_depth``, or otherwise malformed."""
+    text = data.decode("utf-8") if isinstance(data, bytes) else data  # UnicodeDecodeError is a ValueError
+    why = json_depth_error(text, max_depth)
+    if why is not None:
+        raise ValueError(why)
+    try:
+        return json.loads(text)
+    except RecursionError:  # pragma: no cover - the depth was checked
+        raise ValueError("JSON nested too deep") from None
+
+
 def _is_json(scope: Scope) -> bool:
     for name, value in scope.get("headers", ()):
         if name == b"content-type":

@@ -15,8 +15,9 @@ from api_schemas import ClipInfoModel
 from service.context import ServiceContext
 from service.errors import InsufficientStorageError, InvalidInputError, ServiceError, UnavailableError
 from service.multipart import receive_file
-from service.probing import probe_clip
+from service.probing import SLOW_PROBE_HOLD_S, SLOW_PROBE_MARKER, probe_clip
 from service.retention import expiry
+from service.storage import Quota
 from service.store import ClipRecord, new_id, storage_quota_error
 
 #: Slack for the multipart framing when the Content-Length is compared with a quota.
@@ -42,7 +43,8 @@ def clip_view(clip: ClipRecord) -> ClipInfoModel:
 def display_name(filename: str | None) -> str:
     """The upload's file name for display only: last path component, no control characters, 255 max.
 
-    It is never used to build a path (the stored file is ``clips/<id>/clip<ext>``).
+    It is never used to build a path (the stored file is ``clips/<id>/clip<ext>``, the extension the
+    server's, from the clip's content).
     """
     name = PurePosixPath((filename or "").replace("\\", "/")).name
     name = "".join(c for c in name if unicodedata.category(c)[0] != "C").strip()
@@ -94,6 +96,32 @@ async def upload_clip(
         ctx.uploads_in_flight -= 1
 
 
+async def _admit(ctx: ServiceContext, request: Request, tenant: str) -> Quota:
+    """Refuse an upload its key's storage quota or the disk cannot take, from what is stored, what the
+    key's other uploads hold and the declared size; returns the running count the body is checked
+    against as it arrives (without a Content-Length, or with a false one, it stops at the quota)."""
+    settings = ctx.settings
+    quota = settings.max_stored_bytes_per_key
+    used = (await run_in_threadpool(ctx.store.usage, tenant)).stored_bytes
+    in_flight = ctx.upload_reservations.held(tenant)  # this key's other uploads being received
+    declared_text = request.headers.get("content-length")
+    declared = int(declared_text) if declared_text and declared_text.isdigit() else None
+    if used + in_flight >= quota or (
+        declared is not None and used + in_flight + declared - _FORM_OVERHEAD > quota
+    ):
+        raise storage_quota_error(used + in_flight, declared or 0, quota, settings.quota_retry_after_s)
+    if declared is not None and declared > await run_in_threadpool(ctx.storage.free_bytes):
+        raise InsufficientStorageError(
+            f"the server has less free storage than the {declared} bytes of this upload; try again later"
+        )
+    return Quota(
+        ctx.upload_reservations,
+        tenant,
+        quota - used,
+        lambda held: storage_quota_error(used + held, 0, quota, settings.quota_retry_after_s),
+    )
+
+
 async def _upload_clip(
     ctx: ServiceContext, request: Request, tenant: str, idempotency_key: str | None
 ) -> tuple[ClipInfoModel, bool]:
@@ -102,18 +130,9 @@ async def _upload_clip(
         existing = await run_in_threadpool(ctx.store.clip_by_idempotency_key, idempotency_key, None, tenant)
         if existing is not None:
             return await _replay(ctx, request, existing, idempotency_key)
-    quota = settings.max_stored_mb_per_key * 1024 * 1024
-    used = (await run_in_threadpool(ctx.store.usage, tenant)).stored_bytes
-    declared_text = request.headers.get("content-length")
-    declared = int(declared_text) if declared_text and declared_text.isdigit() else None
-    if used >= quota or (declared is not None and used + declared - _FORM_OVERHEAD > quota):
-        raise storage_quota_error(used, declared or 0, quota, settings.quota_retry_after_s)
-    if declared is not None and declared > await run_in_threadpool(ctx.storage.free_bytes):
-        raise InsufficientStorageError(
-            f"the server has less free storage than the {declared} bytes of this upload; try again later"
-        )
+    running = await _admit(ctx, request, tenant)
     sink = await run_in_threadpool(
-        ctx.storage.new_upload, settings.max_upload_bytes, hashing=idempotency_key is not None
+        ctx.storage.new_upload, settings.max_upload_bytes, hashing=idempotency_key is not None, quota=running
     )
     clip_id = new_id()
     kept = False
@@ -133,12 +152,15 @@ async def _upload_clip(
                 inflation_floor_mb=settings.inflation_floor_mb,
                 scratch_dir=sink.path.parent,
                 nice=settings.background_niceness,
+                hold_s=SLOW_PROBE_HOLD_S
+                if settings.test_hooks and display_name(received.filename).startswith(SLOW_PROBE_MARKER)
+                else 0.0,
             )
         except ServiceError as exc:
             # The readers name the file they read (clip<ext>); the client knows it by its own name.
             exc.detail = exc.detail.replace(sink.path.name, display_name(received.filename))
             raise
-        relative = await run_in_threadpool(ctx.storage.keep_clip, sink, clip_id, received.filename)
+        relative = await run_in_threadpool(ctx.storage.keep_clip, sink, clip_id, info.get("format"))
         kept = True
         record, created = await run_in_threadpool(
             ctx.store.add_clip,
@@ -149,11 +171,12 @@ async def _upload_clip(
             size_bytes=sink.size,
             owner=tenant,
             expires_at=expiry(time.time(), settings.retention_s),
-            max_stored_bytes=quota,
+            max_stored_bytes=settings.max_stored_bytes_per_key,
             retry_after_s=settings.quota_retry_after_s,
             idempotency_key=idempotency_key,
             content_sha256=sink.sha256,
         )
+        sink.release_quota()  # counted as a stored clip from now on
         if not created:  # a concurrent request with the same key and content won the race
             ctx.storage.delete_clip(clip_id)
             return clip_view(record), False

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+import os
+import shutil
 import threading
 import time
 from dataclasses import dataclass, field
@@ -16,9 +18,9 @@ from service.metrics import Metrics
 from service.queue import JobQueue
 from service.retention import cleanup
 from service.settings import Settings
-from service.storage import Storage
-from service.store import JobRecord, Store
-from service.stream_transport import StreamTransport, transport_for
+from service.storage import Reservations, Storage
+from service.store import STREAM_ACTIVE, JobRecord, Store
+from service.stream_transport import LocalTransport, StreamTransport, transport_for
 from service.webhooks import Dispatcher
 
 log = logging.getLogger(__name__)
@@ -60,9 +62,14 @@ class ServiceContext:
     schema_ready: bool = False
     #: Uploads being received now (changed on the event loop only).
     uploads_in_flight: int = 0
+    #: Their bytes so far, per tenant (the running count their storage quota is checked against).
+    upload_reservations: Reservations = field(default_factory=Reservations)
     _stop: threading.Event = field(default_factory=threading.Event)
     _sweeper: threading.Thread | None = None
     _last_cleanup: float = float("-inf")
+    _last_reconcile: float = float("-inf")
+    #: Queued jobs the broker held no message for at the last reconciliation: ``{id: enqueued_at}``.
+    _unheld: dict[str, float] = field(default_factory=dict)
 
     @classmethod
     def build(cls, settings: Settings) -> ServiceContext:
@@ -77,7 +84,11 @@ class ServiceContext:
             metrics=Metrics(store),
             stream_transport=transport_for(settings),
             keys=KeyRing.from_settings(settings),
-            auth_limiter=FailedAuthLimiter(settings.auth_failures_per_window, settings.auth_failure_window_s),
+            auth_limiter=FailedAuthLimiter(
+                settings.auth_failures_per_window,
+                settings.auth_failure_window_s,
+                known_s=settings.auth_known_key_s,
+            ),
             webhooks=Dispatcher(store, settings, _webhook_view(settings))
             if settings.callback_hosts
             else None,
@@ -93,6 +104,7 @@ class ServiceContext:
             self.storage.ensure()
             if self.settings.embedded:
                 ensure_broker_folders(self.settings)
+            self.remove_abandoned_uploads()  # a crashed process's half-received uploads go now
         except OSError as exc:
             log.error("storage %s cannot be prepared: %s", self.storage.root, exc)
         self.ensure_schema()
@@ -143,6 +155,10 @@ class ServiceContext:
         """
         if not self.ensure_schema():
             return []
+        now = time.monotonic()
+        if now - self._last_reconcile >= self.settings.broker_reconcile_interval_s:
+            self._last_reconcile = now
+            self.reconcile_queue()
         published = []
         for job_id in self.store.recover_stale_jobs(requeue_after_s=self.settings.requeue_after_s):
             if self.publish(job_id):
@@ -150,8 +166,9 @@ class ServiceContext:
         if published:
             log.info("sweeper: published %d job(s) again: %s", len(published), ", ".join(published))
         self.remove_abandoned_workdirs()
+        self.remove_ended_stream_files()
         _remove_older_than(self.settings.broker_dir / "processed", "*.msg", _CLEANUP_AGE_S)
-        _remove_older_than(self.storage.root / "tmp", "upload-*", 24 * _CLEANUP_AGE_S)
+        self.remove_abandoned_uploads()
         _remove_older_than(
             self.storage.root / "tmp", "job-*", 2 * self.settings.task_hard_time_limit_s + _CLEANUP_AGE_S
         )
@@ -161,6 +178,66 @@ class ServiceContext:
             self._last_cleanup = now
             cleanup(self.store, self.storage, orphan_grace_s=self.settings.orphan_grace_s)
         return published
+
+    def reconcile_queue(self) -> list[str]:
+        """Flag for publishing the queued jobs the broker holds no message for, at two reconciliations in
+        a row (a Redis restarted without persistence lost them; once only may be a message on its way to
+        a worker). Nothing runs twice: a job is claimed by one delivery only. Returns the flagged ids."""
+        held = self.queue.held_job_ids()
+        if held is None:
+            self._unheld = {}
+            return []
+        before = time.time() - self.settings.broker_reconcile_interval_s
+        unheld = {j: at for j, at in self.store.queued_jobs(enqueued_before=before).items() if j not in held}
+        lost = [j for j, at in unheld.items() if self._unheld.get(j) == at]
+        for job_id in lost:
+            self.store.mark_unpublished(job_id)  # the sweep publishes it again now
+        self._unheld = {j: at for j, at in unheld.items() if j not in lost}
+        if lost:
+            log.warning(
+                "sweeper: the broker holds no message for %d queued job(s) (it lost them: a restart "
+                "without persistence?); publishing them again: %s",
+                len(lost),
+                ", ".join(lost),
+            )
+        return lost
+
+    def remove_abandoned_uploads(self) -> int:
+        """Remove the uploads a crashed API process left, and those idle longer than a body may stall
+        plus a validation may last (``BODY_IDLE_TIMEOUT_S + PROBE_TIMEOUT_S`` and a minute)."""
+        s = self.settings
+        removed = self.storage.remove_abandoned_uploads(idle_s=s.body_idle_timeout_s + s.probe_timeout_s + 60)
+        if removed:
+            log.info("removed %d abandoned upload(s) from %s", removed, self.storage.root / "tmp")
+        return removed
+
+    def remove_ended_stream_files(self) -> int:
+        """Remove what streams that have ended (or are gone) left on disk: their frames being written
+        (``tmp/stream-<id>/``, after a worker crashed) and, in embedded mode, their message folders.
+        Returns how many were removed."""
+        try:
+            entries = list(os.scandir(self.storage.root / "tmp"))
+        except FileNotFoundError:
+            entries = []
+        frames = {
+            e.name.removeprefix("stream-"): Path(e.path) for e in entries if e.name.startswith("stream-")
+        }
+        transport = self.stream_transport
+        messages = set(transport.stream_ids()) if isinstance(transport, LocalTransport) else set()
+        removed = 0
+        for stream_id in frames.keys() | messages:
+            stream = self.store.find_stream(stream_id)
+            if stream is not None and stream.status in STREAM_ACTIVE:
+                continue
+            if stream_id in frames:
+                shutil.rmtree(frames[stream_id], ignore_errors=True)
+                removed += 1
+            if stream_id in messages:
+                transport.cleanup(stream_id)
+                removed += 1
+        if removed:
+            log.info("sweeper: removed %d file set(s) of ended streams", removed)
+        return removed
 
     def remove_abandoned_workdirs(self) -> int:
         """Remove the temporary folders of attempts no worker runs any more (their job is not running:

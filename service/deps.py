@@ -11,9 +11,8 @@ from typing import Annotated
 from fastapi import Depends, Header, Query, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from service.auth import OPEN_TENANT
+from service.auth import OPEN_TENANT, authenticate, client_address
 from service.context import ServiceContext
-from service.errors import UnauthorizedError
 from service.settings import Settings
 from service.storage import Storage
 from service.store import Store
@@ -58,14 +57,9 @@ async def get_tenant(
     ctx = _context(request)
     if not ctx.keys.enabled:
         return OPEN_TENANT
-    client = request.client.host if request.client is not None else ""
-    ctx.auth_limiter.check(client)
-    try:
-        return ctx.keys.tenant(request.headers.get("authorization"))
-    except UnauthorizedError as exc:
-        if exc.code != "missing-api-key":  # a credential was presented, and it was wrong
-            ctx.auth_limiter.failed(client)
-        raise
+    return authenticate(
+        ctx.keys, ctx.auth_limiter, client_address(request), request.headers.get("authorization")
+    )
 
 
 ContextDep = Annotated[ServiceContext, Depends(get_context)]

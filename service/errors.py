@@ -48,6 +48,8 @@ class ProblemType(NamedTuple):
 
 
 #: Every error code Eigenscope reports, mapped to its HTTP status and title. Nothing else assigns either.
+#: One naming scheme: a 404 is ``<resource>-not-found``; a 422 about a value is ``invalid-<what>`` or, for a
+#: reference to something that does not exist, ``unknown-<what>``. Renamed codes are in :data:`RENAMED`.
 PROBLEM_TYPES: Mapping[str, ProblemType] = {
     # Requests
     "invalid-request": ProblemType(422, "Unprocessable content"),
@@ -58,7 +60,7 @@ PROBLEM_TYPES: Mapping[str, ProblemType] = {
     "callbacks-disabled": ProblemType(422, "Callbacks disabled"),
     "invalid-callback-url": ProblemType(422, "Invalid callback URL"),
     "callback-host-not-allowed": ProblemType(422, "Callback host not allowed"),
-    "clip-not-found": ProblemType(422, "Clip not found"),
+    "unknown-clip": ProblemType(422, "Unknown clip"),
     "request-timeout": ProblemType(408, "Request timeout"),
     "body-too-large": ProblemType(413, "Payload too large"),
     "upload-too-large": ProblemType(413, "Upload too large"),
@@ -76,10 +78,11 @@ PROBLEM_TYPES: Mapping[str, ProblemType] = {
     "storage-quota-exceeded": ProblemType(429, "Too many requests"),
     # Resources
     "not-found": ProblemType(404, "Not found"),
-    "no-such-clip": ProblemType(404, "Not found"),
+    "clip-not-found": ProblemType(404, "Not found"),
     "job-not-found": ProblemType(404, "Not found"),
     "stream-not-found": ProblemType(404, "Not found"),
     "artifact-not-found": ProblemType(404, "Not found"),
+    "result-not-found": ProblemType(404, "Not found"),
     "conflict": ProblemType(409, "Conflict"),
     "clip-in-use": ProblemType(409, "Conflict"),
     "job-finished": ProblemType(409, "Conflict"),
@@ -121,6 +124,13 @@ PROBLEM_TYPES: Mapping[str, ProblemType] = {
     "not-ready": ProblemType(503, "Service unavailable"),
     "database-unavailable": ProblemType(503, "Service unavailable"),
     "storage-unavailable": ProblemType(503, "Service unavailable"),
+}
+
+
+#: Codes an earlier version reported, and the one reporting the same problem now (``docs/problems.md``).
+RENAMED: Mapping[str, str] = {
+    "no-such-clip": "clip-not-found",  # 404 of GET or DELETE /v1/clips/{clip_id}
+    "clip-not-found": "unknown-clip",  # 422 of a job or stream naming a clip that does not exist
 }
 
 

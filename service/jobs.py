@@ -8,7 +8,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from api_schemas import JobCreate, JobList, JobModel
+from api_schemas import AnalysisResult, JobCreate, JobList, JobModel, JobSummary
 from service.context import ServiceContext
 from service.errors import InvalidInputError, NotFoundError
 from service.retention import expiry
@@ -43,34 +43,88 @@ def callback_view(job: JobRecord) -> dict[str, Any] | None:
     }
 
 
+def _served_result(job: JobRecord, root_path: str) -> dict[str, Any] | None:
+    """The job's result with its artifacts as URLs."""
+    if job.result is None:
+        return None
+    result = dict(job.result)
+    artifacts = result.get("artifacts")
+    if isinstance(artifacts, dict):
+        artifacts = dict(artifacts)
+        artifacts.setdefault("result", "result.json")  # results stored before it was listed
+        result["artifacts"] = {
+            key: artifact_url(job.id, value, root_path=root_path) if isinstance(value, str) else value
+            for key, value in artifacts.items()
+        }
+    return result
+
+
+def _job_fields(job: JobRecord) -> dict[str, Any]:
+    return {
+        "id": job.id,
+        "clip_id": job.clip_id,
+        "status": job.status,
+        "progress": job.progress,
+        "stage": job.stage,
+        "attempts": job.attempts,
+        "excitation": job.excitation,
+        "parameters": job.parameters,
+        "created_at": job.created_at,
+        "started_at": job.started_at,
+        "finished_at": job.finished_at,
+        "error": job.error,
+        "callback": callback_view(job),
+        "source": job.source,
+    }
+
+
 def job_view(job: JobRecord, *, root_path: str = "") -> JobModel:
     """The API representation of a job: artifacts in the result become URLs."""
-    result: dict[str, Any] | None = None
-    if job.result is not None:
-        result = dict(job.result)
-        artifacts = result.get("artifacts")
-        if isinstance(artifacts, dict):
-            result["artifacts"] = {
-                key: artifact_url(job.id, value, root_path=root_path) if isinstance(value, str) else value
-                for key, value in artifacts.items()
-            }
-    return JobModel.model_validate(
+    return JobModel.model_validate({**_job_fields(job), "result": _served_result(job, root_path)})
+
+
+def result_summary(result: dict[str, Any]) -> dict[str, Any]:
+    """The headline of a stored result (``ResultSummary``): its main object's figures and counts."""
+    objects = result.get("objects") or []
+    main = objects[0] if objects else {}
+    warnings = [q for q in result.get("quality") or [] if q.get("severity", "warning") != "info"]
+    return {
+        "eigenfrequency_hz": result.get("eigenfrequency_hz"),
+        "eigenfrequency_uncertainty_hz": main.get("eigenfrequency_uncertainty_hz"),
+        "damping_ratio": main.get("damping_ratio"),
+        "stiffness_n_per_m": main.get("stiffness_n_per_m"),
+        "mass_kg": main.get("mass_kg"),
+        "objects": len(objects),
+        "warnings": len(warnings),
+    }
+
+
+def result_url(job_id: str, *, root_path: str = "") -> str:
+    return f"{root_path}/v1/jobs/{job_id}/result"
+
+
+def job_result(ctx: ServiceContext, job_id: str, *, tenant: str, root_path: str = "") -> AnalysisResult:
+    """A succeeded job's result (its artifacts as URLs); 404 ``result-not-found`` before it has one."""
+    job = ctx.store.get_job(job_id, tenant)
+    served = _served_result(job, root_path) if job.status == "succeeded" else None
+    if served is None:
+        raise NotFoundError(
+            f"job {job_id} is {job.status}; its result exists once it has succeeded (GET /v1/jobs/{job_id}"
+            "?wait=60 waits for that)",
+            code="result-not-found",
+        )
+    return AnalysisResult.model_validate(served)
+
+
+def job_summary_view(job: JobRecord, *, root_path: str = "") -> JobSummary:
+    """A job as lists show it: no result, its summary and the URLs of the job and of ``result.json``."""
+    succeeded = job.status == "succeeded" and job.result is not None
+    return JobSummary.model_validate(
         {
-            "id": job.id,
-            "clip_id": job.clip_id,
-            "status": job.status,
-            "progress": job.progress,
-            "stage": job.stage,
-            "attempts": job.attempts,
-            "excitation": job.excitation,
-            "parameters": job.parameters,
-            "created_at": job.created_at,
-            "started_at": job.started_at,
-            "finished_at": job.finished_at,
-            "error": job.error,
-            "result": result,
-            "callback": callback_view(job),
-            "source": job.source,
+            **_job_fields(job),
+            "summary": result_summary(job.result) if succeeded and job.result is not None else None,
+            "url": f"{root_path}/v1/jobs/{job.id}",
+            "result_url": result_url(job.id, root_path=root_path) if succeeded else None,
         }
     )
 
@@ -153,7 +207,7 @@ def create_job(
         raise InvalidInputError(
             f"clip {body.clip_id!r} does not exist (never uploaded, or deleted); "
             "upload it with POST /v1/clips and use the returned id",
-            code="clip-not-found",
+            code="unknown-clip",
             errors=[{"loc": ["body", "clip_id"], "msg": "no such clip", "type": "value_error"}],
         )
     check_against_clip(body, clip)
@@ -170,6 +224,7 @@ def create_job(
         max_active_jobs=ctx.settings.max_active_jobs_per_key,
         retry_after_s=ctx.settings.quota_retry_after_s,
         callback_url=body.callback_url,
+        max_stored_bytes=ctx.settings.max_stored_bytes_per_key,
     )
     if created:
         ctx.metrics.jobs_created.inc()
@@ -191,7 +246,7 @@ def list_jobs(
     jobs, next_cursor = ctx.store.list_jobs(
         statuses=statuses, clip_id=clip_id, limit=limit, cursor=cursor, owner=tenant
     )
-    return JobList(items=[job_view(j, root_path=root_path) for j in jobs], next_cursor=next_cursor)
+    return JobList(items=[job_summary_view(j, root_path=root_path) for j in jobs], next_cursor=next_cursor)
 
 
 def artifact_file(ctx: ServiceContext, job_id: str, name: str, *, tenant: str) -> Any:

@@ -14,7 +14,7 @@ from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
-from service.errors import InvalidInputError, PayloadTooLargeError, UnsupportedMediaError
+from service.errors import InvalidInputError, PayloadTooLargeError, QuotaExceededError, UnsupportedMediaError
 from service.storage import UploadSink
 
 #: Bytes of other (non-file) form fields we accept in total.
@@ -164,8 +164,8 @@ async def receive_file(request: Request, sink: UploadSink, *, field_name: str = 
             if chunk:
                 await run_in_threadpool(parser.write, chunk)
         parser.finalize()
-    except PayloadTooLargeError:
-        await _drain(request, _DRAIN_BYTES)
+    except (PayloadTooLargeError, QuotaExceededError):
+        await _drain(request, _DRAIN_BYTES)  # so that the client reads the answer
         raise
     except (InvalidInputError, UnsupportedMediaError):
         raise

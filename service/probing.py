@@ -18,7 +18,33 @@ from service.errors import InvalidClipError, ServiceError, clip_error
 
 log = logging.getLogger(__name__)
 
+#: With ``EIGENSCOPE_TEST_HOOKS=1`` only: an upload whose file name starts with this is validated by a
+#: probe that first waits :data:`SLOW_PROBE_HOLD_S` (fault-injection for the test suite).
+SLOW_PROBE_MARKER = "__eigenscope_slow_probe__"
+SLOW_PROBE_HOLD_S = 60.0
+
 _PASS_ENV = ("PATH", "PYTHONPATH", "HOME", "LANG", "LC_ALL", "TMPDIR", "VIRTUAL_ENV")
+
+
+def _command(path: Path, *, timeout_s: float, memory_mb: int, nice: int, hold_s: float) -> list[str]:
+    """The probe's command line but for the caps."""
+    cmd = [
+        sys.executable,
+        "-m",
+        "workers.probe",
+        str(path),
+        "--memory-mb",
+        str(memory_mb),
+        "--cpu-s",
+        str(int(timeout_s) + 1),
+        "--nice",
+        str(nice),
+        "--parent-pid",
+        str(os.getpid()),  # the probe dies with this process
+    ]
+    if hold_s > 0:
+        cmd += ["--hold-s", repr(float(hold_s))]
+    return cmd
 
 
 def probe_clip(
@@ -33,11 +59,14 @@ def probe_clip(
     inflation_floor_mb: int | None = None,
     scratch_dir: Path | None = None,
     nice: int = 10,
+    hold_s: float = 0.0,
 ) -> dict[str, Any]:
     """Describe the clip at ``path`` (see :func:`workers.probe.probe`), or raise the matching API error.
 
-    The probe reads the clip under the same caps as an analysis (``max_decoded_mb`` also bounds what a
-    zip may expand to, and so what a zipped ROS 2 bag unpacks to in ``scratch_dir``).
+    The probe dies with this process (a crashed API leaves no validator running); ``hold_s`` makes it
+    wait that long first (the test hooks' stand-in for a long validation). The probe reads the clip under
+    the same caps as an analysis (``max_decoded_mb`` also bounds what a zip may expand to, and so what a
+    zipped ROS 2 bag unpacks to in ``scratch_dir``).
 
     Raises
     ------
@@ -47,18 +76,7 @@ def probe_clip(
     """
     env = {k: v for k, v in os.environ.items() if k in _PASS_ENV}
     env.update({"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
-    cmd = [
-        sys.executable,
-        "-m",
-        "workers.probe",
-        str(path),
-        "--memory-mb",
-        str(memory_mb),
-        "--cpu-s",
-        str(int(timeout_s) + 1),
-        "--nice",
-        str(nice),
-    ]
+    cmd = _command(path, timeout_s=timeout_s, memory_mb=memory_mb, nice=nice, hold_s=hold_s)
     if max_frames is not None:
         cmd += ["--max-frames", str(max_frames)]
     if max_pixels is not None:

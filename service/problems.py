@@ -12,6 +12,8 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from service.errors import PROBLEM_BASE, ServiceError, problem_type
+from service.methods import ORIGINAL_METHOD
+from service.validation import field_errors, summary
 
 log = logging.getLogger(__name__)
 
@@ -40,15 +42,7 @@ def problem_response(doc: dict[str, Any], headers: dict[str, str] | None = None)
 
 
 def _validation_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
-    errors = []
-    for err in exc.errors():
-        item: dict[str, Any] = {
-            "loc": [str(x) if not isinstance(x, int) else x for x in err.get("loc", ())],
-            "msg": str(err.get("msg", "")),
-            "type": str(err.get("type", "")),
-        }
-        errors.append(item)
-    return errors
+    return field_errors(exc.errors())
 
 
 async def _service_error(request: Request, exc: Exception) -> ProblemResponse:
@@ -61,10 +55,9 @@ async def _service_error(request: Request, exc: Exception) -> ProblemResponse:
 async def _validation_error(request: Request, exc: Exception) -> ProblemResponse:
     assert isinstance(exc, RequestValidationError)
     errors = _validation_errors(exc)
-    parts = [f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in errors[:5]]
     doc = {
         **_head("invalid-request"),
-        "detail": "; ".join(parts) or "the request is not valid",
+        "detail": summary(errors) or "the request is not valid",
         "instance": request.url.path,
         "errors": errors,
     }
@@ -87,7 +80,8 @@ async def _http_error(request: Request, exc: Exception) -> ProblemResponse:
     if exc.status_code == 404 and detail == "Not Found":
         detail = f"no such resource: {request.method} {request.url.path}"
     if exc.status_code == 405:
-        detail = f"{request.method} is not allowed on {request.url.path}"
+        method = request.scope.get(ORIGINAL_METHOD) or request.method
+        detail = f"{method} is not allowed on {request.url.path}; the allowed methods are in `Allow`"
     doc = {
         "type": "about:blank",
         "title": _phrase(exc.status_code),

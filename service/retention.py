@@ -6,7 +6,8 @@ retention is 0). The cleanup, run by the API's sweeper every ``EIGENSCOPE_CLEANU
 1. deletes the records of finished jobs past their time, then their artifact folders;
 2. deletes the records of clips past their time that no queued or running job uses, then their files;
 3. removes any ``clips/`` or ``jobs/`` folder that has no record and is older than
-   ``EIGENSCOPE_ORPHAN_GRACE_S`` (left by a crash between steps, or by an upload that died halfway).
+   ``EIGENSCOPE_ORPHAN_GRACE_S`` (left by a crash between steps, or by an upload that died halfway),
+   and the records of streams whose job is gone (a stream's record and estimates go with its job).
 
 Records go first: a crash in between leaves files without a record, which step 3 removes on a later
 pass, never a record pointing at missing files.
@@ -59,7 +60,7 @@ def cleanup(
             continue  # a job was queued on it meanwhile, or it was deleted by its owner
         storage.delete_clip(clip.id)
         clips += 1
-    orphans = remove_orphans(store, storage, cutoff=now - orphan_grace_s)
+    orphans = remove_orphans(store, storage, cutoff=now - orphan_grace_s) + store.delete_orphan_streams()
     report = CleanupReport(jobs, clips, orphans)
     if report.total:
         log.info("cleanup: removed %d expired job(s), %d expired clip(s), %d orphan(s)", jobs, clips, orphans)

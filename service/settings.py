@@ -48,6 +48,12 @@ class Settings(BaseSettings):
         default=3600, gt=0, description="Queued jobs this old are published again (lost-message insurance)."
     )
     sweep_interval_s: float = Field(default=5, gt=0, description="How often the API recovers stale jobs.")
+    broker_reconcile_interval_s: float = Field(
+        default=10,
+        gt=0,
+        description="How often the API compares the queued jobs with the messages Redis holds; a queued "
+        "job without a message at two comparisons in a row (Redis lost them) is published again.",
+    )
 
     probe_timeout_s: float = Field(default=120, gt=0, description="Upload validation time limit.")
     probe_memory_mb: int = Field(default=4096, ge=256, description="Address-space cap of the probe.")
@@ -127,6 +133,15 @@ class Settings(BaseSettings):
     callback_poll_interval_s: float = Field(
         default=0.25, gt=0, le=60, description="How often the API looks for callbacks to deliver."
     )
+    callback_concurrency: int = Field(
+        default=8, ge=1, le=256, description="Callbacks one API process delivers at once."
+    )
+    callback_per_host: int = Field(
+        default=2,
+        ge=1,
+        le=64,
+        description="Of those, at most this many to one host: a receiver that hangs delays only its own.",
+    )
 
     # Request bodies, connections and HTTP server limits ---------------------------------------
     max_json_body_kb: int = Field(
@@ -187,10 +202,25 @@ class Settings(BaseSettings):
     auth_failures_per_window: int = Field(
         default=20,
         ge=1,
-        description="Wrong API keys one client (IP address) may send per AUTH_FAILURE_WINDOW_S; beyond, "
-        "its requests get 429 with Retry-After until the window ends.",
+        description="Wrong API keys one client (IP address; see TRUSTED_PROXIES) may send per "
+        "AUTH_FAILURE_WINDOW_S, over HTTP and stream WebSockets together; beyond, its requests get 429 "
+        "with Retry-After until the window ends (but see AUTH_KNOWN_KEY_S).",
     )
     auth_failure_window_s: float = Field(default=60, gt=0, description="See AUTH_FAILURES_PER_WINDOW.")
+    auth_known_key_s: float = Field(
+        default=24 * 3600,
+        ge=0,
+        description="A key that authenticated from a client address within this long keeps working from "
+        "it while that address is throttled for wrong keys (robots behind one NAT are not locked out by "
+        "one that sends wrong keys); a key first seen from a throttled address waits (0: none is exempt).",
+    )
+    trusted_proxies: str | None = Field(
+        default=None,
+        description="Comma-separated addresses or networks of reverse proxies (`127.0.0.1`, "
+        "`10.0.0.0/8`) whose `X-Forwarded-For` and `X-Forwarded-Proto` are believed: the failed-key "
+        "throttling and the logs then count the client they forward. Unset: no proxy is trusted and every "
+        "peer is its own client (a forwarded header cannot change who is throttled).",
+    )
     max_active_jobs_per_key: int = Field(
         default=50, ge=1, description="Queued plus running jobs one key may have (429 beyond)."
     )
@@ -233,14 +263,41 @@ class Settings(BaseSettings):
         default=30, ge=0, description="How long a dropped stream waits for its client to resume."
     )
     stream_max_duration_s: float = Field(default=600, gt=0, description="Longest stream capture, seconds.")
-    stream_max_frame_mb: int = Field(default=32, ge=1, description="Largest frame message, MiB.")
+    stream_max_frame_mb: int = Field(
+        default=32,
+        ge=1,
+        description="Largest frame message, MiB: a larger one gets the non-fatal `frame-too-large` error "
+        "(up to STREAM_MESSAGE_MARGIN_MB beyond; see there).",
+    )
+    stream_message_margin_mb: int = Field(
+        default=16,
+        ge=1,
+        description="The WebSocket message limit is STREAM_MAX_FRAME_MB plus this, MiB: a frame message "
+        "up to this much over the frame limit is answered `frame-too-large` and the stream goes on; a "
+        "larger message closes the connection (1009).",
+    )
+    stream_max_json_depth: int = Field(
+        default=16,
+        ge=2,
+        le=256,
+        description="Deepest nesting of arrays and objects in a stream's JSON (a frame header, a text "
+        "message); deeper is answered with a non-fatal error before it is parsed.",
+    )
+    stream_message_queue: int = Field(
+        default=4,
+        ge=1,
+        le=64,
+        description="WebSocket messages a connection may have received and not yet relayed (beyond, the "
+        "server stops reading from it), bounding what one connection holds in memory.",
+    )
     stream_estimate_interval_s: float = Field(
         default=0.2, gt=0, le=0.25, description="Time between `estimate` messages once motion is seen."
     )
     test_hooks: bool = Field(
         default=False,
         description="Fault-injection hooks for the test suite (a clip named `__eigenscope_kill_worker__*` "
-        "kills the worker running it). Never enable in production.",
+        "kills the worker running it; one uploaded as `__eigenscope_slow_probe__*` is validated a minute "
+        "late). Never enable in production.",
     )
 
     @field_validator(
@@ -250,6 +307,7 @@ class Settings(BaseSettings):
         "api_keys_file",
         "published_host",
         "metrics_token",
+        "trusted_proxies",
         "callback_hosts",
         "callback_secret",
         "public_url",
@@ -310,6 +368,15 @@ class Settings(BaseSettings):
     @property
     def max_upload_bytes(self) -> int:
         return self.max_upload_mb * 1024 * 1024
+
+    @property
+    def max_stored_bytes_per_key(self) -> int:
+        return self.max_stored_mb_per_key * 1024 * 1024
+
+    @property
+    def ws_max_message_bytes(self) -> int:
+        """The WebSocket message limit uvicorn enforces (the frame limit plus its margin)."""
+        return (self.stream_max_frame_mb + self.stream_message_margin_mb) * 1024 * 1024
 
     @property
     def max_json_body_bytes(self) -> int:

@@ -15,7 +15,12 @@ import hashlib
 import os
 import re
 import shutil
+import socket
+import threading
+import time
 import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
@@ -26,40 +31,131 @@ from service.errors import (
     StorageUnavailableError,
 )
 
-_SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,12}(\.[A-Za-z0-9]{1,6})?$")
 _ARTIFACT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+#: This host, as uploads in ``tmp/`` name it (8 hex digits of a hash of its name).
+_HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+#: ``tmp/upload-<host>-<pid>-<random>[.d]``: an upload being received (or validated, ``.d``).
+_UPLOAD = re.compile(r"^upload-([0-9a-f]{8})-(\d+)-[0-9a-f]{32}(?:\.d)?$")
 #: ``tmp/job-<job id>-<attempt>-<random>[-scratch]``: one attempt's outputs (and scratch) being written.
 _WORKDIR = re.compile(r"^job-([0-9A-Za-z]+)-\d+-[0-9a-f]{8}(?:-scratch)?$")
 
 
-def safe_suffix(filename: str | None) -> str:
-    """The file name's extension(s) if they are plain (``.npz``, ``.tar.gz``), else ``""``.
+#: The stored clip's extension, by the format its content was detected as (never the client's name).
+_FORMAT_SUFFIX = {
+    "npz": ".npz",
+    "zip-frames": ".zip",
+    "tum": ".zip",
+    "open3d": ".zip",
+    "k4a-mkv": ".mkv",
+    "ros1-bag": ".bag",
+}
+#: ... and for the formats whose files come in several containers, by the content's magic bytes.
+_MAGIC_SUFFIX = (
+    (b"PK", ".zip"),
+    (b"\x89MCAP", ".mcap"),
+    (b"SQLite format 3\x00", ".db3"),
+    (b"\x1a\x45\xdf\xa3", ".mkv"),
+    (b"RIFF", ".avi"),
+)
 
-    Some readers look at the extension as a hint (bags, videos), so it is kept; the name is not.
+
+#: Extensions of a client's file name that the file being validated keeps, as a hint for the readers'
+#: messages (e.g. "npz: ... is truncated" rather than "zip: ..."); nothing else of the name is used.
+HINT_SUFFIXES = frozenset(
+    {".npz", ".zip", ".bag", ".mcap", ".db3", ".mkv", ".mp4", ".m4v", ".mov", ".avi", ".webm"}
+    | {".mpg", ".mpeg", ".wmv", ".flv", ".ts"}
+)
+
+
+def hint_suffix(filename: str | None) -> str:
+    """The client's extension if it is one of :data:`HINT_SUFFIXES`, else ``""``."""
+    suffix = Path((filename or "").replace("\\", "/")).suffix.lower()
+    return suffix if suffix in HINT_SUFFIXES else ""
+
+
+def stored_suffix(fmt: str | None, head: bytes) -> str:
+    """The extension of a stored clip of format ``fmt`` whose file starts with ``head``.
+
+    Chosen by the server from what the probe found in the content: the client's file name never names
+    a file on the server (a reader given ``x.m3u8`` could be led to open other files).
     """
-    if not filename:
-        return ""
-    name = Path(filename.replace("\\", "/")).name
-    suffixes = "".join(Path(name).suffixes[-2:]).lower()
-    if _SUFFIX.match(suffixes):
-        return suffixes
-    last = Path(name).suffix.lower()
-    return last if _SUFFIX.match(last) else ""
+    if fmt in _FORMAT_SUFFIX:
+        return _FORMAT_SUFFIX[fmt]
+    if head[4:8] == b"ftyp":
+        return ".mp4"
+    for magic, suffix in _MAGIC_SUFFIX:
+        if head.startswith(magic):
+            return suffix
+    return ""
+
+
+class Reservations:
+    """The bytes of the uploads being received now, per tenant (in this process): the running count a
+    storage quota is checked against as a body arrives, so that a body without ``Content-Length`` (or
+    several at once) stops at the quota instead of being written whole first."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._held: dict[str, int] = {}
+
+    def take(self, tenant: str, size: int, allowed: int, refuse: Callable[[int], Exception]) -> None:
+        """Count ``size`` more bytes of ``tenant``'s; raise ``refuse(held)`` past ``allowed`` in all."""
+        with self._lock:
+            held = self._held.get(tenant, 0)
+            if held + size > allowed:
+                raise refuse(held)
+            self._held[tenant] = held + size
+
+    def release(self, tenant: str, size: int) -> None:
+        with self._lock:
+            left = self._held.get(tenant, 0) - size
+            if left > 0:
+                self._held[tenant] = left
+            else:
+                self._held.pop(tenant, None)
+
+    def held(self, tenant: str) -> int:
+        with self._lock:
+            return self._held.get(tenant, 0)
+
+
+@dataclass
+class Quota:
+    """What an upload may add to its tenant's storage: ``allowed`` bytes, counted in ``reservations``
+    with the tenant's other uploads; ``refuse(held)`` is the error past it."""
+
+    reservations: Reservations
+    tenant: str
+    allowed: int
+    refuse: Callable[[int], Exception]
 
 
 class UploadSink:
     """A file being uploaded into ``tmp/``: write chunks, then :meth:`commit` or :meth:`discard`."""
 
-    def __init__(self, path: Path, limit_bytes: int, *, hashing: bool = False) -> None:
+    def __init__(
+        self, path: Path, limit_bytes: int, *, hashing: bool = False, quota: Quota | None = None
+    ) -> None:
         self.path = path
         self.limit_bytes = limit_bytes
         self.size = 0
+        self.quota = quota
         self._hash = hashlib.sha256() if hashing else None
         self._fh: BinaryIO | None = path.open("xb")
+
+    def release_quota(self) -> None:
+        """Stop counting this upload against its tenant's quota (it was kept, and is counted as a clip
+        now, or discarded)."""
+        if self.quota is not None:
+            self.quota.reservations.release(self.quota.tenant, self.size)
+            self.quota = None
 
     def write(self, chunk: bytes) -> None:
         if self._fh is None:
             raise ValueError("upload already closed")
+        if self.quota is not None:
+            q = self.quota
+            q.reservations.take(q.tenant, len(chunk), q.allowed, q.refuse)
         self.size += len(chunk)
         if self.size > self.limit_bytes:
             raise PayloadTooLargeError(
@@ -90,6 +186,7 @@ class UploadSink:
             self._fh = None
 
     def discard(self) -> None:
+        self.release_quota()
         if self._fh is not None:
             self._fh.close()
             self._fh = None
@@ -98,14 +195,22 @@ class UploadSink:
             shutil.rmtree(self.path.parent, ignore_errors=True)
 
     def give_name(self, filename: str | None) -> None:
-        """Move the closed upload to ``tmp/upload-<random>/clip<ext>``: readers see the extension of the
-        client's file name (a format hint) and report ``clip<ext>``, never an internal or client path."""
+        """Move the closed upload to ``tmp/upload-<random>.d/clip-<random><ext>`` for validation: a name
+        of the server's own, so that the readers' messages name neither an internal nor a client path
+        (the caller puts the client's name in their place). ``<ext>`` is one of :data:`HINT_SUFFIXES`
+        when the client's name ends with it (the readers detect the format from the content and take
+        the extension only as a hint for their messages), else none."""
         self.close()
         folder = self.path.with_name(self.path.name + ".d")
         folder.mkdir()
-        target = folder / f"clip{safe_suffix(filename)}"
+        target = folder / f"clip-{uuid.uuid4().hex[:12]}{hint_suffix(filename)}"
         os.replace(self.path, target)
         self.path = target
+
+    def head(self, size: int = 64) -> bytes:
+        """The first ``size`` bytes of the (closed) upload."""
+        with self.path.open("rb") as fh:
+            return fh.read(size)
 
 
 class Storage:
@@ -136,18 +241,52 @@ class Storage:
 
     # Clips -----------------------------------------------------------------------------------
 
-    def new_upload(self, limit_bytes: int, *, hashing: bool = False) -> UploadSink:
+    def new_upload(
+        self, limit_bytes: int, *, hashing: bool = False, quota: Quota | None = None
+    ) -> UploadSink:
         """A new file in ``tmp/`` (hashed as it is written with ``hashing``); :class:`StorageUnavailableError`
-        if the storage cannot be written."""
+        if the storage cannot be written.
+
+        Its name, ``upload-<host>-<pid>-<random>``, says which process writes it, so that an upload a
+        crashed process left is known as such (:meth:`remove_abandoned_uploads`)."""
+        name = f"upload-{_HOST}-{os.getpid()}-{uuid.uuid4().hex}"
         try:
-            return UploadSink(self.root / "tmp" / f"upload-{uuid.uuid4().hex}", limit_bytes, hashing=hashing)
+            return UploadSink(self.root / "tmp" / name, limit_bytes, hashing=hashing, quota=quota)
         except OSError as exc:
             raise StorageUnavailableError(
                 f"the clip storage cannot be written ({exc.strerror or type(exc).__name__}); try again later"
             ) from exc
 
-    def keep_clip(self, sink: UploadSink, clip_id: str, filename: str | None) -> str:
-        """Move a finished upload into place; returns its path relative to the root.
+    def remove_abandoned_uploads(self, *, idle_s: float) -> int:
+        """Remove the uploads in ``tmp/`` (being received or validated) whose process on this host is gone,
+        and any untouched for ``idle_s`` (a body stalls for less before it is refused, a validation
+        lasts less); returns how many were removed."""
+        removed = 0
+        cutoff = time.time() - idle_s
+        try:
+            entries = list(os.scandir(self.root / "tmp"))
+        except FileNotFoundError:
+            return 0
+        for entry in entries:
+            if not entry.name.startswith("upload-"):
+                continue
+            match = _UPLOAD.match(entry.name)
+            try:
+                dead = match is not None and match.group(1) == _HOST and not pid_alive(int(match.group(2)))
+                if dead or entry.stat(follow_symlinks=False).st_mtime < cutoff:
+                    if entry.is_dir(follow_symlinks=False):
+                        shutil.rmtree(entry.path, ignore_errors=True)
+                    else:
+                        os.unlink(entry.path)
+                    removed += 1
+            except OSError:
+                continue
+        return removed
+
+    def keep_clip(self, sink: UploadSink, clip_id: str, fmt: str | None) -> str:
+        """Move a finished upload of format ``fmt`` (as the probe detected it) into place as
+        ``clips/<id>/clip<ext>``, the extension the server's (:func:`stored_suffix`); returns its path
+        relative to the root.
 
         On failure nothing is left in ``clips/`` (the caller discards the upload).
         """
@@ -155,7 +294,7 @@ class Storage:
         try:
             sink.close()
             folder.mkdir(parents=True, exist_ok=False)
-            target = folder / f"clip{safe_suffix(filename)}"
+            target = folder / f"clip{stored_suffix(fmt, sink.head())}"
             os.replace(sink.path, target)
             if sink.path.parent.name.startswith("upload-"):
                 shutil.rmtree(sink.path.parent, ignore_errors=True)
@@ -264,6 +403,19 @@ class Storage:
             shutil.rmtree(path, ignore_errors=True)
         else:
             path.unlink(missing_ok=True)
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this host (this process always does)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def tree_bytes(path: Path) -> int:

@@ -60,6 +60,7 @@ from service.errors import (
     QuotaExceededError,
     problem_document,
 )
+from service.storage import pid_alive
 
 ACTIVE = ("queued", "running")
 TERMINAL = ("succeeded", "failed", "cancelled")
@@ -359,16 +360,7 @@ def owner_is_dead_here(owner: str | None) -> bool:
     pid_text = rest.partition("/")[0]
     if host != socket.gethostname() or not pid_text.isdigit():
         return False
-    pid = int(pid_text)
-    if pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:
-        return False
-    return False
+    return not pid_alive(int(pid_text))
 
 
 def _encode_cursor(seq: int) -> str:
@@ -439,6 +431,10 @@ def _ended(values: dict[str, Any], now: float) -> dict[str, Any]:
         "callback_status": case((has_callback, "pending"), else_=None),
         "callback_next_at": case((has_callback, now), else_=None),
     }
+
+
+#: The callback error of a callback given up because its last attempt never reported.
+_UNFINISHED_ATTEMPT = "the last attempt did not finish (the API process delivering it stopped)"
 
 
 def _problem_worker_lost(attempts: int) -> dict[str, Any]:
@@ -689,7 +685,7 @@ class Store:
     def get_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord:
         clip = self.find_clip(clip_id, owner)
         if clip is None:
-            raise NotFoundError(f"no clip with id {clip_id!r}", code="no-such-clip")
+            raise NotFoundError(f"no clip with id {clip_id!r}", code="clip-not-found")
         return clip
 
     def delete_clip(self, clip_id: str, owner: str | None = ANY_OWNER) -> ClipRecord:
@@ -697,7 +693,7 @@ class Store:
         with self._tx() as s:
             row = s.get(ClipRow, clip_id)
             if row is None or (owner is not None and row.owner != owner):
-                raise NotFoundError(f"no clip with id {clip_id!r}", code="no-such-clip")
+                raise NotFoundError(f"no clip with id {clip_id!r}", code="clip-not-found")
             active = s.scalars(
                 select(JobRow.id).where(JobRow.clip_id == clip_id, JobRow.status.in_(ACTIVE)).limit(5)
             ).all()
@@ -727,13 +723,15 @@ class Store:
         retry_after_s: int | None = None,
         callback_url: str | None = None,
         source: str = "upload",
+        max_stored_bytes: int | None = None,
     ) -> tuple[JobRecord, bool]:
         """Insert a queued job on one of ``owner``'s clips; returns ``(job, created)``.
 
         With an ``idempotency_key`` already used (by this owner) for the same ``request_hash`` the earlier
         job is returned with ``created=False``; used for another request it raises
         :class:`InvalidInputError`. With ``max_active_jobs`` an owner who already has that many queued or
-        running jobs gets :class:`QuotaExceededError`.
+        running jobs gets :class:`QuotaExceededError`, as does, with ``max_stored_bytes``, one whose clips
+        and job outputs already take that much (the job's outputs would be stored too).
         """
         if idempotency_key is not None:
             existing = self.job_by_idempotency_key(idempotency_key, request_hash, owner)
@@ -767,12 +765,15 @@ class Store:
                     raise InvalidInputError(
                         f"clip {clip_id!r} does not exist (never uploaded, or deleted); "
                         "upload it with POST /v1/clips and use the returned id",
-                        code="clip-not-found",
+                        code="unknown-clip",
                     )
-                if max_active_jobs is not None:
+                if max_active_jobs is not None or max_stored_bytes is not None:
                     self._lock_owner(s, owner)
-                    active = self._usage(s, owner).active_jobs
-                    if active >= max_active_jobs:
+                    usage = self._usage(s, owner)
+                    if max_stored_bytes is not None and usage.stored_bytes >= max_stored_bytes:
+                        raise storage_quota_error(usage.stored_bytes, 0, max_stored_bytes, retry_after_s)
+                    active = usage.active_jobs
+                    if max_active_jobs is not None and active >= max_active_jobs:
                         raise QuotaExceededError(
                             f"this API key already has {active} queued or running jobs, the most allowed "
                             f"(EIGENSCOPE_MAX_ACTIVE_JOBS_PER_KEY={max_active_jobs}); wait for some to "
@@ -862,6 +863,14 @@ class Store:
                 "lease_until": None,
             }
             if self._cas(job_id, job.status, _ended(values, time.time())):
+                if job.source == "stream":  # its stream has ended too (its session stops at once)
+                    problem = problem_document("stream-aborted", f"the stream's job {job_id} was cancelled")
+                    with self._tx() as s:
+                        s.execute(
+                            update(StreamRow)
+                            .where(StreamRow.job_id == job_id, StreamRow.status.in_(STREAM_ACTIVE))
+                            .values(status="failed", error=problem, updated_at=utcnow())
+                        )
                 return self.get_job(job_id)
         raise ConflictError(f"job {job_id} is changing too fast to cancel; try again", code="job-busy")
 
@@ -879,6 +888,7 @@ class Store:
             with self._tx() as s:
                 res = s.execute(delete(JobRow).where(JobRow.id == job_id, JobRow.status.in_(TERMINAL)))
                 if res.rowcount:  # type: ignore[attr-defined]
+                    s.execute(delete(StreamRow).where(StreamRow.job_id == job_id))  # its stream's record
                     return job
         raise ConflictError(f"job {job_id} is changing too fast to delete; try again", code="job-busy")
 
@@ -898,6 +908,21 @@ class Store:
             s.execute(
                 update(JobRow).where(JobRow.id == job_id, JobRow.status == "queued").values(enqueued_at=0.0)
             )
+
+    def queued_jobs(self, *, enqueued_before: float, limit: int = 100_000) -> dict[str, float]:
+        """``{job id: enqueued_at}`` of the jobs waiting for a message's delivery (queued, not a stream's)
+        published before ``enqueued_before`` (epoch seconds)."""
+        with self._tx(readonly=True) as s:
+            rows = s.execute(
+                select(JobRow.id, JobRow.enqueued_at)
+                .where(
+                    JobRow.status == "queued",
+                    JobRow.source != "stream",
+                    JobRow.enqueued_at < enqueued_before,
+                )
+                .limit(limit)
+            ).all()
+        return {str(job_id): float(at or 0.0) for job_id, at in rows}
 
     def count_jobs_by_status(self) -> dict[str, int]:
         with self._tx(readonly=True) as s:
@@ -1078,12 +1103,11 @@ class Store:
 
     # Callbacks ---------------------------------------------------------------------------------
 
-    def claim_due_callbacks(self, *, limit: int, lease_s: float) -> list[JobRecord]:
-        """Jobs whose callback is due, each leased to the caller for ``lease_s`` (several API processes
-        deliver without sending one callback twice at once)."""
+    def due_callbacks(self, *, limit: int) -> list[tuple[str, str]]:
+        """``(job id, callback URL)`` of jobs whose callback is due and not leased, most overdue first."""
         now = time.time()
         query = (
-            select(JobRow.id)
+            select(JobRow.id, JobRow.callback_url)
             .where(
                 JobRow.callback_status == "pending",
                 JobRow.callback_next_at <= now,
@@ -1093,25 +1117,61 @@ class Store:
             .limit(limit)
         )
         with self._tx(readonly=True) as s:
-            due = list(s.scalars(query).all())
-        claimed = []
-        for job_id in due:
-            with self._tx() as s:
-                res = s.execute(
+            return [(job_id, url or "") for job_id, url in s.execute(query).all()]
+
+    def claim_callback(
+        self, job_id: str, *, lease_s: float, max_attempts: int | None = None
+    ) -> JobRecord | None:
+        """Lease job ``job_id``'s due callback for one attempt (counted now); None when another process
+        has it. A callback that already had ``max_attempts`` (its last attempt never reported: the process
+        delivering it stopped) is given up instead, so the attempts never pass the maximum."""
+        now = time.time()
+        free = (JobRow.callback_lease_until.is_(None)) | (JobRow.callback_lease_until < now)
+        with self._tx() as s:
+            if max_attempts is not None:
+                s.execute(
                     update(JobRow)
                     .where(
                         JobRow.id == job_id,
                         JobRow.callback_status == "pending",
-                        (JobRow.callback_lease_until.is_(None)) | (JobRow.callback_lease_until < now),
+                        JobRow.callback_attempts >= max_attempts,
+                        free,
                     )
                     .values(
-                        callback_lease_until=now + lease_s, callback_attempts=JobRow.callback_attempts + 1
+                        callback_status="failed",
+                        callback_next_at=None,
+                        callback_lease_until=None,
+                        callback_error=func.coalesce(JobRow.callback_error, _UNFINISHED_ATTEMPT),
                     )
                 )
-            if res.rowcount:  # type: ignore[attr-defined]
-                job = self.find_job(job_id)
-                if job is not None:
-                    claimed.append(job)
+            res = s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.callback_status == "pending", free)
+                .values(callback_lease_until=now + lease_s, callback_attempts=JobRow.callback_attempts + 1)
+            )
+        if not res.rowcount:  # type: ignore[attr-defined]
+            return None
+        return self.find_job(job_id)
+
+    def renew_callback_lease(self, job_id: str, *, lease_s: float) -> None:
+        """Extend the lease of a callback being delivered (it must not pass to another process)."""
+        with self._tx() as s:
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.callback_status == "pending")
+                .values(callback_lease_until=time.time() + lease_s)
+            )
+
+    def claim_due_callbacks(
+        self, *, limit: int, lease_s: float, max_attempts: int | None = None
+    ) -> list[JobRecord]:
+        """Jobs whose callback is due, each leased to the caller for ``lease_s`` (several API processes
+        deliver without sending one callback twice at once); see :meth:`claim_callback`."""
+        claimed = []
+        for job_id, _url in self.due_callbacks(limit=limit):
+            job = self.claim_callback(job_id, lease_s=lease_s, max_attempts=max_attempts)
+            if job is not None:
+                claimed.append(job)
         return claimed
 
     def record_callback(self, job_id: str, *, status: str, next_at: float | None, error: str | None) -> None:
@@ -1143,6 +1203,7 @@ class Store:
         expires_at: float | None,
         max_active_jobs: int | None = None,
         retry_after_s: int | None = None,
+        max_stored_bytes: int | None = None,
     ) -> tuple[StreamRecord, JobRecord]:
         """Record a new stream with its (empty) clip and its queued job (``source='stream'``).
 
@@ -1158,6 +1219,7 @@ class Store:
                 max_active_jobs=max_active_jobs,
                 retry_after_s=retry_after_s,
                 source="stream",
+                max_stored_bytes=max_stored_bytes,
                 **job,
             )
         except BaseException:
@@ -1283,6 +1345,13 @@ class Store:
                 s.execute(delete(StreamRow).where(StreamRow.job_id == job_id))
             return bool(res.rowcount)  # type: ignore[attr-defined]
 
+    def delete_orphan_streams(self) -> int:
+        """Delete the records (and last estimates) of streams whose job is gone (deleted by its owner
+        before deleting a job removed its stream too); returns how many."""
+        with self._tx() as s:
+            res = s.execute(delete(StreamRow).where(StreamRow.job_id.not_in(select(JobRow.id))))
+        return int(res.rowcount or 0)  # type: ignore[attr-defined]
+
     def existing_ids(self, clip_ids: Sequence[str], job_ids: Sequence[str]) -> tuple[set[str], set[str]]:
         """Which of these clip and job ids have records."""
         clips: set[str] = set()
@@ -1306,11 +1375,14 @@ class Usage:
 
 
 def storage_quota_error(used: int, adding: int, limit: int, retry_after_s: int | None) -> QuotaExceededError:
+    """429 for a key whose stored clips and job outputs (``used`` bytes) cannot take ``adding`` more (0:
+    a job or stream, whose outputs would be stored, on a key already at its quota)."""
     mib = 1024 * 1024
+    more = f"{adding / mib:.1f} MiB more would exceed its quota of" if adding else "at least its quota of"
     return QuotaExceededError(
-        f"this API key stores {used / mib:.1f} MiB; {adding / mib:.1f} MiB more would exceed its quota of "
-        f"{limit / mib:.0f} MiB (EIGENSCOPE_MAX_STORED_MB_PER_KEY); delete clips or wait for old ones to "
-        "expire",
+        f"this API key stores {used / mib:.1f} MiB of clips and results, {more} "
+        f"{limit / mib:.0f} MiB (EIGENSCOPE_MAX_STORED_MB_PER_KEY); delete clips or jobs, or wait for old "
+        "ones to expire",
         code="storage-quota-exceeded",
         retry_after_s=retry_after_s,
         limit_bytes=limit,

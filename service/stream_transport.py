@@ -5,8 +5,9 @@ session, and the worker's JSON messages back. Two transports with one interface:
 
 - :class:`RedisTransport` (``EIGENSCOPE_REDIS_URL``): sessions are handed out through a Redis list,
   frames go through a Redis stream per session (``XADD MAXLEN``: bounded; the worker deletes each entry
-  as it reads it), messages come back through another. Both are deleted when the session ends and
-  expire an hour after their last write in any case, so no frame stays in Redis after its session.
+  as it reads it), messages come back through another. Both are deleted when the session ends (and
+  the session's entry of the pending list with them, should it have ended before a worker took it up)
+  and expire an hour after their last write in any case, so no frame stays in Redis after its session.
 - :class:`LocalTransport` (embedded mode): the same through files in ``DATA_DIR/streams`` (atomic
   renames), for an API and workers on one machine.
 
@@ -149,7 +150,10 @@ class RedisTransport:
         pipe.execute()
 
     def cleanup(self, stream_id: str) -> None:
-        self.sync.delete(self._in(stream_id), self._out(stream_id))
+        pipe = self.sync.pipeline(transaction=False)
+        pipe.delete(self._in(stream_id), self._out(stream_id))
+        pipe.lrem(self.pending, 0, stream_id)  # a stream that ended before a worker took it up
+        pipe.execute()
 
     # API side
     async def dispatch(self, stream_id: str) -> None:
@@ -181,7 +185,10 @@ class RedisTransport:
         return messages, cursor
 
     async def acleanup(self, stream_id: str) -> None:
-        await self.aio.delete(self._in(stream_id), self._out(stream_id))
+        pipe = self.aio.pipeline(transaction=False)
+        pipe.delete(self._in(stream_id), self._out(stream_id))
+        pipe.lrem(self.pending, 0, stream_id)
+        await pipe.execute()
 
     async def last_cursor(self, stream_id: str) -> str:
         """The id of the newest worker message (``"0"`` when none): a new relay reads from there on."""
@@ -285,6 +292,14 @@ class LocalTransport:
         self._out_seq.pop(stream_id, None)
         shutil.rmtree(self.root / stream_id, ignore_errors=True)
         (self.root / "claimed" / stream_id).unlink(missing_ok=True)
+        (self.root / "pending" / stream_id).unlink(missing_ok=True)  # it ended before a worker took it up
+
+    def stream_ids(self) -> list[str]:
+        """The streams that have files here (for the sweeper: those of ended streams go)."""
+        try:
+            return [n for n in os.listdir(self.root) if n.isalnum() and n not in ("pending", "claimed")]
+        except FileNotFoundError:
+            return []
 
     # API side
     async def dispatch(self, stream_id: str) -> None:

@@ -2,10 +2,13 @@
 
 The relay (:class:`Relay`) never decodes a frame. It passes the client's binary frame messages to the
 session's worker through the stream transport, and the worker's messages back, and it does the flow
-control: at most ``Settings.stream_window`` frame messages in flight (sent, not yet consumed by the
-worker). Near the window the client gets a ``backpressure`` ``slow_down``; a frame message beyond it is
-refused with a ``backpressure`` ``dropped`` naming the frame, never lost silently nor buffered without
-bound. A worker that is silent for ``stream_worker_timeout_s`` (or never takes the session up within
+control by the protocol's one rule (:data:`api_schemas.stream.FLOW_CONTROL`): a frame message is in
+flight from its arrival until it is *acknowledged* (consumed by the worker, or refused); each
+``accepted``, ``backpressure`` and ``error`` carries ``acked``, the connection's acknowledged frame
+messages so far, and at most ``Settings.stream_window`` may be in flight. At three quarters of the window
+the client gets a ``backpressure`` ``slow_down``; a frame message beyond it is refused with a
+``backpressure`` ``dropped`` naming the frame, never lost silently nor buffered without bound. A worker
+that is silent for ``stream_worker_timeout_s`` (or never takes the session up within
 ``stream_start_timeout_s``) ends the session with a fatal ``error`` and fails its job.
 """
 
@@ -26,6 +29,8 @@ from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from api_schemas import StreamCreate, StreamModel
+from service.auth import authenticate, client_address
+from service.bodies import loads_shallow
 from service.context import ServiceContext
 from service.errors import InvalidInputError, ServiceError, UnavailableError, problem_document
 from service.jobs import excitation_json
@@ -37,6 +42,18 @@ log = logging.getLogger(__name__)
 
 #: Parameters of a job that do not apply to a stream.
 _NOT_FOR_STREAMS = ("start_frame", "color_topic", "depth_topic")
+#: The stream worker's analysis window when ``parameters.frames`` is not given (workers/streams.py).
+DEFAULT_WINDOW_FRAMES = 256
+#: Bytes a stream's worker keeps per pixel of each frame in its window: the grey image (1) and the depth
+#: in metres (4) (:class:`workers.pipeline.live.LiveAnalysis`).
+_WINDOW_BYTES_PER_PIXEL = 5
+
+
+def stream_memory_mib(width: int, height: int, frames: int) -> float:
+    """Address space a stream's analysis window of ``frames`` frames of ``width`` x ``height`` takes,
+    MiB: what its worker keeps per frame, twice over (address space runs at about twice the resident
+    memory, as for a job's budget, ``JOB_MEMORY_MB``)."""
+    return 2 * frames * width * height * _WINDOW_BYTES_PER_PIXEL / 2**20
 
 
 def token_digest(token: str) -> str:
@@ -97,10 +114,32 @@ def check_request(ctx: ServiceContext, body: StreamCreate) -> None:
         and p.min_frequency_hz >= p.max_frequency_hz
     ):
         raise _invalid("parameters.max_frequency_hz", "max_frequency_hz must exceed min_frequency_hz")
+    _check_frame_size(ctx, body)
     limit = ctx.settings.stream_max_duration_s
     if body.max_duration_s > limit:
         raise _invalid(
             "max_duration_s", f"at most {limit:g} s on this server (EIGENSCOPE_STREAM_MAX_DURATION_S)"
+        )
+
+
+def _check_frame_size(ctx: ServiceContext, body: StreamCreate) -> None:
+    """The declared frame size under the pixel cap, and its analysis window under the memory budget."""
+    settings = ctx.settings
+    pixels = body.width * body.height
+    if pixels > settings.max_pixels_per_frame:
+        raise _invalid(
+            "width",
+            f"frames of {body.width}x{body.height} have {pixels} pixels, over this server's cap of "
+            f"{settings.max_pixels_per_frame} (EIGENSCOPE_MAX_PIXELS_PER_FRAME); send smaller frames",
+        )
+    frames = body.parameters.frames or DEFAULT_WINDOW_FRAMES
+    need = stream_memory_mib(body.width, body.height, frames)
+    if settings.job_memory_mb and need > settings.job_memory_mb:
+        raise _invalid(
+            "width",
+            f"an analysis window of {frames} frames of {body.width}x{body.height} needs about "
+            f"{need:.0f} MiB, over the job memory budget of {settings.job_memory_mb} MiB "
+            "(EIGENSCOPE_JOB_MEMORY_MB); send smaller frames or a shorter window (parameters.frames)",
         )
 
 
@@ -115,8 +154,8 @@ async def create_stream(
     info = {
         "format": "stream",
         "frames": 0,
-        "width": body.width or 0,
-        "height": body.height or 0,
+        "width": body.width,
+        "height": body.height,
         "fps": body.parameters.fps,
         "fps_source": "user" if body.parameters.fps else None,
         "has_depth": False,
@@ -140,6 +179,7 @@ async def create_stream(
         expires_at=expiry(time.time(), settings.retention_s),
         max_active_jobs=settings.max_active_jobs_per_key,
         retry_after_s=settings.quota_retry_after_s,
+        max_stored_bytes=settings.max_stored_bytes_per_key,
     )
     try:
         await ctx.stream_transport.dispatch(stream_id)
@@ -155,17 +195,33 @@ async def create_stream(
 # The relay --------------------------------------------------------------------------------------
 
 
-def frame_index(data: bytes) -> tuple[int | None, str | None]:
+#: Largest JSON header of a frame message, and largest text message, bytes.
+MAX_HEADER_BYTES = 4096
+
+
+def frame_index(data: bytes, *, max_depth: int) -> tuple[int | None, str | None]:
     """The ``frame`` and ``kind`` of a frame message's header, if it can be read (no image is decoded)."""
     try:
         (length,) = struct.unpack(">I", data[:4])
-        if length > 4096:
+        if length > MAX_HEADER_BYTES:
             return None, None
-        header = json.loads(data[4 : 4 + length])
+        header = loads_shallow(data[4 : 4 + length], max_depth=max_depth)
         frame, kind = header.get("frame"), header.get("kind")
         return (frame if isinstance(frame, int) else None), (kind if kind in ("color", "depth") else None)
-    except (struct.error, ValueError, UnicodeDecodeError, AttributeError):
+    except (struct.error, ValueError, AttributeError):
         return None, None
+
+
+def text_message(text: str, *, max_depth: int) -> dict[str, Any] | None:
+    """A client's text message as a JSON object, None when it is not one (too long, nested too deep,
+    malformed): it is answered with a non-fatal ``invalid-message`` error, never a crash."""
+    if len(text) > MAX_HEADER_BYTES:
+        return None
+    try:
+        doc = loads_shallow(text, max_depth=max_depth)
+    except ValueError:
+        return None
+    return doc if isinstance(doc, dict) else None
 
 
 class Relay:
@@ -177,18 +233,31 @@ class Relay:
         self.transport = ctx.stream_transport
         self.window = self.settings.stream_window
         self.relay_id = uuid.uuid4().hex
-        self.sent = 0  # frame messages this connection passed on
+        self.received = 0  # frame messages this connection received (passed on or refused)
+        self.refused = 0  # ... of which refused here (over the window, too large)
         self.base: int | None = None  # messages the worker had consumed when this connection attached
         self.consumed = 0
+        self.ended_at: float | None = None  # when the client said `end` (the result's latency)
         self.slowed = False
         self.dropped: set[int] = set()
+        #: The last frame whose colour message went on to the worker.
+        self.colour_sent: int | None = None
         self.last_worker = time.monotonic()
         self.done = asyncio.Event()
         self.sid = stream.id
 
     @property
+    def acked(self) -> int:
+        """This connection's frame messages the server is done with: consumed by the worker or refused."""
+        return self.consumed - (self.base or 0) + self.refused
+
+    @property
     def in_flight(self) -> int:
-        return self.sent - (self.consumed - (self.base or 0))
+        return self.received - self.acked
+
+    def _flow(self) -> dict[str, int]:
+        """The flow-control members of a message: ``acked``, ``in_flight`` and ``window``."""
+        return {"acked": self.acked, "in_flight": max(self.in_flight, 0), "window": self.window}
 
     async def send(self, message: dict[str, Any]) -> None:
         with contextlib.suppress(Exception):
@@ -211,6 +280,8 @@ class Relay:
         status, cursor = await self._await_attach(cursor)
         if status is None:
             return
+        # The worker's silence is counted from its answer: the wait for a free worker is not silence.
+        self.last_worker = time.monotonic()
         self.base = self.consumed = int(status.get("messages", 0))
         await self.send(
             {
@@ -223,6 +294,13 @@ class Relay:
                 "resumed": self.resumed,
             }
         )
+        self.ctx.metrics.stream_sessions.inc()
+        try:
+            await self._relay(cursor)
+        finally:
+            self.ctx.metrics.stream_sessions.dec()
+
+    async def _relay(self, cursor: str) -> None:
         downstream = asyncio.create_task(self._downstream(cursor))
         upstream = asyncio.create_task(self._upstream())
         finished, _ = await asyncio.wait({downstream, upstream}, return_when=asyncio.FIRST_COMPLETED)
@@ -276,9 +354,10 @@ class Relay:
                     self.consumed = max(self.consumed, int(m["messages"]))
                 if kind.startswith("_"):
                     continue
-                if kind == "accepted":
-                    m["in_flight"] = max(self.in_flight, 0)
-                    m["window"] = self.window
+                if kind in ("accepted", "error"):
+                    m.update(self._flow())
+                if kind == "result" and self.ended_at is not None:
+                    self.ctx.metrics.stream_latency.observe(time.monotonic() - self.ended_at)
                 await self.send(m)
                 if kind == "result" or (kind == "error" and m.get("fatal")):
                     self.done.set()
@@ -298,12 +377,9 @@ class Relay:
             if data is not None:
                 await self._frame(data, max_bytes)
                 continue
-            text = message.get("text") or ""
-            try:
-                doc = json.loads(text)
-            except ValueError:
-                doc = None
-            if isinstance(doc, dict) and doc.get("type") == "end":
+            doc = text_message(message.get("text") or "", max_depth=self.settings.stream_max_json_depth)
+            if doc is not None and doc.get("type") == "end":
+                self.ended_at = time.monotonic()
                 await self.transport.push(self.sid, control={"type": "end"})
                 continue
             await self.send(
@@ -320,13 +396,17 @@ class Relay:
             )
 
     async def _frame(self, data: bytes, max_bytes: int) -> None:
-        frame, kind = frame_index(data)
+        frame, kind = frame_index(data, max_depth=self.settings.stream_max_json_depth)
+        self.received += 1
+        self.ctx.metrics.stream_frames.inc()
         if len(data) > max_bytes:
+            await self._refuse("too_large")
             await self.send(
                 {
                     "type": "error",
                     "fatal": False,
                     "frame": frame,
+                    **self._flow(),
                     "problem": problem_document(
                         "frame-too-large",
                         f"frame {frame}: a frame message of {len(data)} bytes exceeds "
@@ -336,19 +416,23 @@ class Relay:
                 }
             )
             return
-        in_flight = self.in_flight
-        # The depth of a frame whose colour was refused goes the same way (it would have no colour).
-        if in_flight >= self.window or (kind == "depth" and frame in self.dropped):
+        in_flight = self.in_flight - 1  # those before this one: the count it arrived to
+        # The depth of a frame whose colour was refused goes the same way (it would have no colour); the
+        # depth of one whose colour went on follows it whatever the window (the worker holds that colour
+        # until its depth comes: dropping the depth would leave the frame, and the client waiting for its
+        # acknowledgement, hanging).
+        completes = kind == "depth" and frame is not None and frame == self.colour_sent
+        if (in_flight >= self.window and not completes) or (kind == "depth" and frame in self.dropped):
             if frame is not None:
                 self.dropped.add(frame)
+            await self._refuse("window")
             await self.send(
                 {
                     "type": "backpressure",
                     "action": "dropped",
                     "frame": frame,
                     "kind": kind,
-                    "in_flight": in_flight,
-                    "window": self.window,
+                    **self._flow(),
                 }
             )
             return
@@ -360,19 +444,24 @@ class Relay:
                     "action": "slow_down",
                     "frame": frame,
                     "kind": kind,
-                    "in_flight": in_flight,
-                    "window": self.window,
+                    **self._flow(),
                 }
             )
+        if kind == "color":
+            self.colour_sent = frame
         await self.transport.push(self.sid, frame=data)
-        self.sent += 1
+
+    async def _refuse(self, reason: str) -> None:
+        """Count a frame message refused here: it is acknowledged at once (it is no longer in flight)."""
+        self.refused += 1
+        self.ctx.metrics.stream_dropped.labels(reason).inc()
 
 
 async def serve_websocket(ctx: ServiceContext, ws: WebSocket, stream_id: str) -> None:
     """Authenticate, find the stream (tenant-scoped), check the resume token and relay."""
     await ws.accept()
     try:
-        tenant = ctx.keys.tenant(ws.headers.get("authorization"))
+        tenant = authenticate(ctx.keys, ctx.auth_limiter, client_address(ws), ws.headers.get("authorization"))
         stream = await run_in_threadpool(ctx.store.get_stream, stream_id, tenant)
     except ServiceError as exc:
         await ws.send_text(

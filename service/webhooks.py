@@ -10,8 +10,12 @@
   signature and refuse stale timestamps.
 - **Retries.** A delivery that does not get a 2xx answer is tried again after ``retry_base_s``, doubled
   each time up to ``retry_max_s`` (or the receiver's ``Retry-After``), ``max_attempts`` times in all; the
-  job shows the callback's state. Deliveries are leased in the job store, so several API processes share
-  the work without sending one event twice at once.
+  job shows the callback's state. Every failure of an attempt (an unreachable receiver, a URL httpx
+  refuses, anything) is recorded and counted; the attempts never pass the maximum.
+- **Concurrency.** Up to ``callback_concurrency`` deliveries run at once, ``callback_per_host`` at most
+  to one host: a receiver that hangs delays only its own callbacks. Deliveries are leased in the job
+  store (the lease outlasts any delivery and is renewed while it runs), so several API processes share
+  the work without sending one attempt twice.
 
 The body is ``{"type": "job.succeeded" | "job.failed" | "job.cancelled", "timestamp": ..., "data": <Job>}``.
 """
@@ -30,7 +34,6 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
-from urllib.parse import urlsplit
 
 from service.errors import InvalidInputError
 from service.settings import Settings
@@ -42,14 +45,40 @@ log = logging.getLogger(__name__)
 _LEASE_PAD_S = 30.0
 
 
-def _host_port(url: str) -> tuple[str, int]:
-    parts = urlsplit(url)
-    if parts.scheme not in ("http", "https") or not parts.hostname:
+def parse_callback_url(url: str) -> Any:
+    """``url`` parsed by httpx, the parser that delivers it (an ``httpx.URL``); ``ValueError`` saying why
+    it is not usable: whitespace or control characters (which ``urlsplit`` would silently strip, and
+    httpx refuses), no http(s) scheme or host, credentials, a port outside 1-65535."""
+    import httpx
+
+    bad = next((c for c in url if c.isspace() or ord(c) < 0x20 or ord(c) == 0x7F), None)
+    if bad is not None:
+        raise ValueError(f"it holds the character {bad!r}; whitespace and control characters are not allowed")
+    try:
+        parsed = httpx.URL(url)
+    except httpx.InvalidURL as exc:
+        raise ValueError(str(exc)) from None
+    if parsed.scheme not in ("http", "https") or not parsed.host or "%" in parsed.host:
         raise ValueError("not an http(s) URL with a host")
-    if parts.username is not None or parts.password is not None:
+    if parsed.userinfo:
         raise ValueError("credentials in the URL are not allowed; authenticate by the signature")
-    port = parts.port  # raises ValueError for a bad port
-    return parts.hostname.lower(), port if port is not None else (443 if parts.scheme == "https" else 80)
+    if parsed.port is not None and not 1 <= parsed.port <= 65535:
+        raise ValueError(f"port {parsed.port} is not between 1 and 65535")
+    return parsed
+
+
+def _host_key(url: str) -> str:
+    """The host a callback goes to, for the per-host limit ("" for an unusable URL)."""
+    try:
+        return _host_port(url)[0]
+    except ValueError:
+        return ""
+
+
+def _host_port(url: str) -> tuple[str, int]:
+    parsed = parse_callback_url(url)
+    port = parsed.port if parsed.port is not None else (443 if parsed.scheme == "https" else 80)
+    return str(parsed.host).lower(), int(port)
 
 
 def allowed(url: str, hosts: str | None) -> bool:
@@ -96,7 +125,7 @@ def check_callback_url(url: str, settings: Settings) -> None:
         ) from None
     if not allowed(url, settings.callback_hosts):
         raise InvalidInputError(
-            f"callback_url host {urlsplit(url).netloc!r} is not on this server's allow-list "
+            f"callback_url host {_host_port(url)[0]!r} is not on this server's allow-list "
             "(EIGENSCOPE_CALLBACK_HOSTS); ask the operator to add it",
             code="callback-host-not-allowed",
             errors=[{"loc": loc, "msg": "host not allowed", "type": "value_error"}],
@@ -150,7 +179,12 @@ def retry_delay(attempts: int, settings: Settings, retry_after: str | None = Non
 
 
 class Dispatcher:
-    """Delivers due callbacks from a background thread of the API process."""
+    """Delivers due callbacks from background threads of the API process.
+
+    Up to ``callback_concurrency`` deliveries run at once, at most ``callback_per_host`` of them to one
+    host, so a receiver that hangs delays only its own callbacks. A delivery's lease (kept in the job
+    store, renewed while it runs) outlasts it, so no other API process sends the same attempt again.
+    """
 
     def __init__(
         self, store: Store, settings: Settings, render: Callable[[JobRecord], dict[str, Any]]
@@ -161,6 +195,15 @@ class Dispatcher:
         self.delivered = 0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self._hosts: dict[str, int] = {}  # deliveries under way, per host
+        self._running: set[str] = set()  # job ids being delivered
+
+    @property
+    def lease_s(self) -> float:
+        """A delivery's lease: longer than connecting, sending and reading the answer's head, each
+        within ``callback_timeout_s`` (and renewed every third of it while the delivery runs)."""
+        return 4 * self.settings.callback_timeout_s + _LEASE_PAD_S
 
     def start(self) -> None:
         self._stop.clear()
@@ -174,34 +217,102 @@ class Dispatcher:
             self._thread = None
 
     def _loop(self) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
         import httpx
 
-        with httpx.Client(follow_redirects=False, timeout=self.settings.callback_timeout_s) as client:
-            while not self._stop.is_set():
-                try:
-                    jobs = self.store.claim_due_callbacks(
-                        limit=16, lease_s=self.settings.callback_timeout_s + _LEASE_PAD_S
-                    )
-                except Exception as exc:  # the database blinked: the next pass tries again
-                    log.warning("webhooks: cannot read due callbacks: %s", exc)
-                    jobs = []
-                for job in jobs:
-                    if self._stop.is_set():
-                        return
+        workers = self.settings.callback_concurrency
+        timeout = self.settings.callback_timeout_s
+        limits = httpx.Limits(max_connections=workers, max_keepalive_connections=workers)
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="eigenscope-webhook")
+        with httpx.Client(follow_redirects=False, timeout=timeout, limits=limits) as client:
+            try:
+                next_renewal = time.monotonic() + self.lease_s / 3
+                while not self._stop.is_set():
                     try:
-                        self.deliver(client, job)
-                    except Exception:
-                        log.warning("webhooks: delivering job %s's callback failed", job.id, exc_info=True)
-                if not jobs:
-                    self._stop.wait(self.settings.callback_poll_interval_s)
+                        jobs = self._claim()
+                    except Exception as exc:  # the database blinked: the next pass tries again
+                        log.warning("webhooks: cannot read due callbacks: %s", exc)
+                        jobs = []
+                    for job in jobs:
+                        pool.submit(self._run, client, job)
+                    if time.monotonic() >= next_renewal:
+                        next_renewal = time.monotonic() + self.lease_s / 3
+                        self._renew_leases()
+                    if not jobs:
+                        self._stop.wait(self.settings.callback_poll_interval_s)
+            finally:
+                pool.shutdown(wait=False, cancel_futures=True)
+
+    def _claim(self) -> list[JobRecord]:
+        """Lease the due callbacks there is room for: free workers, and hosts under their limit."""
+        settings = self.settings
+        with self._lock:
+            free = settings.callback_concurrency - len(self._running)
+            hosts = dict(self._hosts)
+        if free <= 0:
+            return []
+        claimed: list[JobRecord] = []
+        for job_id, url in self.store.due_callbacks(limit=4 * settings.callback_concurrency):
+            if len(claimed) >= free:
+                break
+            host = _host_key(url)
+            if hosts.get(host, 0) >= settings.callback_per_host:
+                continue
+            job = self.store.claim_callback(
+                job_id, lease_s=self.lease_s, max_attempts=settings.callback_max_attempts
+            )
+            if job is None:
+                continue
+            hosts[host] = hosts.get(host, 0) + 1
+            with self._lock:
+                self._hosts[host] = self._hosts.get(host, 0) + 1
+                self._running.add(job.id)
+            claimed.append(job)
+        return claimed
+
+    def _run(self, client: Any, job: JobRecord) -> None:
+        try:
+            if not self._stop.is_set():
+                self.deliver(client, job)
+        except Exception:
+            log.warning("webhooks: delivering job %s's callback failed", job.id, exc_info=True)
+        finally:
+            host = _host_key(job.callback_url or "")
+            with self._lock:
+                self._running.discard(job.id)
+                self._hosts[host] -= 1
+                if not self._hosts[host]:
+                    del self._hosts[host]
+
+    def _renew_leases(self) -> None:
+        with self._lock:
+            running = list(self._running)
+        for job_id in running:
+            try:
+                self.store.renew_callback_lease(job_id, lease_s=self.lease_s)
+            except Exception as exc:
+                log.warning("webhooks: cannot renew the lease of job %s's callback: %s", job_id, exc)
+
+    @staticmethod
+    def _post(client: Any, url: str, body: bytes, headers: dict[str, str]) -> tuple[int, str | None]:
+        """POST and read the answer's status and ``Retry-After``, never its body."""
+        with client.stream("POST", url, content=body, headers=headers) as response:
+            return int(response.status_code), response.headers.get("retry-after")
 
     def deliver(self, client: Any, job: JobRecord) -> bool:
         """One attempt for ``job`` (already leased); records the outcome. True when delivered."""
-        import httpx
-
         settings = self.settings
         url = job.callback_url
         assert url is not None
+        try:
+            parse_callback_url(url)
+        except ValueError as exc:  # stored before the URLs were checked as they are now
+            self.store.record_callback(
+                job.id, status="failed", next_at=None, error=f"the callback URL is not usable: {exc}"
+            )
+            log.warning("job %s: callback dropped: its URL is not usable (%s)", job.id, exc)
+            return False
         if not allowed(url, settings.callback_hosts) or not settings.callback_secret:
             self.store.record_callback(
                 job.id, status="failed", next_at=None, error="host no longer on the allow-list"
@@ -221,15 +332,14 @@ class Dispatcher:
         error: str
         retry_after = None
         try:
-            response = client.post(url, content=body, headers=headers)
-            if 200 <= response.status_code < 300:
+            status, retry_after = self._post(client, url, body, headers)
+            if 200 <= status < 300:
                 self.store.record_callback(job.id, status="delivered", next_at=None, error=None)
                 self.delivered += 1
                 log.info("job %s: callback delivered to %s (attempt %d)", job.id, url, job.callback_attempts)
                 return True
-            error = f"HTTP {response.status_code}"
-            retry_after = response.headers.get("retry-after")
-        except httpx.HTTPError as exc:
+            error = f"HTTP {status}"
+        except Exception as exc:  # every failure of the attempt is recorded and counted against the rest
             error = f"{type(exc).__name__}: {exc}"[:300]
         if job.callback_attempts >= settings.callback_max_attempts:
             self.store.record_callback(job.id, status="failed", next_at=None, error=error)

@@ -19,6 +19,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from workers.pipeline.analysis import Analysis, AnalysisConfig, Excitation, analyze
 from workers.pipeline.clipio import open_clip, write_npz
 from workers.pipeline.synth import Scene, SyntheticClip, render
@@ -66,8 +68,9 @@ _CUSTOM = itertools.count()
 
 
 def _slim(clip: SyntheticClip) -> SyntheticClip:
-    """``clip`` without its frames (the truth and the masks stay)."""
-    return replace(clip, rgb=clip.rgb[:0], depth=clip.depth[:0])
+    """``clip`` without its frames (the truth and the masks stay). Empty arrays of their own: a slice
+    (``rgb[:0]``) would be a view that keeps every frame alive."""
+    return replace(clip, rgb=np.empty_like(clip.rgb[:0]), depth=np.empty_like(clip.depth[:0]))
 
 
 def _name(*parts: Any) -> str:

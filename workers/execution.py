@@ -147,7 +147,7 @@ class Outcome:
     retry_in_s: float | None = None
 
 
-def _vm_size_bytes() -> int:
+def vm_size_bytes() -> int:
     """This process's address space now (``VmSize``), bytes; 0 where ``/proc`` has none."""
     try:
         with open("/proc/self/status", encoding="ascii") as fh:
@@ -177,7 +177,7 @@ def memory_budget(megabytes: int) -> Iterator[None]:
     cap = megabytes * 1024 * 1024
     if hard != resource.RLIM_INFINITY:
         cap = min(cap, hard)
-    in_use = _vm_size_bytes()
+    in_use = vm_size_bytes()
     if in_use and cap < in_use + 64 * 1024 * 1024:
         raise BudgetTooSmallError(
             f"the memory budget of {megabytes} MiB (EIGENSCOPE_JOB_MEMORY_MB) is below the "

@@ -26,13 +26,10 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client import CollectorRegistry
 
+from service.metrics import WORKER_FAMILIES, WithDefaults
 from service.store import JobRecord
-
-_DURATION_BUCKETS = (0.25, 0.5, 1, 2, 3, 5, 8, 13, 20, 30, 60, 120, 300, 600, 1800)
-_WAIT_BUCKETS = (0.01, 0.05, 0.1, 0.25, 0.5, 1, 2, 5, 10, 30, 60, 300, 1800)
-_STAGE_BUCKETS = (0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2, 5, 10, 30, 120)
 
 
 class WorkerMetrics:
@@ -40,34 +37,14 @@ class WorkerMetrics:
 
     def __init__(self, registry: CollectorRegistry | None = None) -> None:
         self.registry = registry if registry is not None else CollectorRegistry(auto_describe=False)
-        r = self.registry
-        self.duration = Histogram(
-            "eigenscope_job_duration_seconds",
-            "Run time of one job delivery, claim to end, by outcome",
-            ["outcome"],
-            registry=r,
-            buckets=_DURATION_BUCKETS,
-        )
-        self.queue_wait = Histogram(
-            "eigenscope_job_queue_wait_seconds",
-            "Time a job waited in the queue before a worker claimed it",
-            registry=r,
-            buckets=_WAIT_BUCKETS,
-        )
-        self.stage = Histogram(
-            "eigenscope_analysis_stage_seconds",
-            "Time of each analysis stage",
-            ["stage"],
-            registry=r,
-            buckets=_STAGE_BUCKETS,
-        )
-        self.failures = Counter(
-            "eigenscope_job_failures", "Failed jobs by problem type", ["type"], registry=r
-        )
-        self.retries = Counter("eigenscope_job_retries", "Deliveries that ran a job again", registry=r)
-        live = {"registry": r, "multiprocess_mode": "livesum"}
-        self.busy = Gauge("eigenscope_worker_busy", "Worker processes running a job", **live)
-        self.processes = Gauge("eigenscope_worker_processes", "Live worker pool processes", **live)
+        made = {f.name: f.make(self.registry) for f in WORKER_FAMILIES}
+        self.duration = made["eigenscope_job_duration_seconds"]
+        self.queue_wait = made["eigenscope_job_queue_wait_seconds"]
+        self.stage = made["eigenscope_analysis_stage_seconds"]
+        self.failures = made["eigenscope_job_failures"]
+        self.retries = made["eigenscope_job_retries"]
+        self.busy = made["eigenscope_worker_busy"]
+        self.processes = made["eigenscope_worker_processes"]
 
     def process_started(self) -> None:
         """In each pool process, once."""
@@ -76,6 +53,10 @@ class WorkerMetrics:
 
     def started(self, job: JobRecord, *, queue_wait_s: float) -> None:
         self.busy.set(1)
+        self.claimed(job, queue_wait_s=queue_wait_s)
+
+    def claimed(self, job: JobRecord, *, queue_wait_s: float) -> None:
+        """A job (an analysis or a live stream) was claimed after ``queue_wait_s`` in the queue."""
         self.queue_wait.observe(queue_wait_s)
         if job.attempts > 1:
             self.retries.inc()
@@ -90,11 +71,17 @@ class WorkerMetrics:
         timings_s: dict[str, float],
     ) -> None:
         self.busy.set(0)
+        self.ended(outcome=outcome, duration_s=duration_s, failure=failure, timings_s=timings_s)
+
+    def ended(
+        self, *, outcome: str, duration_s: float, failure: str | None, timings_s: dict[str, float]
+    ) -> None:
+        """A job (an analysis or a live stream) ended with ``outcome`` after ``duration_s``."""
         self.duration.labels(outcome).observe(duration_s)
         if outcome == "failed":
             self.failures.labels(failure or "unknown").inc()
-        for stage, seconds in timings_s.items():
-            self.stage.labels(stage).observe(seconds)
+        for key, seconds in timings_s.items():
+            self.stage.labels(key).observe(seconds)
 
 
 def process_stopped() -> None:
@@ -109,8 +96,10 @@ def serve_metrics(port: int, *, host: str = "0.0.0.0") -> Any:
     """Serve every pool process's metrics (and the build info) on ``port``; returns the server."""
     from prometheus_client import start_http_server
 
-    from service.metrics import BuildInfoCollector, multiprocess_registry
+    from service.metrics import BuildInfoCollector, multiprocess_collector
 
-    registry = multiprocess_registry() or CollectorRegistry(auto_describe=False)
+    registry = CollectorRegistry(auto_describe=False)
+    shared = multiprocess_collector()
+    registry.register(WithDefaults([shared] if shared is not None else [], WORKER_FAMILIES))
     registry.register(BuildInfoCollector("worker"))
     return start_http_server(port, addr=host, registry=registry)

@@ -15,6 +15,7 @@ import json
 import os
 import resource
 import sys
+import time
 from typing import Any
 
 EXIT_BAD_CLIP = 3
@@ -111,11 +112,34 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--memory-mb", type=int, default=None, help="address-space cap, MiB")
     parser.add_argument("--cpu-s", type=int, default=None, help="CPU time cap, seconds")
     parser.add_argument("--nice", type=int, default=0, help="lower this process's CPU priority by this much")
+    parser.add_argument(
+        "--parent-pid", type=int, default=None, help="die with this process (the API that started the probe)"
+    )
+    parser.add_argument("--hold-s", type=float, default=0.0, help=argparse.SUPPRESS)  # test hooks only
     return parser
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """SIGKILL this process when its parent dies (PR_SET_PDEATHSIG), and exit now if ``parent_pid`` is
+    already gone (it died before the request took effect): a crashed API leaves no validator behind."""
+    import ctypes
+    import signal
+
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+    if os.getppid() != parent_pid:
+        os._exit(EXIT_PROBE_FAILED)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.parent_pid is not None:
+        die_with_parent(args.parent_pid)
+    if args.hold_s > 0:  # the test suite's stand-in for a long validation
+        time.sleep(args.hold_s)
     unpacked = args.max_unpacked_mb * 1024 * 1024 if args.max_unpacked_mb else None
     apply_limits(memory_mb=args.memory_mb, cpu_s=args.cpu_s, file_bytes=unpacked)
     if args.nice:

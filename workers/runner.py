@@ -18,6 +18,7 @@ from api_schemas import (
     AnalysisParameters,
     AnalysisResult,
     Artifacts,
+    Detection,
     ImpulseExcitation,
     ObjectResult,
     QualityFlag,
@@ -42,7 +43,7 @@ MASK_FILE = "mask.png"
 
 
 def _version() -> str:
-    from eigenscope import __version__
+    from api_schemas._version import __version__
 
     return __version__
 
@@ -229,7 +230,7 @@ def write_result(
     started = perf_counter()
     # mask.png (MASK_FILE) and every other image
     artifacts = draw_all(analysis, out)
-    analysis.timings_s["render"] = perf_counter() - started
+    analysis.timings_s["rendering"] = perf_counter() - started  # the stage `Job.stage` calls so
     result = build_result(analysis, excitation=excitation, parameters=parameters, artifacts=artifacts)
     write_result_json(out, result)
     return result
@@ -279,6 +280,7 @@ def build_result(
             harmonics_hz=o.harmonics_hz,
             release_time_s=finite_or_none(o.release_time_s),
             snr_db=finite_or_none(o.snr_db),
+            false_alarm_probability=finite_or_none(o.false_alarm_probability),
             null_reasons=o.null_reasons,
             notes=o.notes,
             ringdown=_ringdown(o),
@@ -302,10 +304,16 @@ def build_result(
         artifacts=Artifacts(**artifacts),
         quality=[QualityFlag(code=q.code, message=q.message, severity=q.severity) for q in analysis.quality],
         rejected_peaks=[
-            RejectedPeakResult(frequency_hz=r.frequency_hz, evidence=r.evidence, reason=r.reason)
+            RejectedPeakResult(
+                frequency_hz=r.frequency_hz,
+                evidence=r.evidence,
+                reason=r.reason,
+                figures={k: float(v) for k, v in r.figures.items() if math.isfinite(v)},
+            )
             for r in analysis.rejected_peaks
             if math.isfinite(r.frequency_hz)
         ],
+        detection=_detection(analysis.detection),
         method=analysis.method,
         parameters=parameters_used,
         fps=analysis.fps,
@@ -315,6 +323,19 @@ def build_result(
         frame_size_px=[int(analysis.labels.shape[1]), int(analysis.labels.shape[0])],
         timings_s={k: round(v, 4) for k, v in analysis.timings_s.items()},
         version=_version(),
+    )
+
+
+def _detection(figures: Mapping[str, float]) -> Detection | None:
+    """The detection statistic's figures of an analysis (None for the paper's recipe, which has none)."""
+    if not figures:
+        return None
+    return Detection(
+        max_false_alarm=figures["max_false_alarm"],
+        location=figures["location"],
+        scale=figures["scale"],
+        bins_searched=int(figures["bins_searched"]),
+        bins_fitted=int(figures["bins_fitted"]),
     )
 
 

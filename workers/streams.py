@@ -31,25 +31,34 @@ import zipfile
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from api_schemas import AnalysisParameters, FrameHeader, StreamCreate
+from service.bodies import loads_shallow
 from service.errors import PROBLEM_TYPES, problem_document
 from service.settings import Settings
 from service.storage import Storage, tree_bytes
 from service.store import ClaimOutcome, Store, StreamRecord, lease_owner_token
 from service.stream_transport import Item, StreamTransport, transport_for
 
+if TYPE_CHECKING:
+    from workers.metrics import WorkerMetrics
+
 log = logging.getLogger(__name__)
+
+#: However fast frames arrive, an estimate is made at least every this many seconds of the capture.
+ESTIMATE_EVERY_CAPTURE_S = 0.5
 
 #: Seconds between heartbeats (the API fails a stream whose worker is silent for stream_worker_timeout_s).
 HEARTBEAT_S = 0.5
 #: Seconds between writes of the latest estimate to the stream's record (what GET /v1/streams shows).
 RECORD_EVERY_S = 0.5
+#: Seconds a stopping stream worker gives its sessions to fail their jobs and tell their clients.
+STOP_GRACE_S = 3.0
 
 
 class FrameError(Exception):
@@ -60,7 +69,9 @@ class FrameError(Exception):
         self.detail, self.frame, self.code = detail, frame, code
 
 
-def parse_frame_message(data: bytes, *, max_header: int = 4096) -> tuple[FrameHeader, bytes]:
+def parse_frame_message(
+    data: bytes, *, max_header: int = 4096, max_depth: int = 16
+) -> tuple[FrameHeader, bytes]:
     """Split a binary frame message into its header and its image bytes; :class:`FrameError` if bad."""
     if len(data) < 4:
         raise FrameError("a frame message must start with a 4-byte header length", frame=None)
@@ -71,8 +82,8 @@ def parse_frame_message(data: bytes, *, max_header: int = 4096) -> tuple[FrameHe
             frame=None,
         )
     try:
-        raw = json.loads(data[4 : 4 + length])
-    except (ValueError, UnicodeDecodeError) as exc:
+        raw = loads_shallow(data[4 : 4 + length], max_depth=max_depth)
+    except ValueError as exc:
         raise FrameError(f"frame message header is not JSON: {exc}", frame=None) from None
     frame = raw.get("frame") if isinstance(raw, dict) else None
     try:
@@ -117,6 +128,7 @@ class ClipWriter:
         self._pending: deque[Future[None]] = deque()
         self._max_pending = max_pending
         self.frames = 0
+        self.bytes = 0
 
     def add(
         self,
@@ -138,6 +150,7 @@ class ClipWriter:
             self._pending.popleft().result()
         self._pending.append(self._pool.submit(self._write, name, color, dname, depth))
         self.frames += 1
+        self.bytes += len(color) + (depth.nbytes if depth is not None else 0)  # at most what is stored
 
     def _write(self, name: str, color: bytes, dname: str | None, depth: NDArray[np.uint16] | None) -> None:
         import cv2
@@ -177,6 +190,8 @@ class ClipWriter:
             self._zip.close()
         finally:
             self.path.unlink(missing_ok=True)
+            if self.path.parent.name.startswith("stream-"):  # its own folder in tmp/
+                shutil.rmtree(self.path.parent, ignore_errors=True)
 
 
 @dataclass
@@ -189,6 +204,7 @@ class Session:
     storage: Storage
     transport: StreamTransport
     record: StreamRecord | None = None
+    metrics: Any = None  # a workers.metrics.WorkerMetrics: the stream's job is counted as any other
     messages: int = 0
     attached: bool = False
     ever_attached: bool = False
@@ -203,10 +219,16 @@ class Session:
     _live: Any = None
     _clip: ClipWriter | None = None
     _converged_sent: bool = False
+    _estimated_at: float | None = None  # capture time (the last frame's timestamp) of the last estimate
     _end_reason: str | None = None
+    _timings: dict[str, float] = field(default_factory=dict)
     _has_depth: bool = False
+    #: What this stream's frames may take of its key's storage quota.
+    _room_bytes: int = 0
     _send_lock: threading.Lock = field(default_factory=threading.Lock)
     _over: threading.Event = field(default_factory=threading.Event)
+    #: Set when the stream worker stops: the session ends at once (its job fails as `worker-lost`).
+    shutdown: threading.Event = field(default_factory=threading.Event)
 
     def send(self, message: dict[str, Any]) -> None:
         """Send ``message`` to the client's relay; nothing once ``result`` or a fatal error has gone."""
@@ -251,38 +273,56 @@ class Session:
             self.error(
                 "stream-ended", f"stream {self.stream_id} cannot be run ({claim.outcome.value})", fatal=True
             )
+            if claim.outcome in (ClaimOutcome.FINISHED, ClaimOutcome.MISSING):
+                # It ended before this worker took it up (no worker came in time, it was cancelled):
+                # nobody reads its messages any more.
+                self.transport.cleanup(self.stream_id)
             return
         from workers.execution import _Lease
 
+        if self.metrics is not None and claim.job is not None:
+            wait = max(time.time() - claim.job.enqueued_at, 0.0) if claim.job.enqueued_at else 0.0
+            self.metrics.claimed(claim.job, queue_wait_s=wait)
+        claimed_at, outcome, failure = time.monotonic(), "aborted", None
         workdir: Path | None = None
         beat = threading.Thread(target=self._heartbeat, name=f"stream-{self.stream_id}-beat", daemon=True)
         beat.start()
         try:
             with _Lease(self.store, record.job_id, owner) as lease:
                 request = StreamCreate.model_validate(record.request)
+                self._size = (request.width, request.height)  # declared, checked at creation
+                used = self.store.usage(record.owner).stored_bytes
+                self._room_bytes = self.settings.max_stored_bytes_per_key - used
                 self._loop(request, lease)
                 if lease.lost.is_set():
                     raise _AbortError("the stream's job was cancelled or taken over")
                 self.store.update_stream(self.stream_id, status="finishing")
                 workdir = self.storage.new_job_workdir(record.job_id, 1)
                 self._finish(request, owner, workdir)
+                outcome = "succeeded"
         except _AbortError as exc:
+            problem = problem_document("stream-aborted", str(exc))
+            self.store.update_stream(self.stream_id, status="failed", error=problem)
             self.error("stream-aborted", str(exc), fatal=True)
             self._discard_clip()
         except _FailedError as exc:
+            outcome, failure = "failed", str(exc.problem.get("code") or "analysis-failed")
             self.store.fail_job(record.job_id, owner, exc.problem)
             self.store.update_stream(self.stream_id, status="failed", error=exc.problem)
             self.send({"type": "error", "fatal": True, "frame": None, "problem": exc.problem})
             self._discard_clip()
         except Exception as exc:
-            log.exception("stream %s failed", self.stream_id)
-            problem = problem_document("internal-error", f"the stream failed: {type(exc).__name__}: {exc}")
+            problem = _crash_problem(self.stream_id, exc, self.settings)
+            outcome, failure = "failed", str(problem["code"])
             self.store.fail_job(record.job_id, owner, problem)
             self.store.update_stream(self.stream_id, status="failed", error=problem)
             self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
             self._discard_clip()
         finally:
             self._over.set()
+            if self.metrics is not None:
+                took = time.monotonic() - claimed_at
+                self.metrics.ended(outcome=outcome, duration_s=took, failure=failure, timings_s=self._timings)
             beat.join()
             if self._live is not None:
                 self._live.close()
@@ -297,6 +337,12 @@ class Session:
             self._clip = None
 
     def _loop(self, request: StreamCreate, lease: Any) -> None:
+        try:
+            self._run_loop(request, lease)
+        finally:
+            log.info("stream %s: input ended (%s)", self.stream_id, self._end_reason or "stopped")
+
+    def _run_loop(self, request: StreamCreate, lease: Any) -> None:
         s = self.settings
         next_estimate = 0.0
         next_record = 0.0
@@ -304,12 +350,25 @@ class Session:
         while self._end_reason is None:
             if lease.lost.is_set():
                 return
+            if self.shutdown.is_set():
+                raise _FailedError(
+                    problem_document(
+                        "worker-lost",
+                        "the stream worker running this stream was stopped; the stream's job is failed: "
+                        "open a new stream",
+                    )
+                )
             items = self.transport.read(self.stream_id, 0.05)
             now = time.monotonic()
             for item in items:
                 self._handle(item, request)
                 if self._end_reason is not None:
                     break
+                if self._capture_estimate_due():
+                    # A sender faster than the worker (a recorded stream, a backlog) still gets its
+                    # estimates at the same points of the capture as a camera's.
+                    next_estimate = time.monotonic() + s.stream_estimate_interval_s
+                    self._estimate(request, record=False)
             if items:
                 self.send({"type": "_progress", "messages": self.messages})
             now = time.monotonic()
@@ -368,12 +427,16 @@ class Session:
             self._frame(item.data, request)
         except FrameError as exc:
             self.error(exc.code, exc.detail, frame=exc.frame)
+        finally:
+            # The client's silence counts from when this worker was ready for more: a frame whose push
+            # waited on the analysis (a loaded machine) is the worker's delay, not the client's.
+            self.last_input = time.monotonic()
 
     # Frames ------------------------------------------------------------------------------------
     def _frame(self, data: bytes, request: StreamCreate) -> None:
         import cv2
 
-        header, payload = parse_frame_message(data)
+        header, payload = parse_frame_message(data, max_depth=self.settings.stream_max_json_depth)
         i = header.frame
         if header.kind == "color":
             if self._pending is not None and self._pending.frame != i:
@@ -395,6 +458,7 @@ class Session:
                 raise FrameError(f"frame {i}: timestamp is not finite", frame=i)
             if header.encoding not in ("jpeg", "png"):
                 raise FrameError(f"frame {i}: colour must be jpeg or png, not {header.encoding}", frame=i)
+            self._check_declared(i, "colour", payload, header.encoding)
             bgr = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_COLOR) if payload else None
             if bgr is None:
                 raise FrameError(
@@ -403,7 +467,7 @@ class Session:
                     frame=i,
                     code="undecodable-frame",
                 )
-            self._check_size(i, "colour", bgr.shape[1], bgr.shape[0], request)
+            self._check_size(i, "colour", bgr.shape[1], bgr.shape[0])
             rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
             self._pending = _Pending(
                 i, rgb, header.timestamp_s, payload, "jpg" if header.encoding == "jpeg" else "png"
@@ -418,7 +482,7 @@ class Session:
                 code="depth-without-color",
             )
         depth_raw = self._decode_depth(i, header, payload)
-        self._check_size(i, "depth", depth_raw.shape[1], depth_raw.shape[0], request)
+        self._check_size(i, "depth", depth_raw.shape[1], depth_raw.shape[0])
         self._pending = None
         self._complete(pending, depth_raw, request)
 
@@ -428,6 +492,7 @@ class Session:
         if header.encoding == "raw":
             if header.width is None or header.height is None:
                 raise FrameError(f"frame {i}: raw depth needs width and height in its header", frame=i)
+            self._check_size(i, "depth", header.width, header.height)
             expected = header.width * header.height * 2
             if len(payload) != expected:
                 raise FrameError(
@@ -439,6 +504,7 @@ class Session:
             return np.frombuffer(payload, "<u2").reshape(header.height, header.width).astype(np.uint16)
         if header.encoding != "png":
             raise FrameError(f"frame {i}: depth must be 16-bit png or raw, not {header.encoding}", frame=i)
+        self._check_declared(i, "depth", payload, "png")
         img = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_UNCHANGED) if payload else None
         if img is None:
             raise FrameError(
@@ -451,9 +517,27 @@ class Session:
             )
         return np.asarray(img, np.uint16)
 
-    def _check_size(self, i: int, what: str, width: int, height: int, request: StreamCreate) -> None:
-        if self._size is None:
-            self._size = (request.width or width, request.height or height)
+    def _check_declared(self, i: int, what: str, payload: bytes, encoding: str) -> None:
+        """Refuse a frame from what its image header declares (PNG IHDR, JPEG SOF), before it is decoded:
+        it must be the encoding its message names and the stream's declared size."""
+        from workers.pipeline.clipio._common import image_header
+        from workers.pipeline.errors import ClipError
+
+        try:
+            declared = image_header(payload[:65536], f"frame {i}: {what}")
+        except ClipError as exc:
+            raise FrameError(str(exc), frame=i, code="undecodable-frame") from None
+        if declared.kind != encoding:
+            raise FrameError(
+                f"frame {i}: the {what} image is {declared.kind}, but its header says {encoding}",
+                frame=i,
+                code="undecodable-frame",
+            )
+        self._check_size(i, what, declared.width, declared.height)
+
+    def _check_size(self, i: int, what: str, width: int, height: int) -> None:
+        """Refuse a frame of another size than the stream's declared one."""
+        assert self._size is not None
         w, h = self._size
         if (width, height) != (w, h):
             raise FrameError(
@@ -492,6 +576,15 @@ class Session:
             color_ext=pending.encoding,
             depth=depth_raw,
         )
+        if self._clip.bytes >= self._room_bytes and self._end_reason is None:
+            mib = self.settings.max_stored_mb_per_key
+            self.error(
+                "storage-quota-exceeded",
+                f"the stream's frames reached this API key's storage quota of {mib} MiB "
+                "(EIGENSCOPE_MAX_STORED_MB_PER_KEY); the stream is analysed as it is",
+                frame=pending.frame,
+            )
+            self._end_reason = "storage-quota"
         in_flight = 0
         self.send(
             {
@@ -504,6 +597,7 @@ class Session:
         )
 
     def _start_live(self, request: StreamCreate, width: int, height: int) -> None:
+        from service.streams import DEFAULT_WINDOW_FRAMES
         from workers.pipeline.clipio.types import Intrinsics
         from workers.pipeline.live import LiveAnalysis, LiveConfig
         from workers.runner import pipeline_excitations, requested_excitations
@@ -528,7 +622,7 @@ class Session:
         )
         config = LiveConfig(
             fps=p.fps,
-            window_frames=p.frames or 256,
+            window_frames=p.frames or DEFAULT_WINDOW_FRAMES,
             target_relative_uncertainty=request.target_relative_uncertainty,
             min_frequency_hz=p.min_frequency_hz,
             max_frequency_hz=p.max_frequency_hz,
@@ -541,9 +635,17 @@ class Session:
         self._clip = ClipWriter(self.storage.root / "tmp" / f"stream-{self.stream_id}" / "clip.zip")
 
     # Estimates ---------------------------------------------------------------------------------
+    def _capture_estimate_due(self) -> bool:
+        """Whether the capture has advanced :data:`ESTIMATE_EVERY_CAPTURE_S` since the last estimate."""
+        live, last = self._live, self._last_time
+        if live is None or last is None or not live.motion_seen:
+            return False
+        return self._estimated_at is None or last - self._estimated_at >= ESTIMATE_EVERY_CAPTURE_S
+
     def _estimate(self, request: StreamCreate, *, record: bool) -> None:
         from workers.pipeline.live import estimate_dict
 
+        self._estimated_at = self._last_time
         est = self._live.estimate()
         if est is None:
             return
@@ -608,7 +710,7 @@ class Session:
             analysis = self._live.finish(analysis_config=config, excitations=pipeline_excitations(requested))
         except EigenscopeError as exc:
             raise _FailedError(problem_document(_job_code(exc), str(exc))) from exc
-        analysis.timings_s["stream_frames"] = float(self._live.frames_received)
+        self._timings = dict(analysis.timings_s)
         result = build_result(analysis, excitation=requested, parameters=params, artifacts=ARTIFACT_FILES)
         job_id = self.record.job_id
         doc = result.model_dump(mode="json")
@@ -666,6 +768,29 @@ class Session:
         )
 
 
+def _crash_problem(stream_id: str, exc: Exception, settings: Settings) -> dict[str, Any]:
+    """The problem of a session that raised ``exc``: over the memory budget, or an internal error."""
+    from workers.execution import is_exhaustion
+
+    if is_exhaustion(exc):
+        log.warning("stream %s: over its memory budget (%s: %s)", stream_id, type(exc).__name__, exc)
+        return problem_document(
+            "resources-exhausted",
+            f"the stream needed more memory than its budget of {settings.job_memory_mb} MiB "
+            "(EIGENSCOPE_JOB_MEMORY_MB); send smaller frames or a shorter window (parameters.frames)",
+        )
+    log.exception("stream %s failed", stream_id)
+    return problem_document("internal-error", f"the stream failed: {type(exc).__name__}: {exc}")
+
+
+def stream_worker_budget_mb(settings: Settings, in_use_bytes: int) -> int:
+    """The stream worker's address-space cap, MiB: what it uses with no session (``in_use_bytes``) plus
+    the job memory budget for each session it runs at once (0: no cap, when ``JOB_MEMORY_MB`` is 0)."""
+    if settings.job_memory_mb <= 0:
+        return 0
+    return in_use_bytes // 2**20 + settings.job_memory_mb * settings.stream_sessions_per_worker
+
+
 class _AbortError(Exception):
     """The stream's job is no longer this worker's."""
 
@@ -699,34 +824,79 @@ def live_estimate_json(values: dict[str, Any]) -> dict[str, Any]:
     return LiveEstimateModel.model_validate(renamed).model_dump(mode="json")
 
 
+def _address_cap() -> str:
+    import resource
+
+    soft, _hard = resource.getrlimit(resource.RLIMIT_AS)
+    return "nothing" if soft == resource.RLIM_INFINITY else f"{soft // 2**20} MiB"
+
+
 def run_stream_worker(settings: Settings, *, stop: threading.Event | None = None) -> None:
     """Take stream sessions and run them, ``stream_sessions_per_worker`` at a time, until ``stop``."""
     # The pipeline and matplotlib are imported now, not after a stream's last frame.
     import workers.pipeline.live  # noqa: F401 - imported before any session needs it
     from workers.drawing import warm_up
+    from workers.metrics import WorkerMetrics
 
     warm_up()
-    stop = stop or threading.Event()
+    from workers.execution import memory_budget, vm_size_bytes
+
+    with memory_budget(stream_worker_budget_mb(settings, vm_size_bytes())):
+        _serve_sessions(settings, stop or threading.Event(), WorkerMetrics())
+
+
+def _serve_sessions(settings: Settings, stop: threading.Event, metrics: WorkerMetrics) -> None:
     transport = transport_for(settings)
     store = Store(settings.effective_database_url, lease_s=settings.lease_s, max_attempts=1)
     storage = Storage(settings.data_path)
     storage.ensure()
     slots = threading.Semaphore(settings.stream_sessions_per_worker)
     log.info(
-        "stream worker %d ready: %d session(s) at once, %s transport",
+        "stream worker %d ready: %d session(s) at once, %s transport, address space capped at %s",
         os.getpid(),
         settings.stream_sessions_per_worker,
         "redis" if settings.redis_url else "local",
+        _address_cap(),
     )
+
+    shutdown = threading.Event()
+    sessions: list[threading.Thread] = []
 
     def run(stream_id: str) -> None:
         try:
-            Session(stream_id, settings, store, storage, transport_for(settings)).run()
+            Session(
+                stream_id,
+                settings,
+                store,
+                storage,
+                transport_for(settings),
+                metrics=metrics,
+                shutdown=shutdown,
+            ).run()
         except Exception:
             log.exception("stream %s: session crashed", stream_id)
         finally:
             slots.release()
 
+    try:
+        _take_sessions(settings, transport, slots, stop, run, sessions)
+    finally:
+        shutdown.set()  # the sessions under way end now, and fail their jobs
+        deadline = time.monotonic() + STOP_GRACE_S
+        for thread in sessions:
+            thread.join(timeout=max(deadline - time.monotonic(), 0.0))
+        log.info("stream worker %d stopped", os.getpid())
+
+
+def _take_sessions(
+    settings: Settings,
+    transport: StreamTransport,
+    slots: threading.Semaphore,
+    stop: threading.Event,
+    run: Any,
+    sessions: list[threading.Thread],
+) -> None:
+    """Claim sessions and start each on a thread of its own (listed in ``sessions``) until ``stop``."""
     while not stop.is_set():
         if not slots.acquire(timeout=0.5):
             continue
@@ -741,4 +911,6 @@ def run_stream_worker(settings: Settings, *, stop: threading.Event | None = None
             slots.release()
             continue
         log.info("stream %s: taken up", stream_id)
-        threading.Thread(target=run, args=(stream_id,), name=f"stream-{stream_id[:8]}", daemon=True).start()
+        thread = threading.Thread(target=run, args=(stream_id,), name=f"stream-{stream_id[:8]}", daemon=True)
+        thread.start()
+        sessions[:] = [t for t in sessions if t.is_alive()] + [thread]

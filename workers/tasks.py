@@ -7,11 +7,13 @@ analysis pipeline once per worker, before the pool forks, so no job pays for it.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 from celery import Task, shared_task
 from celery.exceptions import MaxRetriesExceededError, SoftTimeLimitExceeded
 
 from service.broker import TASK_RUN_JOB
+from service.logs import traced
 from workers.celery_app import EigenscopeCelery
 from workers.execution import execute_job
 from workers.runner import job_runner
@@ -31,7 +33,19 @@ def run_job(self: Task, job_id: str) -> str:
     app = self.app
     assert isinstance(app, EigenscopeCelery)
     ctx = app.context()
-    outcome = execute_job(
+    # The trace of the request that created the job (W3C traceparent, in the message's headers).
+    with traced(self.request.get("traceparent")):
+        outcome = _execute(ctx, job_id)
+    if outcome.retry_in_s is not None:
+        try:
+            raise self.retry(countdown=outcome.retry_in_s, max_retries=MAX_BUSY_RETRIES)
+        except MaxRetriesExceededError:
+            log.warning("job %s: giving up on this message after %d retries", job_id, MAX_BUSY_RETRIES)
+    return str(outcome.status)
+
+
+def _execute(ctx: Any, job_id: str) -> Any:
+    return execute_job(
         ctx.store,
         ctx.storage.root,
         job_id,
@@ -43,9 +57,3 @@ def run_job(self: Task, job_id: str) -> str:
         memory_budget_mb=ctx.settings.job_memory_mb,
         observer=ctx.metrics,
     )
-    if outcome.retry_in_s is not None:
-        try:
-            raise self.retry(countdown=outcome.retry_in_s, max_retries=MAX_BUSY_RETRIES)
-        except MaxRetriesExceededError:
-            log.warning("job %s: giving up on this message after %d retries", job_id, MAX_BUSY_RETRIES)
-    return outcome.status

@@ -4,14 +4,17 @@ With no ``EIGENSCOPE_REDIS_URL`` nothing else is needed: jobs go through an embe
 job store in the data directory. With it set, ``eigenscope serve --no-worker`` runs the API alone and
 ``eigenscope worker`` processes run anywhere that shares the data directory and the database.
 
-The command supervises its children (uvicorn, a Celery worker): a worker that dies is restarted, and
-SIGINT/SIGTERM stop them all. The children share one Prometheus multiprocess directory, so ``/metrics`` of
-any API process (``--api-workers N``) counts every request and every job of the service.
+The command supervises its children (uvicorn, a Celery worker): an API process or a worker that dies is
+restarted, and SIGINT/SIGTERM stop them all within ``--grace`` seconds. It is the subreaper of their
+children, so the orphan of a crashed child is reaped and stopped here too: a stop leaves no process. The
+children share one Prometheus multiprocess directory, so ``/metrics`` of any API process
+(``--api-workers N``) counts every request and every job of the service.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import signal
@@ -22,6 +25,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from eigenscope.cli import UsageError
+from service.logs import console
 
 if TYPE_CHECKING:
     from service.settings import Settings
@@ -78,8 +82,38 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
         pass
 
 
+def _become_subreaper() -> None:
+    """Ask Linux to make this process the parent of its descendants' orphans (PR_SET_CHILD_SUBREAPER), so
+    that a child's child outliving its parent (a crashed API's upload validator) is reaped and stopped
+    here rather than by init."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(36, 1)  # PR_SET_CHILD_SUBREAPER
+    except Exception:
+        pass
+
+
+def adopted_children(parent: int) -> list[int]:
+    """The live processes whose parent is ``parent`` (from ``/proc``)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", encoding="ascii", errors="replace") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == parent and fields[0] != "Z":
+            found.append(int(entry))
+    return found
+
+
 class Supervisor:
-    """Starts, watches and stops the API and worker processes."""
+    """Starts, watches, restarts and stops the API and worker processes, and reaps every orphan of
+    theirs (it is their subreaper): a stop leaves no process behind."""
 
     def __init__(self, env: dict[str, str], *, grace_s: float) -> None:
         self.env = env
@@ -88,6 +122,7 @@ class Supervisor:
         self.commands: dict[str, list[str]] = {}
         self.restarts: dict[str, list[float]] = {}
         self.stopping = False
+        _become_subreaper()
 
     def start(self, name: str, cmd: list[str]) -> None:
         self.commands[name] = cmd
@@ -97,27 +132,46 @@ class Supervisor:
         self.stopping = True
 
     def watch(self, *, restartable: tuple[str, ...]) -> int:
-        """Block until a stop is requested or a non-restartable child exits; returns the exit status."""
+        """Block until a stop is requested or a child that may not be restarted exits (or one keeps dying:
+        5 times in a minute); returns the exit status."""
         while not self.stopping:
             for name, proc in list(self.procs.items()):
                 code = proc.poll()
                 if code is None:
                     continue
                 if name not in restartable:
-                    print(f"eigenscope serve: {name} exited with status {code}; stopping", file=sys.stderr)
+                    console(f"eigenscope serve: {name} exited with status {code}; stopping", level="ERROR")
                     return code or 1
                 recent = [t for t in self.restarts.get(name, []) if time.monotonic() - t < 60]
                 if len(recent) >= 5:
-                    print(f"eigenscope serve: {name} keeps dying (status {code}); stopping", file=sys.stderr)
+                    console(f"eigenscope serve: {name} keeps dying (status {code}); stopping", level="ERROR")
                     return code or 1
-                print(f"eigenscope serve: {name} exited with status {code}; restarting it", file=sys.stderr)
+                console(f"eigenscope serve: {name} exited with status {code}; restarting it", level="WARNING")
                 self.restarts[name] = [*recent, time.monotonic()]
                 self.start(name, self.commands[name])
+            self.reap_orphans()
             time.sleep(0.2)
         return 0
 
+    def reap_orphans(self) -> int:
+        """Collect the exit status of adopted orphans that ended (never of the children this supervisor
+        started: their ``Popen`` does); returns how many were reaped."""
+        ours = {proc.pid for proc in self.procs.values()}
+        reaped = 0
+        while True:
+            try:
+                info = os.waitid(os.P_ALL, 0, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+            except ChildProcessError:
+                return reaped
+            if info is None or info.si_pid in ours:
+                return reaped
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(info.si_pid, 0)
+            reaped += 1
+
     def stop_all(self) -> None:
-        """SIGTERM every child, wait ``grace_s``, then SIGKILL the rest.
+        """SIGTERM every child, wait ``grace_s``, then SIGKILL the rest; then the same for the orphans of
+        theirs that were handed to this supervisor.
 
         A worker finishes its running job if it can within the grace period; a job it is killed in the
         middle of is taken over on the next start (its lease names a process that no longer exists).
@@ -132,6 +186,28 @@ class Supervisor:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(timeout=5)
+        self._stop_orphans(deadline)
+
+    def _stop_orphans(self, deadline: float) -> None:
+        """SIGTERM the adopted orphans (those appearing meanwhile too) until ``deadline`` (a second at
+        least), then SIGKILL what is left, and reap them all."""
+        end = max(deadline, time.monotonic() + 1.0)
+        signalled: set[int] = set()
+        while time.monotonic() < end:
+            self.reap_orphans()
+            orphans = adopted_children(os.getpid())
+            if not orphans:
+                return
+            for pid in set(orphans) - signalled:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGTERM)
+                signalled.add(pid)
+            time.sleep(0.05)
+        for pid in adopted_children(os.getpid()):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        time.sleep(0.1)
+        self.reap_orphans()
 
 
 def wait_until_up(url: str, proc: subprocess.Popen[bytes], timeout_s: float = 60.0) -> bool:
@@ -239,13 +315,12 @@ def _supervise(args: argparse.Namespace, settings: Settings, env: dict[str, str]
         if wait_until_up(f"{base}/healthz", supervisor.procs["api"]):
             mode = "embedded broker" if settings.embedded else "Redis broker"
             workers = "no worker" if args.no_worker else f"{args.workers} worker(s)"
-            print(
+            console(
                 f"eigenscope serving on {base} ({mode}, {workers}, data {settings.data_path}); "
                 f"API docs at {base}/docs",
-                file=sys.stderr,
-                flush=True,
+                fmt=settings.log_format,
             )
-        return supervisor.watch(restartable=("worker",))
+        return supervisor.watch(restartable=("api", "worker"))
     finally:
         supervisor.stop_all()
 
@@ -253,12 +328,27 @@ def _supervise(args: argparse.Namespace, settings: Settings, env: dict[str, str]
 def uvicorn_limits(settings: Settings) -> list[str]:
     """Uvicorn's timeouts and limits, chosen rather than left at its defaults (see the settings).
 
-    Keep-alive connections idle for ``http_timeout_keep_alive_s`` are closed; beyond
+    ``X-Forwarded-For`` and ``X-Forwarded-Proto`` are believed from ``trusted_proxies`` only (none by
+    default). Keep-alive connections idle for ``http_timeout_keep_alive_s`` are closed; beyond
     ``http_limit_concurrency`` connections and tasks uvicorn answers 503; ``http_backlog`` pending
     connections wait in the kernel; a request line plus headers larger than ``http_max_header_kb`` is
-    refused. Bodies are bounded by the app (:mod:`service.bodies`).
+    refused. WebSocket messages may be ``stream_max_frame_mb + stream_message_margin_mb`` MiB, at most
+    ``stream_message_queue`` of them waiting per connection, and are not compressed: a live stream's
+    frames are JPEG or PNG already, or raw depth that deflate would cost more CPU to squeeze than the
+    stream can spare at 30 fps (the AsyncAPI document says so). Bodies are bounded by the app
+    (:mod:`service.bodies`).
     """
+    # Forwarded headers only from the configured proxies: uvicorn's default trusts 127.0.0.1, and a
+    # client there could name itself anything in X-Forwarded-For (and escape the failed-key throttle).
+    proxies = (
+        ["--proxy-headers", "--forwarded-allow-ips", settings.trusted_proxies]
+        if settings.trusted_proxies
+        else ["--no-proxy-headers"]
+    )
     return [
+        *proxies,
+        "--ws-per-message-deflate",
+        "false",
         "--timeout-keep-alive",
         str(settings.http_timeout_keep_alive_s),
         "--limit-concurrency",
@@ -267,6 +357,12 @@ def uvicorn_limits(settings: Settings) -> list[str]:
         str(settings.http_backlog),
         "--h11-max-incomplete-event-size",
         str(settings.http_max_header_kb * 1024),
+        # A stream's frame a little over its limit must reach the app, which answers `frame-too-large`
+        # and goes on, rather than be cut by uvicorn's own 16 MiB (a 1009 close).
+        "--ws-max-size",
+        str(settings.ws_max_message_bytes),
+        "--ws-max-queue",
+        str(settings.stream_message_queue),
     ]
 
 

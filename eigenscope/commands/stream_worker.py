@@ -9,10 +9,12 @@ stream transport (Redis with ``EIGENSCOPE_REDIS_URL``, else the data directory) 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import signal
+import sys
 import threading
-from typing import Any
+from typing import Any, NoReturn
 
 
 def register(subparsers: Any) -> None:
@@ -53,5 +55,18 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, request_stop)
     signal.signal(signal.SIGINT, request_stop)
-    run_stream_worker(settings, stop=stop)
-    return 0
+    try:
+        run_stream_worker(settings, stop=stop)
+    except Exception:
+        logging.getLogger(__name__).exception("the stream worker failed")
+        _leave(1)
+    _leave(0)
+
+
+def _leave(code: int) -> NoReturn:
+    """Exit now: a thread of an interrupted session (a clip writer's pool, the flow) must not keep the
+    process alive past its stop."""
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

@@ -52,23 +52,28 @@ class StreamWorkerChild:
     """An ``eigenscope stream-worker`` process beside the Celery worker, restarted when it dies.
 
     It is a process of its own (not a thread of the Celery worker, whose pool forks) and dies with this
-    one (PR_SET_PDEATHSIG).
+    one (PR_SET_PDEATHSIG). :meth:`stop` stops for good: no respawn once it has begun (the watcher checks
+    under the same lock), the watcher joined, the child ended within ``grace_s`` (killed after).
     """
 
-    def __init__(self, loglevel: str) -> None:
+    def __init__(self, loglevel: str, *, grace_s: float = 8.0) -> None:
         import sys
         import threading
 
         self.cmd = [sys.executable, "-m", "eigenscope", "stream-worker", "--loglevel", loglevel]
+        self.grace_s = grace_s
         self.stopping = threading.Event()
         self.proc: Any = None
+        self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._watch, name="stream-worker-watch", daemon=True)
 
     def start(self) -> None:
-        self._spawn()
+        with self._lock:
+            self._spawn()
         self._thread.start()
 
     def _spawn(self) -> None:
+        """Start the child (the lock held, and not stopping)."""
         import subprocess
 
         from eigenscope.commands.serve import _die_with_parent
@@ -76,24 +81,40 @@ class StreamWorkerChild:
         self.proc = subprocess.Popen(self.cmd, preexec_fn=_die_with_parent)
 
     def _watch(self) -> None:
-        import sys
-        import time
+        from service.logs import console
 
         while not self.stopping.wait(0.5):
             code = self.proc.poll()
-            if code is not None and not self.stopping.is_set():
-                print(f"eigenscope worker: stream worker exited with {code}; restarting it", file=sys.stderr)
-                time.sleep(1.0)
+            if code is None:
+                continue
+            console(f"eigenscope worker: stream worker exited with {code}; restarting it", level="WARNING")
+            if self.stopping.wait(1.0):
+                return
+            with self._lock:
+                if self.stopping.is_set():
+                    return
                 self._spawn()
 
+    def begin_stop(self) -> None:
+        """Stop respawning and ask the child to stop (SIGTERM), without waiting: as the Celery worker
+        begins its own shutdown, so that both stop at once."""
+        with self._lock:
+            self.stopping.set()
+            proc = self.proc
+        if proc is not None and proc.poll() is None:
+            proc.terminate()
+
     def stop(self) -> None:
-        self.stopping.set()
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
+        self.begin_stop()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+        proc = self.proc
+        if proc is not None and proc.poll() is None:
             try:
-                self.proc.wait(timeout=10)
+                proc.wait(timeout=self.grace_s)
             except Exception:
-                self.proc.kill()
+                proc.kill()
+                proc.wait(timeout=5)
 
 
 def celery_worker_argv(args: argparse.Namespace, *, queue: str, embedded: bool, loglevel: str) -> list[str]:
@@ -133,6 +154,17 @@ def run(args: argparse.Namespace) -> int:
             shutil.rmtree(own_metrics_dir, ignore_errors=True)
 
 
+def _celery_says_through_logging() -> None:
+    """Celery prints some messages itself ("worker: Warm shutdown (MainProcess)"): log them instead, so
+    that in JSON mode every line is JSON."""
+    import logging
+
+    import celery.apps.worker as celery_worker
+
+    say = logging.getLogger("celery.worker")
+    celery_worker.safe_say = lambda msg, f=None: say.info("%s", msg)
+
+
 def _run_worker(args: argparse.Namespace, settings: Any, port: int | None) -> int:
     from celery import signals
 
@@ -146,6 +178,7 @@ def _run_worker(args: argparse.Namespace, settings: Any, port: int | None) -> in
         os.nice(settings.background_niceness)  # an API on the same machine keeps answering promptly
     loglevel = (args.loglevel or settings.log_level).upper()
     configure_logging(loglevel, settings.log_format)
+    _celery_says_through_logging()
     Storage(settings.data_path).ensure()
     store = Store(settings.effective_database_url)
     store.create_schema()
@@ -162,6 +195,7 @@ def _run_worker(args: argparse.Namespace, settings: Any, port: int | None) -> in
     streams = None if args.no_streams else StreamWorkerChild(loglevel)
     if streams is not None:
         streams.start()
+        signals.worker_shutting_down.connect(lambda **_: streams.begin_stop(), weak=False)
     try:
         app.worker_main(
             celery_worker_argv(args, queue=settings.queue, embedded=settings.embedded, loglevel=loglevel)

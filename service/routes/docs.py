@@ -3,7 +3,7 @@ API explorer works on machines without internet access."""
 
 from __future__ import annotations
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
@@ -18,11 +18,15 @@ def install_docs(app: FastAPI) -> None:
     app.mount(ASSETS, StaticFiles(directory=swagger_ui_path), name="docs-assets")
 
     @app.get("/asyncapi.json", include_in_schema=False)
-    def asyncapi() -> JSONResponse:
-        """The live streams' WebSocket protocol (AsyncAPI 3)."""
+    def asyncapi(request: Request) -> JSONResponse:
+        """The live streams' WebSocket protocol (AsyncAPI 3), naming this server (as the OpenAPI
+        document's server, ``/``, does)."""
         from service.asyncapi import asyncapi_document
 
-        return JSONResponse(asyncapi_document(version=app.version))
+        host = request.url.netloc or None
+        return JSONResponse(
+            asyncapi_document(version=app.version, host=host, secure=request.url.scheme == "https")
+        )
 
     @app.get("/docs", include_in_schema=False)
     def docs() -> HTMLResponse:

@@ -11,10 +11,10 @@ from fastapi import APIRouter, Header, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
 
-from api_schemas import JobCreate, JobList, JobModel, JobStatus
+from api_schemas import ARTIFACT_NAMES, AnalysisResult, JobCreate, JobList, JobModel, JobStatus
 from service import jobs
 from service.deps import ContextDep, Cursor, IdempotencyKey, PageSize, TenantDep
-from service.openapi import ETAG_HEADER, problem_responses
+from service.openapi import ETAG_HEADER, RETRY_AFTER_HEADER, problem_responses
 from service.store import TERMINAL
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
@@ -42,18 +42,22 @@ def _root(request: Request) -> str:
     status_code=202,
     summary="Queue an analysis",
     description=(
-        "Queue an analysis of an uploaded clip. Poll the job at the `Location` URL. With an "
-        "`Idempotency-Key` header a retried request returns the same job; reusing the key for a different "
-        "body is a 422."
+        "Queue an analysis of an uploaded clip. Poll the job at the `Location` URL; the answer's `ETag` "
+        "names the job as it is, so the first poll may already long-poll for a change "
+        "(`GET /v1/jobs/{job_id}?wait=60` with `If-None-Match`). With an `Idempotency-Key` header a retried "
+        "request returns the same job (`Idempotent-Replayed: true`); reusing the key for a different body "
+        "is a 422."
     ),
     responses={
         **problem_responses(401, 408, 413, 422, 429, 503),
         202: {
             "headers": {
                 "Location": {"description": "URL of the job", "schema": {"type": "string"}},
-                "Retry-After": {
-                    "description": "Seconds to wait before polling",
-                    "schema": {"type": "integer"},
+                "ETag": ETAG_HEADER,
+                "Retry-After": {**RETRY_AFTER_HEADER, "description": "Seconds to wait before polling"},
+                "Idempotent-Replayed": {
+                    "description": "`true` when the job was created before with this Idempotency-Key",
+                    "schema": {"type": "string", "enum": ["true"]},
                 },
             }
         },
@@ -68,17 +72,25 @@ def create_job(
     idempotency_key: IdempotencyKey = None,
 ) -> JobModel:
     job, created = jobs.create_job(ctx, body, tenant=tenant, idempotency_key=idempotency_key)
+    view = jobs.job_view(job, root_path=_root(request))
     response.headers["Location"] = f"{_root(request)}/v1/jobs/{job.id}"
+    # The same tag a GET of the job gives now: a client can long-poll for its first change at once.
+    response.headers["ETag"] = jobs.etag_of(view.model_dump_json().encode())
     response.headers["Retry-After"] = str(ctx.settings.retry_after_s)
     if not created:
         response.headers["Idempotent-Replayed"] = "true"
-    return jobs.job_view(job, root_path=_root(request))
+    return view
 
 
 @router.get(
     "",
     name="list_jobs",
     summary="List jobs, newest first",
+    description=(
+        "A page of job summaries: each job without its result, with the result's headline (`summary`) and "
+        "the URL of the whole result (`result_url`, the job's `result.json`). Page on with `cursor` set "
+        "to the previous page's `next_cursor`."
+    ),
     responses=problem_responses(401, 422, 429, 503),
 )
 def list_jobs(
@@ -119,14 +131,20 @@ def list_jobs(
             "headers": {
                 "ETag": ETAG_HEADER,
                 "Retry-After": {
+                    **RETRY_AFTER_HEADER,
                     "description": "Seconds to wait before polling again (queued or running jobs)",
-                    "schema": {"type": "integer"},
                 },
             }
         },
         304: {
             "description": "Not Modified: the `If-None-Match` representation is current",
-            "headers": {"ETag": ETAG_HEADER},
+            "headers": {
+                "ETag": ETAG_HEADER,
+                "Retry-After": {
+                    **RETRY_AFTER_HEADER,
+                    "description": "Seconds to wait before polling again (queued or running jobs)",
+                },
+            },
         },
         **problem_responses(401, 404, 422, 429, 503),
     },
@@ -196,12 +214,44 @@ def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantD
 
 
 @router.get(
+    "/{job_id}/result",
+    name="get_job_result",
+    summary="A job's result",
+    description=(
+        "The `AnalysisResult` of a succeeded job (its `artifacts` as URLs), with an `ETag` (a result never "
+        "changes): with `If-None-Match` naming it the answer is 304 without a body. 404 "
+        "(`result-not-found`) while the job has no result. Job lists link here (`result_url`)."
+    ),
+    response_model=AnalysisResult,
+    responses={
+        200: {"headers": {"ETag": ETAG_HEADER}},
+        304: {
+            "description": "Not Modified: the `If-None-Match` result is current",
+            "headers": {"ETag": ETAG_HEADER},
+        },
+        **problem_responses(401, 404, 429, 503),
+    },
+)
+async def get_job_result(
+    job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantDep, if_none_match: IfNoneMatch = None
+) -> Response:
+    result = await run_in_threadpool(jobs.job_result, ctx, job_id, tenant=tenant, root_path=_root(request))
+    body = result.model_dump_json().encode()
+    headers = {"ETag": jobs.etag_of(body), "Cache-Control": "private, no-cache"}
+    if jobs.etag_matches(if_none_match, headers["ETag"]):
+        return Response(status_code=304, headers=headers)
+    return Response(body, media_type="application/json", headers=headers)
+
+
+@router.get(
     "/{job_id}/artifacts/{name}",
     name="get_job_artifact",
     summary="Download an artifact",
     description=(
-        "A file the analysis produced (`mask.png`, other images, `result.json`), with an `ETag`: with "
-        "`If-None-Match` naming it the answer is 304 without a body."
+        "A file the analysis produced, by name: the images (`image/png`) and `result.json` (the job's "
+        "result as the analysis wrote it, `application/json`; `get_job_result` serves it as a typed "
+        "document), with an `ETag`: with `If-None-Match` naming it the answer is 304 without a body. The "
+        "result's `artifacts` give each file's URL."
     ),
     response_class=FileResponse,
     responses={
@@ -209,12 +259,12 @@ def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantD
             "description": "The file, with its media type (`image/png` for images, `application/json` "
             "for `result.json`).",
             "headers": {"ETag": ETAG_HEADER},
-            # Listed as files (binary) whatever their type, the images first: generated clients then
-            # return the bytes of any artifact rather than parse result.json as a model.
+            # Files (binary) whatever their type, the images first and application/octet-stream before
+            # application/json: generators (openapi-python-client takes the first media type it knows) then
+            # return the bytes of any artifact. The result as a typed document is `get_job_result`.
             "content": {
-                "image/png": {"schema": {"type": "string", "format": "binary"}},
-                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
-                "application/json": {"schema": {"type": "string", "format": "binary"}},
+                media: {"schema": {"type": "string", "format": "binary", "contentMediaType": media}}
+                for media in ("image/png", "application/octet-stream", "application/json")
             },
         },
         304: {
@@ -226,7 +276,15 @@ def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantD
 )
 def get_job_artifact(
     job_id: JobId,
-    name: Annotated[str, Path(min_length=1, max_length=128, description="Artifact file name.")],
+    name: Annotated[
+        str,
+        Path(
+            min_length=1,
+            max_length=128,
+            description="Artifact file name: one the job's `result.artifacts` lists.",
+            json_schema_extra={"enum": list(ARTIFACT_NAMES)},
+        ),
+    ],
     ctx: ContextDep,
     tenant: TenantDep,
     if_none_match: IfNoneMatch = None,

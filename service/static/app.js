@@ -9,13 +9,14 @@
   const TERMINAL = new Set(["succeeded", "failed", "cancelled"]);
   const IMAGE_EXT = /\.(png|jpe?g|gif|webp|svg)$/i;
 
-  // Known result images: display order and alt text. Unknown names are shown too, after these.
+  // Known result images: display order and alt text (what each figure shows, as the API's Artifacts
+  // schema describes it). Unknown names are shown too, after these.
   const IMAGE_INFO = {
-    "overlay.png": "Overlay: the moving objects found by the analysis, outlined on a frame of the clip",
-    "frequency_map.png": "Frequency map: the dominant oscillation frequency of each pixel",
-    "spectrum.png": "Spectrum: summed motion power against frequency, with the eigenfrequency marked",
-    "displacement.png": "Displacement: each object's motion along its main axis over time",
-    "ringdown.png": "Ring-down: the measured oscillation and the fitted damped sinusoid",
+    "overlay.png": "Overlay: a frame of the clip with each object outlined in its colour and labelled with its id, frequency, stiffness and mass",
+    "frequency_map.png": "Frequency map: the dominant frequency of each pixel, with a colour bar in hertz; pixels below the noise floor are muted",
+    "spectrum.png": "Spectrum: summed motion power against frequency on a log scale, with the eigenfrequencies, harmonics, noise floor and rejected peaks marked",
+    "displacement.png": "Displacement: each object's motion against time, with the fitted damped oscillation and the release instant",
+    "ringdown.png": "Ring-down spectrogram: each object's motion power by frequency over time as its oscillation decays",
     "mask.png": "Segmentation mask: each object's pixels in its own colour (the file stores object ids)",
   };
 
@@ -55,6 +56,8 @@
     statuses: new Map(), // job id -> last status seen (for announcements)
     clipNames: new Map(), // clip id -> file name (null when unknown)
     lastUpload: null, // { file, clipId } so a re-run with other options does not upload again
+    deepLink: false, // the page was opened at a job's URL: keep its headline in view until the lists fill
+    shownJob: null, // the job the result view shows
     xhr: null,
     busy: false,
   };
@@ -597,13 +600,29 @@
       .then((clip) => {
         state.clipNames.set(clipId, clip.filename || null);
         renderJobs();
+        showClipName(clipId);
       })
       .catch(() => { /* deleted clip or no access: keep the id */ });
     return null;
   }
 
+  // The result view names the clip as soon as its name is known.
+  function showClipName(clipId) {
+    const job = state.shownJob;
+    if (!job || job.id !== state.selectedId || job.clip_id !== clipId) return;
+    setText($("result-title"), `Job ${shortId(job.id)} · ${jobTitle(job)}`);
+    const dd = document.querySelector("#result-body [data-clip-name]");
+    if (dd) setText(dd, jobTitle(job));
+  }
+
   function jobTitle(job) {
     return clipName(job.clip_id) || `Clip ${shortId(job.clip_id)}`;
+  }
+
+  // The main frequency of a job: lists carry a summary of each result, a job of its own the whole result.
+  function jobFrequency(job) {
+    const f = job.summary ? job.summary.eigenfrequency_hz : job.result ? job.result.eigenfrequency_hz : null;
+    return isFiniteNumber(f) ? f : null;
   }
 
   function progressPercent(job) {
@@ -630,6 +649,7 @@
   function updateJobNode(li, job) {
     const button = li.firstElementChild;
     const pct = progressPercent(job);
+    // A long name is elided; the whole of it shows on hover (title) and, wrapped, on hover or focus (CSS).
     setText(button.querySelector(".job-name"), jobTitle(job));
     button.querySelector(".job-name").title = jobTitle(job);
     const badge = button.querySelector(".badge");
@@ -642,7 +662,7 @@
     const stage = job.status === "running" ? `${job.stage || "running"} · ${pct}%`
       : job.status === "queued" ? "waiting for a worker" : (job.status === "failed" && job.error ? job.error.title : "");
     setText(button.querySelector(".stage"), stage);
-    const f = job.result && isFiniteNumber(job.result.eigenfrequency_hz) ? `f = ${formatNumber(job.result.eigenfrequency_hz, 4)} Hz` : "";
+    const f = jobFrequency(job) !== null ? `f = ${formatNumber(jobFrequency(job), 4)} Hz` : "";
     setText(button.querySelector(".freq"), f);
     setText(button.querySelector(".id"), `job ${shortId(job.id)}`);
     setText(button.querySelector(".time"), formatTime(job.created_at));
@@ -670,7 +690,7 @@
     for (const job of state.jobs) {
       const before = state.statuses.get(job.id);
       if (before && before !== job.status) {
-        const f = job.result && isFiniteNumber(job.result.eigenfrequency_hz) ? `, ${formatNumber(job.result.eigenfrequency_hz, 4)} Hz` : "";
+        const f = jobFrequency(job) !== null ? `, ${formatNumber(jobFrequency(job), 4)} Hz` : "";
         announce(`Job ${shortId(job.id)} (${jobTitle(job)}): ${statusLabel(job.status).toLowerCase()}${f}.`);
       }
       state.statuses.set(job.id, job.status);
@@ -725,6 +745,10 @@
       noteStatusChanges();
       renderJobs();
       if (state.selectedId) await renderSelected();
+      if (state.deepLink) {
+        showHeadline();
+        state.deepLink = false; // from now on the reader scrolls
+      }
       if (streaming || state.jobs.some((j) => !TERMINAL.has(j.status))) delay = POLL_ACTIVE_MS;
     } catch (err) {
       if (apiKey() !== keyAtStart) {
@@ -758,9 +782,10 @@
     return match ? decodeURIComponent(match[1]) : null;
   }
 
-  function selectJob(id, { focus, history = "push" }) {
+  function selectJob(id, { focus, history = "push", deepLink = false }) {
     state.selectedId = id;
     state.shownKey = null;
+    state.deepLink = deepLink;
     const url = jobUrl(id);
     if (history === "push" && window.location.href !== url) window.history.pushState({ job: id }, "", url);
     else if (history === "replace") window.history.replaceState({ job: id }, "", url);
@@ -769,8 +794,16 @@
     const section = $("result");
     section.hidden = false;
     renderSelected().then(() => {
-      if (focus) section.focus();
+      if (focus) section.focus({ preventScroll: true });
+      showHeadline();
     });
+  }
+
+  // A job's own URL opens on its headline (title and summary cards), also after the lists above it fill.
+  function showHeadline() {
+    if (!state.deepLink) return;
+    const section = $("result");
+    if (!section.hidden) section.scrollIntoView({ block: "start" });
   }
 
   async function renderSelected() {
@@ -859,6 +892,7 @@
       }
     }
     revokeObjectUrls();
+    state.shownJob = job;
     $("result-title").textContent = `Job ${shortId(job.id)} · ${jobTitle(job)}`;
     resultActions(job);
     $("result-body").replaceChildren(
@@ -898,7 +932,7 @@
       el("div", { class: "stat-label" }, label),
       el("div", { class: "stat-value" },
         el("span", { class: "num" }, value),
-        unc ? el("span", { class: "pm" }, ` ± ${unc}`) : null,
+        unc ? el("span", { class: "pm" }, ` ±\u00a0${unc}`) : null,
         unit ? el("span", { class: "unit" }, ` ${unit}`) : null));
   }
 
@@ -924,7 +958,7 @@
       return el("tr", { "data-quantity": quantity },
         el("th", { scope: "row" }, label),
         el("td", { class: missing ? "value na" : "value", "data-value": missing ? null : String(value) }, missing ? "not measured" : shown.value),
-        el("td", { class: "unc" }, shown.unc ? `± ${shown.unc}` : ""),
+        el("td", { class: "unc" }, shown.unc ? `±\u00a0${shown.unc}` : ""),
         el("td", { class: "unit-cell" }, missing ? "" : unit));
     });
     return el("table", { class: "quantities" },
@@ -987,6 +1021,7 @@
   }
 
   function renderFinished(job) {
+    state.shownJob = job;
     revokeObjectUrls();
     $("result-title").textContent = `Job ${shortId(job.id)} · ${jobTitle(job)}`;
     resultActions(job);
@@ -1035,7 +1070,8 @@
         ["Analysis time", total > 0 ? `${total.toFixed(2)} s` : ""],
         ["Version", result.version],
       ].filter(([, v]) => v);
-      body.push(el("dl", { class: "meta" }, meta.map(([k, v]) => el("div", {}, el("dt", {}, `${k}:`), el("dd", {}, v)))));
+      body.push(el("dl", { class: "meta" }, meta.map(([k, v]) => el("div", {}, el("dt", {}, `${k}:`),
+        el("dd", k === "Clip" ? { "data-clip-name": "" } : {}, v)))));
 
       const quality = Array.isArray(result.quality) ? result.quality : [];
       body.push(el("h3", { class: "section-title" }, "Quality"));
@@ -1095,7 +1131,7 @@
       }
     });
     const linked = jobIdInUrl();
-    if (linked) selectJob(linked, { focus: true, history: "replace" });
+    if (linked) selectJob(linked, { focus: true, history: "replace", deepLink: true });
     refreshJobs();
   }
 

@@ -29,6 +29,9 @@ MODELS = [
     ec.CameraIntrinsics,
     ec.Problem,
     ec.Stream,
+    ec.JobSummary,
+    ec.ResultSummary,
+    ec.Detection,
 ]
 #: Client-side members that are not the resource's: its ETag (a header) and the document as received.
 CLIENT_ONLY = {"etag", "raw"}

@@ -17,8 +17,8 @@ from pathlib import Path
 _SKIP = shutil.ignore_patterns("build", "*.egg-info", "__pycache__", ".venv", "node_modules", "var", ".git")
 
 
-def build_wheel(source: Path, out: Path, *, parts: tuple[str, ...] | None = None) -> Path:
-    """Build the wheel of the distribution at ``source`` into ``out``; returns the wheel's path.
+def copy_sources(source: Path, out: Path, *, parts: tuple[str, ...] | None = None) -> Path:
+    """A private copy of the distribution at ``source`` in ``out / "source"``; returns its path.
 
     ``parts`` names the files and folders of ``source`` the build needs (default: all of it).
     """
@@ -32,7 +32,15 @@ def build_wheel(source: Path, out: Path, *, parts: tuple[str, ...] | None = None
             if item.is_dir():
                 shutil.copytree(item, tree / name, ignore=_SKIP)
             else:
+                (tree / name).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(item, tree / name)
+    return tree
+
+
+def build_wheel(source: Path, out: Path, *, parts: tuple[str, ...] | None = None) -> Path:
+    """Build the wheel of the distribution at ``source`` into ``out`` from a private copy of ``parts`` (see
+    :func:`copy_sources`); returns the wheel's path."""
+    tree = copy_sources(source, out, parts=parts)
     wheels = out / "wheels"
     done = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--wheel-dir", str(wheels), str(tree)],

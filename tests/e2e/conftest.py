@@ -1,7 +1,8 @@
 """Browser tests: Playwright for Python driving the system's Chromium (Debian's ``chromium`` package).
 
-Nothing is downloaded: there is no ``playwright install``; ``.ci/run`` installs ``chromium`` with apt when it
-is missing. Without a browser the tests fail in CI (``CI=true``) and skip visibly elsewhere.
+Nothing is downloaded: there is no ``playwright install``; ``./run test`` installs ``chromium`` with apt when
+it is missing (``scripts/test_prerequisites.sh``). Without a browser the tests fail in CI (``CI=true``) and
+skip visibly elsewhere.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def chromium_path() -> str | None:
 
 def _missing(what: str) -> None:
     if h.in_ci():
-        pytest.fail(f"CI requires {what} (`.ci/run` installs it with apt)", pytrace=False)
+        pytest.fail(f"CI requires {what} (`./run test` installs it with apt)", pytrace=False)
     pytest.skip(f"{what} is missing")
 
 

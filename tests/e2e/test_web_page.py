@@ -6,6 +6,7 @@ missing or when ``EIGENSCOPE_UPDATE_DOCS_IMAGES=1`` (so an ordinary run leaves t
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from collections.abc import Iterator
@@ -155,7 +156,8 @@ def test_upload_through_the_page_shows_the_numbers_and_every_image(
     f_shown = number(f_row.locator("td.value").inner_text())
     assert f_shown == pytest.approx(obj["eigenfrequency_hz"], rel=0.02)
     assert f_row.locator("td.unit-cell").inner_text() == "Hz"
-    assert f_row.locator("td.unc").inner_text().startswith("± ")
+    # A no-break space after the sign: it never parts from its number.
+    assert f_row.locator("td.unc").inner_text().startswith("±\u00a0")
     expected = {
         "stiffness_n_per_m": ("N/m", obj["stiffness_n_per_m"]),
         "mass_kg": ("kg", obj["mass_kg"]),
@@ -164,7 +166,7 @@ def test_upload_through_the_page_shows_the_numbers_and_every_image(
     for quantity, (unit, value) in expected.items():
         row = table.locator(f'tr[data-quantity="{quantity}"]')
         assert number(row.locator("td.value").inner_text()) == pytest.approx(value, rel=0.1), quantity
-        assert row.locator("td.unc").inner_text().startswith("± "), quantity
+        assert row.locator("td.unc").inner_text().startswith("±\u00a0"), quantity
         assert row.locator("td.unit-cell").inner_text() == unit, quantity
     for quantity in ("natural_frequency_hz", "damping_ratio", "pixel_count"):
         assert number(table.locator(f'tr[data-quantity="{quantity}"] td.value').inner_text()) > 0, quantity
@@ -441,8 +443,11 @@ def test_each_job_has_its_own_url_and_the_page_fits_a_phone(
         wait_for_images(page)
         assert page.title() == f"Job {first.id[:8]} · Eigenscope"
         assert page.evaluate(CLIPPED) == []
+        # The link opens on the headline; below it, every column of the table is in view (none cut off).
+        expect(page.locator('#result .stat[data-quantity="eigenfrequency_hz"]')).to_be_in_viewport()
         unit = page.locator('#result [data-quantity="stiffness_n_per_m"] td.unit-cell')
-        expect(unit).to_be_in_viewport()
+        unit.scroll_into_view_if_needed()
+        expect(unit).to_be_in_viewport(ratio=1)
         # The mask is a palette image: the browser shows object 1 in its colour on black.
         colours = page.evaluate(MASK_COLOUR)
         assert "0,0,0" in colours
@@ -473,3 +478,121 @@ def test_each_job_has_its_own_url_and_the_page_fits_a_phone(
         assert watch.foreign() == []
     finally:
         context.close()
+
+
+#: A clip name as a lab's recording tool writes them: long, and without a space to break at.
+LONG_NAME = "robot-arm-station-07_push-test_2026-01-01T12-00-00_object-0042_take-0003_colour-and-depth.npz"
+
+#: For each quantity label of the result tables: the words broken across lines (none may be).
+BROKEN_WORDS = """() => {
+    const broken = [];
+    for (const th of document.querySelectorAll("#result table.quantities tbody th")) {
+        const text = th.firstChild;
+        if (!text || text.nodeType !== Node.TEXT_NODE) continue;
+        let at = 0;
+        for (const word of text.textContent.split(" ")) {
+            const range = document.createRange();
+            range.setStart(text, at);
+            range.setEnd(text, at + word.length);
+            if (word && range.getClientRects().length > 1) broken.push(word);
+            at += word.length + 1;
+        }
+    }
+    return broken;
+}"""
+#: The uncertainty cells ("± 0.0021") that take more than one line.
+WRAPPED_UNCERTAINTIES = """() => [...document.querySelectorAll("#result td.unc")]
+    .filter(td => td.textContent && (() => {
+        const range = document.createRange();
+        range.selectNodeContents(td);
+        const tops = new Set([...range.getClientRects()].map(r => Math.round(r.top)));
+        return tops.size > 1;
+    })())
+    .map(td => td.textContent)"""
+
+
+@pytest.fixture(scope="module")
+def listed_on_a_phone(live: h.LiveService, page_clip: tuple[Path, dict[str, Any]]) -> dict[str, str]:
+    """A job of a clip with a long name and the job of a live stream (``stream-<32 hex>.zip``), ended."""
+    from eigenscope_client import Client, StepRelease, StreamSession
+    from stream_helpers import scene_frames, send_scene, session_kwargs
+
+    with Client(live.base_url) as client:
+        clip = client.upload_clip(page_clip[0], filename=LONG_NAME)
+        job = client.wait(client.create_job(clip.id, excitation=StepRelease(force_n=5.0)), timeout=180)
+        assert job.status == "succeeded"
+        scene = scene_frames(frames=40)
+        with StreamSession(live.base_url, **session_kwargs(scene)) as session:
+            send_scene(session, scene)
+            session.finish(timeout_s=120)
+        stream_job = client.wait(client.get_job(session.job_id), timeout=120)
+        stream_clip = client.get_clip(stream_job.clip_id)
+    assert stream_clip.filename == f"stream-{session.stream_id}.zip"
+    return {"job": job.id, "stream_job": stream_job.id, "stream_name": stream_clip.filename}
+
+
+@pytest.mark.parametrize("width", [360, 400])
+def test_the_page_fits_a_phone_with_long_names_listed(
+    browser: Any, live: h.LiveService, listed_on_a_phone: dict[str, str], artifacts_dir: Path, width: int
+) -> None:
+    from playwright.sync_api import expect
+
+    context = browser.new_context(viewport={"width": width, "height": 780}, device_scale_factor=1)
+    context.set_default_timeout(30_000)
+    page = context.new_page()
+    watch = Watch(page, live.base_url)
+    try:
+        page.goto(live.base_url + "/")
+        long_item = page.locator(f'button[data-job-id="{listed_on_a_phone["job"]}"] .job-name')
+        stream_item = page.locator(f'button[data-job-id="{listed_on_a_phone["stream_job"]}"] .job-name')
+        expect(long_item).to_have_text(LONG_NAME)
+        expect(stream_item).to_have_text(listed_on_a_phone["stream_name"])
+        assert page.evaluate(CLIPPED) == []
+        upload = page.locator("#upload-card").bounding_box()
+        assert upload is not None
+        assert upload["x"] >= 0
+        assert upload["x"] + upload["width"] <= width
+        # Elided in the list, the whole name is there on hover (its title) and on focus (wrapped).
+        expect(long_item).to_have_attribute("title", LONG_NAME)
+        assert page.evaluate("el => el.scrollWidth > el.clientWidth", long_item.element_handle())
+        page.locator(f'button[data-job-id="{listed_on_a_phone["job"]}"]').focus()
+        page.keyboard.press("Shift+Tab")
+        page.keyboard.press("Tab")  # keyboard focus: :focus-visible
+        assert page.evaluate("el => el.scrollWidth <= el.clientWidth", long_item.element_handle())
+        page.screenshot(path=str(artifacts_dir / f"page-{width}px-list.png"), full_page=True)
+
+        # A job's own URL opens on its headline: the title and the summary cards are in view.
+        page.goto(f"{live.base_url}/jobs/{listed_on_a_phone['job']}")
+        expect(page.locator("#result .summary")).to_be_visible()
+        wait_for_images(page)
+        expect(page.locator("#jobs li").first).to_be_visible()  # the list above has filled
+        expect(page.locator("#result-title")).to_contain_text(LONG_NAME)  # wrapped, not cut off
+        expect(page.locator("#result-title")).to_be_in_viewport()
+        expect(page.locator('#result .stat[data-quantity="eigenfrequency_hz"]')).to_be_in_viewport()
+        assert page.evaluate(CLIPPED) == []
+        assert page.evaluate(BROKEN_WORDS) == []
+        assert page.evaluate(WRAPPED_UNCERTAINTIES) == []
+        page.screenshot(path=str(artifacts_dir / f"page-{width}px-job.png"), full_page=True)
+        assert watch.errors == []
+    finally:
+        context.close()
+
+
+def test_image_alt_texts_describe_their_figures(
+    page: Any, live: h.LiveService, listed_on_a_phone: dict[str, str]
+) -> None:
+    """Each image's alt text says what the API's own description of that artifact says it shows."""
+    spec = json.loads((Path(__file__).resolve().parents[2] / "openapi" / "openapi.json").read_text())
+    described = spec["components"]["schemas"]["Artifacts"]["properties"]
+    page.goto(f"{live.base_url}/jobs/{listed_on_a_phone['job']}")
+    images = {i["name"]: i["alt"] for i in wait_for_images(page)}
+    keys = {
+        "ringdown.png": ("ringdown", "spectrogram"),
+        "displacement.png": ("displacement", "damped oscillation"),
+        "spectrum.png": ("spectrum", "noise floor"),
+        "frequency_map.png": ("frequency_map", "colour bar"),
+        "overlay.png": ("overlay", "outlined"),
+    }
+    for name, (key, words) in keys.items():
+        assert words in described[key]["description"].lower(), key
+        assert words in images[name].lower(), (name, images[name])

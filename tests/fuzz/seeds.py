@@ -17,7 +17,7 @@ import eigenscope  # noqa: F401 - one BLAS/OpenCV thread, as in every entry poin
 # isort: on
 import numpy as np
 
-FRAMES, HEIGHT, WIDTH = 8, 16, 16
+FRAMES, HEIGHT, WIDTH = 16, 16, 16  # the fewest frames a clip may have (MIN_FRAMES)
 INTRINSICS = (20.0, 20.0, 7.5, 7.5)
 T0_NS = 1_700_000_000_000_000_000
 
@@ -119,7 +119,23 @@ def write_seeds(folder: Path) -> list[Path]:
             target.write_bytes(single.read_bytes())
             out.append(target)
     out.append(w.write_ros2_zip(folder / "ros2-folder.zip", rgb, stamps_ns=stamps, intrinsics=INTRINSICS))
+    write_refused_seeds(folder)
     return out
+
+
+def write_refused_seeds(folder: Path) -> list[Path]:
+    """Seeds the readers must refuse (not clips: :func:`write_seeds` does not return them), for the
+    fuzzer to mutate around: a playlist and a concat list naming a video beside them."""
+    segment = folder / "h264.mp4"
+    hls = f"#EXTM3U\n#EXT-X-TARGETDURATION:10\n#EXTINF:10,\nfile://{segment}\n#EXT-X-ENDLIST\n"
+    (folder / "playlist.m3u8").write_text(hls)
+    (folder / "concat.txt").write_text(f"ffconcat version 1.0\nfile '{segment}'\n")
+    # The corpus's zip of 50,000 one-byte frames, scaled to the fuzzer's entry cap (2,000): mutations of
+    # a zip with many names keep the name lookups busy.
+    with zipfile.ZipFile(folder / "many-entries.zip", "w", zipfile.ZIP_STORED) as zf:
+        for i in range(1_500):
+            zf.writestr(f"rgb/{i:06d}.png", b"x")
+    return [folder / "playlist.m3u8", folder / "concat.txt", folder / "many-entries.zip"]
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -17,7 +18,7 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,41 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+class PortTakenError(RuntimeError):
+    """The service's port was bound by another process between :func:`free_port` and the service's own
+    bind (other test runs on the machine start servers too): what answers there is not the service."""
+
+
+def _listening_inodes(port: int) -> set[str]:
+    """The inodes of the TCP sockets listening on ``port`` (from /proc/net/tcp and tcp6)."""
+    found = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with contextlib.suppress(OSError):
+            for line in Path(table).read_text().splitlines()[1:]:
+                fields = line.split()
+                if fields[3] == "0A" and int(fields[1].rsplit(":", 1)[1], 16) == port:  # 0A: LISTEN
+                    found.add(fields[9])
+    return found
+
+
+def _holds_socket(pid: int, inodes: set[str]) -> bool:
+    with contextlib.suppress(OSError):
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            with contextlib.suppress(OSError):
+                link = os.readlink(f"/proc/{pid}/fd/{fd}")
+                if link.startswith("socket:[") and link[8:-1] in inodes:
+                    return True
+    return False
+
+
+def on_a_port_of_its_own(start: Callable[[int], LiveService], tries: int = 3) -> LiveService:
+    """``start(port)`` on a fresh :func:`free_port` until the service, not another process, listens there."""
+    for _ in range(tries - 1):
+        with contextlib.suppress(PortTakenError):
+            return start(free_port())
+    return start(free_port())
 
 
 def redis_url() -> str:
@@ -127,15 +163,82 @@ class Proc:
             return ""
 
     def stop(self, *, grace_s: float = 3.0) -> None:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(self.popen.pid, signal.SIGTERM)
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            self.popen.wait(timeout=grace_s)
+        """SIGTERM to the group, ``grace_s`` to exit, then SIGKILL to whatever is left (0: at once)."""
+        if grace_s > 0:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.popen.pid, signal.SIGTERM)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.popen.wait(timeout=grace_s)
         # Whatever is left in the group (Celery pool children, a stuck server) goes now.
         with contextlib.suppress(ProcessLookupError):
             os.killpg(self.popen.pid, signal.SIGKILL)
         with contextlib.suppress(subprocess.TimeoutExpired):
             self.popen.wait(timeout=10)
+
+
+def wait_for(predicate: Any, timeout_s: float, what: str, service: LiveService) -> Any:
+    """``predicate()``'s first true value, asked every 50 ms for ``timeout_s`` at most (then the
+    service's logs in the failure)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}:\n{service.logs()}")
+
+
+def descendants(pid: int) -> list[int]:
+    """Every live process below ``pid`` (children, their children, ...), from ``/proc``."""
+    parents: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        parents.setdefault(ppid, []).append(int(entry.name))
+    found: list[int] = []
+    todo = [pid]
+    while todo:
+        for child in parents.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def cmdline(pid: int) -> str:
+    """The command line of ``pid`` ("" once it has gone)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def descendants_with(root: int, marker: str) -> list[int]:
+    """The processes below ``root`` whose command line holds ``marker``."""
+    return [pid for pid in descendants(root) if marker in cmdline(pid)]
+
+
+def find_process(root: int, marker: str, timeout_s: float = 60.0) -> int:
+    """The pid of the process below ``root`` whose command line holds ``marker`` (waits for it)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for pid in descendants(root):
+            if marker in cmdline(pid):
+                return pid
+        time.sleep(0.1)
+    raise AssertionError(f"no process with {marker!r} below {root}")
+
+
+def proc_status_kib(pid: int, field: str) -> int:
+    """A ``/proc/<pid>/status`` figure in KiB (``VmRSS``, ``VmHWM``, ``VmSize``)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1])
+    raise KeyError(field)
 
 
 def children_of(pid: int) -> list[int]:
@@ -169,16 +272,34 @@ class LiveService:
                     raise RuntimeError(f"{p.name} exited with {p.popen.returncode}:\n{self.logs()}")
             try:
                 if self.client.get("/readyz", timeout=2).status_code == 200:
+                    self.check_listening()
                     return
             except httpx.HTTPError:
                 pass
             time.sleep(0.1)
         raise RuntimeError(f"service at {self.base_url} not ready after {timeout_s} s:\n{self.logs()}")
 
+    def check_listening(self) -> None:
+        """Raise :class:`PortTakenError` unless one of the service's processes (or their children) holds the
+        socket listening on its port."""
+        inodes = _listening_inodes(int(self.base_url.rsplit(":", 1)[1]))
+        family, todo = [], [p.pid for p in self.procs if p.alive()]
+        while todo:
+            pid = todo.pop()
+            family.append(pid)
+            todo += children_of(pid)
+        if not any(_holds_socket(pid, inodes) for pid in family):
+            self.stop()
+            raise PortTakenError(f"another process answers on {self.base_url}:\n{self.logs()}")
+
     def stop(self) -> None:
+        """Tear the service down: every process group is killed at once. A graceful stop would take
+        3 s or more per service (Celery's warm shutdown, then the grace's SIGKILL) for nothing a test
+        reads; the tests of shutdown itself signal the processes and check them (test_reliability's
+        SIGTERM test, test_faults' restarts)."""
         self.client.close()
         for p in reversed(self.procs):
-            p.stop()
+            p.stop(grace_s=0)
 
     def upload(self, path: Path) -> httpx.Response:
         with path.open("rb") as fh:
@@ -221,8 +342,15 @@ def base_env(data_dir: Path, **settings: str) -> dict[str, str]:
 
 def start_embedded(tmp_path: Path, *, workers: int = 1, api_workers: int = 1, **settings: str) -> LiveService:
     """``eigenscope serve`` with the embedded broker (and the job store given in ``settings``)."""
+    return on_a_port_of_its_own(
+        lambda port: _start_embedded(tmp_path, port, workers=workers, api_workers=api_workers, **settings)
+    )
+
+
+def _start_embedded(
+    tmp_path: Path, port: int, *, workers: int, api_workers: int, **settings: str
+) -> LiveService:
     data_dir = tmp_path / "data"
-    port = free_port()
     env = base_env(data_dir, **settings)
     cmd = [sys.executable, "-m", "eigenscope", "serve", "--port", str(port), "--workers", str(workers)]
     cmd += ["--api-workers", str(api_workers)]
@@ -230,6 +358,9 @@ def start_embedded(tmp_path: Path, *, workers: int = 1, api_workers: int = 1, **
     service.procs.append(Proc.start("serve", cmd, env=env, log_dir=tmp_path))
     try:
         service.wait_ready()
+        # serve's own /healthz probe may still be on its way once /readyz answers the harness: wait for
+        # the line serve prints after it, so that request counters hold still from here on.
+        _wait_logged(service.procs[0], "eigenscope serving on")
     except BaseException:
         service.stop()
         raise
@@ -238,8 +369,11 @@ def start_embedded(tmp_path: Path, *, workers: int = 1, api_workers: int = 1, **
 
 def start_split(tmp_path: Path, *, workers: int = 1, **settings: str) -> LiveService:
     """uvicorn and separate ``eigenscope worker`` processes (the Redis deployment)."""
+    return on_a_port_of_its_own(lambda port: _start_split(tmp_path, port, workers=workers, **settings))
+
+
+def _start_split(tmp_path: Path, port: int, *, workers: int, **settings: str) -> LiveService:
     data_dir = tmp_path / "data"
-    port = free_port()
     env = base_env(data_dir, **settings)
     service = LiveService(f"http://127.0.0.1:{port}", data_dir, env)
     api = [sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--port", str(port)]
@@ -276,6 +410,7 @@ def start_api(service: LiveService, *, port: int, name: str = "api") -> Proc:
             raise RuntimeError(f"{name} exited with {proc.popen.returncode}:\n{proc.log()}")
         try:
             if service.client.get("/healthz", timeout=2).status_code == 200:
+                service.check_listening()
                 return proc
         except httpx.HTTPError:
             pass
@@ -293,23 +428,30 @@ def _start_until_logged(service: LiveService, name: str, cmd: list[str], marker:
     """Start ``cmd`` as a process of ``service`` and wait (60 s at most) until its log shows ``marker``."""
     proc = Proc.start(name, cmd, env=service.env, log_dir=service.data_dir.parent)
     service.procs.append(proc)
-    deadline = time.monotonic() + 60
-    while marker not in proc.log():
-        if not proc.alive() or time.monotonic() > deadline:
-            raise RuntimeError(f"{name} did not start:\n{proc.log()}")
-        time.sleep(0.1)
+    _wait_logged(proc, marker)
     return proc
 
 
+def _wait_logged(proc: Proc, marker: str, timeout_s: float = 60.0) -> None:
+    """Wait until ``marker`` is anywhere in the process's log (not only its tail)."""
+    deadline = time.monotonic() + timeout_s
+    while marker not in proc.log_path.read_text(errors="replace"):
+        if not proc.alive() or time.monotonic() > deadline:
+            raise RuntimeError(f"{proc.name} did not start:\n{proc.log()}")
+        time.sleep(0.05)
+
+
 class RedisServer:
-    """A private ``redis-server`` with AOF persistence (fsync on every write) on a free port.
+    """A private ``redis-server`` with AOF persistence (fsync on every write) on a free port, or with none
+    (``persistent=False``: a restart loses every message, as the machine's shared Redis would).
 
     The machine's shared Redis runs without persistence and must not be restarted; tests that kill Redis
     start one of these instead. ``kill`` is a SIGKILL (no shutdown save); ``start`` reuses the port and
     the data directory, so the server comes back with what its append-only file holds.
     """
 
-    def __init__(self, workdir: Path) -> None:
+    def __init__(self, workdir: Path, *, persistent: bool = True) -> None:
+        self.persistent = persistent
         binary = shutil.which("redis-server")
         if binary is None:
             unavailable("redis-server (the Redis server binary)", "not on PATH")
@@ -333,10 +475,8 @@ class RedisServer:
             "127.0.0.1",
             "--dir",
             str(self.dir),
-            "--appendonly",
-            "yes",
-            "--appendfsync",
-            "always",
+            # Without persistence Redis keeps nothing over a restart (its default: no append-only file).
+            *(["--appendonly", "yes", "--appendfsync", "always"] if self.persistent else []),
             "--save",
             "",
             "--protected-mode",
@@ -413,3 +553,13 @@ def wait_stream_worker(service: LiveService, timeout_s: float = 60.0) -> None:
             return
         time.sleep(0.1)
     raise RuntimeError(f"stream workers not ready:\n{service.logs()}")
+
+
+def wait_stream_worker_logged(service: LiveService, timeout_s: float = 60.0) -> None:
+    """Wait until ``eigenscope serve``'s stream worker says it is ready (in the serve log)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if re.search(r"stream worker \d+ ready", service.logs()):
+            return
+        time.sleep(0.1)
+    raise RuntimeError(f"the stream worker is not ready:\n{service.logs()}")

@@ -132,7 +132,7 @@ def test_problems_become_exceptions(service: h.LiveService, client: Client, tmp_
     assert denied.value.status == 401
     with pytest.raises(InvalidRequestError) as invalid:
         client.create_job("no-such-clip", excitation=Impulse(impulse_ns=0.2))
-    assert invalid.value.code == "clip-not-found"
+    assert invalid.value.code == "unknown-clip"
     assert invalid.value.errors is not None
     assert invalid.value.errors[0]["loc"] == ["body", "clip_id"]
     bogus = tmp_path / "notes.txt"

@@ -33,19 +33,20 @@ def redis_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[h.RedisSe
     server.kill()
 
 
+def fault_env(root: Path, redis_server: h.RedisServer, **settings: str) -> dict[str, str]:
+    """The environment of a service over ``redis_server`` with short leases and sweeps."""
+    return h.base_env(
+        root / "data", redis_url=redis_server.url, lease_s="4", sweep_interval_s="0.5", **settings
+    )
+
+
 @pytest.fixture(scope="module")
 def service(redis_server: h.RedisServer, tmp_path_factory: pytest.TempPathFactory) -> Iterator[h.LiveService]:
     """uvicorn and two one-process workers over the private Redis, SQLite job store, test hooks on."""
     root = tmp_path_factory.mktemp("faults")
     port = h.free_port()
-    env = h.base_env(
-        root / "data",
-        redis_url=redis_server.url,
-        lease_s="4",
-        sweep_interval_s="0.5",
-        max_attempts=str(MAX_ATTEMPTS),
-        test_hooks="1",
-        progress_interval_s="0.1",
+    env = fault_env(
+        root, redis_server, max_attempts=str(MAX_ATTEMPTS), test_hooks="1", progress_interval_s="0.1"
     )
     svc = h.LiveService(f"http://127.0.0.1:{port}", root / "data", env)
     svc.env["FAULTS_PORT"] = str(port)
@@ -86,21 +87,14 @@ def replace_worker(service: h.LiveService, dead: h.Proc) -> None:
     h.start_worker(service, f"{dead.name}r")
 
 
-def wait_for(predicate: Any, timeout_s: float, what: str, service: h.LiveService) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}:\n{service.logs()}")
+wait_for = h.wait_for
 
 
 def test_sigkilled_worker_job_runs_again_on_another_and_succeeds_once(
     service: h.LiveService, store: Store, tmp_path: Path
 ) -> None:
     path = tmp_path / "slow.npz"
-    h.synth_clip(path, frames=192, width=320, height=240, frequency_hz=5.0, seed=4)
+    h.synth_clip(path, frames=128, width=320, height=240, frequency_hz=5.0, seed=4)  # seconds of Farnebäck
     clip_id = service.upload(path).json()["id"]
     job_id = service.client.post(
         "/v1/jobs", json={"clip_id": clip_id, "parameters": {"flow": "farneback"}}
@@ -263,3 +257,45 @@ def test_storage_unreachable(tmp_path: Path, small_clip: Path, redis_server: h.R
 @pytest.fixture
 def small_clip(truth_clip: tuple[Path, Any]) -> Path:
     return truth_clip[0]
+
+
+def test_queued_jobs_run_soon_after_redis_lost_its_messages(
+    tmp_path: Path, truth_clip: tuple[Path, Any]
+) -> None:
+    """Issue 27, item 5: twelve jobs, the worker SIGKILLed mid-job and Redis killed -9 without
+    persistence. The job that was running came back by its lease, but the nine still queued waited for
+    the hourly republish (``requeue_after_s``); now the API sees the messages are gone and publishes them
+    again, and nothing runs twice."""
+    redis_server = h.RedisServer(tmp_path / "redis", persistent=False)
+    redis_server.start()
+    port = h.free_port()
+    env = fault_env(tmp_path, redis_server, broker_reconcile_interval_s="2")
+    service = h.LiveService(f"http://127.0.0.1:{port}", tmp_path / "data", env)
+    try:
+        h.start_api(service, port=port)
+        victim = h.start_worker(service, "worker0")
+        service.wait_ready()
+        clip_id = service.upload(truth_clip[0]).json()["id"]
+        ids = [service.client.post("/v1/jobs", json={"clip_id": clip_id}).json()["id"] for _ in range(12)]
+        wait_for(
+            lambda: any(service.client.get(f"/v1/jobs/{j}").json()["status"] == "running" for j in ids),
+            60,
+            "a running job",
+            service,
+        )
+        os.killpg(victim.pid, signal.SIGKILL)
+        service.procs.remove(victim)
+        redis_server.kill()
+        redis_server.start()
+        restarted = time.monotonic()
+        assert redis_server.queued() == 0  # every message is gone
+        h.start_worker(service, "worker1")
+        jobs = [service.wait_job(j, timeout_s=max(restarted + 150 - time.monotonic(), 1)) for j in ids]
+        took_s = time.monotonic() - restarted
+        assert [j["status"] for j in jobs] == ["succeeded"] * 12, service.logs()
+        # Nothing ran twice: one attempt each, two for the job the killed worker was running.
+        assert sorted(j["attempts"] for j in jobs) == [1] * 11 + [2]
+        print(f"\nFAULT Redis kill -9 without persistence: 12 jobs done {took_s:.0f} s after the restart")
+    finally:
+        service.stop()
+        redis_server.kill()

@@ -46,6 +46,20 @@ def two_apis(tmp_path_factory: pytest.TempPathFactory) -> Iterator[h.LiveService
     service.stop()
 
 
+def test_every_metric_family_is_there_from_the_start(two_apis: h.LiveService) -> None:
+    """Before any job, upload or stream: every family the API and its worker declare is in the scrape."""
+    from service.metrics import API_FAMILIES, WORKER_FAMILIES
+
+    text = httpx.get(f"{two_apis.base_url}/metrics").text
+    declared = {
+        line.split()[2].removesuffix("_total") for line in text.splitlines() if line.startswith("# TYPE ")
+    }
+    missing = {f.name for f in API_FAMILIES + WORKER_FAMILIES} - declared
+    assert not missing, missing
+    assert metric(text, "eigenscope_jobs_created_total") == 0
+    assert metric(text, "eigenscope_stream_result_latency_seconds_count") == 0
+
+
 def test_counters_add_up_across_two_api_processes(two_apis: h.LiveService) -> None:
     url = two_apis.base_url
     processes = h.children_of(two_apis.procs[0].pid)
@@ -89,6 +103,34 @@ def test_job_metrics_and_logs(two_apis: h.LiveService, truth_clip: tuple[Path, A
     assert re.search(rf"job {ok.id}: attempt 1 succeeded in .*\[job_id={ok.id}\]", log)
     assert re.search(rf"Task eigenscope\.run_job\[{ok.id}-\w+\] received", log)
     assert re.search(rf"job {failed.id}: attempt 1 failed \(clip-gone\)", log)
+
+
+def test_streams_are_counted_like_jobs_and_have_metrics_of_their_own(two_apis: h.LiveService) -> None:
+    """A stream is a job in the worker metrics (its duration, queue wait, stages; a failed one in the
+    failures), and the relay counts sessions, frame messages in and dropped, and the latency to the result."""
+    from eigenscope_client import StreamError, StreamSession
+    from stream_helpers import scene_frames, send_scene, session_kwargs
+
+    url = two_apis.base_url
+    before = httpx.get(f"{url}/metrics").text
+    done = metric(before, "eigenscope_job_duration_seconds_count", outcome="succeeded") or 0
+    failed = metric(before, "eigenscope_job_failures_total", type="analysis-failed") or 0
+    scene = scene_frames(frames=40)
+    with StreamSession(url, **session_kwargs(scene)) as session:
+        send_scene(session, scene)
+        session.finish(timeout_s=120)
+    with StreamSession(url, **session_kwargs(scene)) as empty, pytest.raises(StreamError):
+        empty.finish(timeout_s=60)  # no frame at all: the analysis fails
+    with Client(url) as client:
+        client.wait(client.get_job(session.job_id), timeout=60)
+        client.wait(client.get_job(empty.job_id), timeout=60)
+    text = httpx.get(f"{url}/metrics").text
+    assert metric(text, "eigenscope_job_duration_seconds_count", outcome="succeeded") == done + 1
+    assert metric(text, "eigenscope_job_failures_total", type="analysis-failed") == failed + 1
+    assert metric(text, "eigenscope_analysis_stage_seconds_count", stage="spectrum")
+    assert metric(text, "eigenscope_stream_frames_received_total") == 2 * len(scene.frames)
+    assert metric(text, "eigenscope_stream_sessions") == 0
+    assert metric(text, "eigenscope_stream_result_latency_seconds_count") == 1
 
 
 def test_request_ids(two_apis: h.LiveService, truth_clip: tuple[Path, Any]) -> None:
@@ -152,3 +194,46 @@ def test_split_deployment_json_logs_and_worker_metrics(tmp_path: Path, truth_cli
         assert any(r["logger"] == "service.access" and r.get("request_id") for r in records)
     finally:
         service.stop()
+
+
+def test_json_logs_are_json_on_every_line_and_carry_the_trace(
+    tmp_path: Path, truth_clip: tuple[Path, Any]
+) -> None:
+    """``eigenscope serve`` in JSON mode: every line it and its children write is one JSON object (the
+    start-up line and Celery's shutdown too); the access log is fields; a job carries the W3C trace of the
+    request that created it to the worker's lines."""
+    trace_id, parent = "4bf92f3577b34da6a3ce929d0e0e4736", "00f067aa0ba902b7"
+    service = h.start_embedded(tmp_path, log_format="json")
+    try:
+        with truth_clip[0].open("rb") as fh:
+            clip = httpx.post(f"{service.base_url}/v1/clips", files={"file": ("c.npz", fh)}).json()
+        created = httpx.post(
+            f"{service.base_url}/v1/jobs",
+            json={"clip_id": clip["id"], "excitation": {"type": "step_release", "force_n": 5.0}},
+            headers={"traceparent": f"00-{trace_id}-{parent}-01"},
+        )
+        assert created.status_code == 202
+        job = created.json()
+        with Client(service.base_url) as client:
+            assert client.wait(client.get_job(job["id"]), timeout=180).status == "succeeded"
+    finally:
+        # A graceful stop, not the harness's kill: the shutdown lines are part of what is checked.
+        for proc in reversed(service.procs):
+            proc.stop(grace_s=15)
+        service.stop()
+    records = []
+    for proc in service.procs:
+        for line in proc.log_path.read_text(errors="replace").splitlines():
+            if line.strip():
+                records.append(json.loads(line))  # every line is one JSON object
+    messages = [r["message"] for r in records]
+    assert any(m.startswith("eigenscope serving on") for m in messages)
+    assert any("shutdown" in m.lower() for m in messages), "Celery's shutdown line, as JSON"
+    access = [r for r in records if r["logger"] == "service.access" and r.get("path") == "/v1/jobs"]
+    assert access, "the access log of POST /v1/jobs"
+    assert {"method", "path", "route", "status", "duration_ms"} <= set(access[0])
+    assert (access[0]["method"], access[0]["route"], access[0]["status"]) == ("POST", "/v1/jobs", 202)
+    assert access[0]["trace_id"] == trace_id
+    worker = [r for r in records if r.get("job_id") == job["id"] and r["logger"].startswith("workers")]
+    assert worker, "the worker's lines about the job"
+    assert {r.get("trace_id") for r in worker} == {trace_id}

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -76,11 +77,15 @@ def _check_result(
         "spectrum",
         "displacement",
         "ringdown",
+        "result",
     }
-    for url in job["result"]["artifacts"].values():
+    for key, url in job["result"]["artifacts"].items():
         response = service.client.get(url)
         assert response.status_code == 200
-        assert response.content[:8] == b"\x89PNG\r\n\x1a\n"
+        if key == "result":
+            assert response.json()["eigenfrequency_hz"] == result["eigenfrequency_hz"]
+        else:
+            assert response.content[:8] == b"\x89PNG\r\n\x1a\n"
     listed = service.client.get("/v1/jobs", params={"limit": 100}).json()["items"]
     assert session.job_id in {j["id"] for j in listed}
     stream = service.wait_stream(session.stream_id)
@@ -171,11 +176,19 @@ def test_slow_consumer_gets_backpressure(tmp_path: Path) -> None:
     try:
         scene = scene_frames()
         seen: list[dict[str, Any]] = []
-        # A camera does not wait: realtime sessions send whatever the worker's pace.
+        # A camera does not wait: realtime sessions send whatever the worker's pace. Bursts of 6 frames
+        # (12 messages) into a window of 4 overflow it however fast the worker is; between bursts the
+        # stream drains, so the analysis still gets frames.
         session = StreamSession(
             service.base_url, realtime=True, on_message=seen.append, **session_kwargs(scene)
         )
-        send_scene(session, scene)
+        for start in range(0, len(scene.frames), 6):
+            send_scene(session, scene, start=start, stop=start + 6)
+            deadline = time.monotonic() + 60
+            while session.in_flight > 0:
+                assert time.monotonic() < deadline, "the stream never drained"
+                session.poll()
+                time.sleep(0.01)
         result = session.finish(timeout_s=120)
         session.close()
         actions = [m["action"] for m in seen if m["type"] == "backpressure"]
@@ -188,13 +201,39 @@ def test_slow_consumer_gets_backpressure(tmp_path: Path) -> None:
         refused = {m["frame"] for m in dropped} | {m["frame"] for m in seen if m["type"] == "error"}
         assert accepted | refused == set(range(len(scene.frames)))
         assert result["frames_used"][1] <= len(scene.frames)
+        # Every frame message was acknowledged, the dropped ones included: none is left in flight.
+        assert session.in_flight == 0
+
+        # The same window, for a client that keeps the rule: it waits for room, is never dropped, and its
+        # count of messages in flight is never below the server's (only what is on the wire differs).
+        counts: list[tuple[int, int]] = []
+        kept: list[dict[str, Any]] = []
+        holder: dict[str, StreamSession] = {}
+
+        def follow(m: dict[str, Any]) -> None:
+            kept.append(m)
+            if "acked" in m and m.get("in_flight") is not None and "s" in holder:
+                counts.append((holder["s"].in_flight, int(m["in_flight"])))
+
+        session = StreamSession(service.base_url, on_message=follow, **session_kwargs(scene))
+        holder["s"] = session
+        send_scene(session, scene, stop=40)
+        session.finish(timeout_s=120)
+        session.close()
+        assert not [m for m in kept if m["type"] == "backpressure" and m["action"] == "dropped"]
+        assert counts
+        assert all(mine >= theirs for mine, theirs in counts), counts
+        assert max(mine for mine, _ in counts) <= 4
+        assert session.stalls > 0, "a window of 4 makes a client that keeps the rule wait"
+        assert session.in_flight == 0
     finally:
         service.stop()
 
 
 def test_bad_frames_each_get_an_error_naming_the_frame(embedded: h.LiveService) -> None:
     scene = scene_frames()
-    created = embedded.client.post("/v1/streams", json={"parameters": {"fps": 30}}).json()
+    body = {"parameters": {"fps": 30}, "width": scene.width, "height": scene.height}
+    created = embedded.client.post("/v1/streams", json=body).json()
     ws = RawSocket(created["websocket_url"])
     try:
         assert ws.until("ready")["next_frame"] == 0
@@ -296,7 +335,8 @@ def test_tenancy_of_streams(tmp_path: Path) -> None:
         a = {"Authorization": f"Bearer {key_a}"}
         b = {"Authorization": f"Bearer {key_b}"}
         assert service.client.post("/v1/streams", json={}).status_code == 401
-        created = service.client.post("/v1/streams", json={"parameters": {"fps": 30}}, headers=a)
+        body = {"parameters": {"fps": 30}, "width": 320, "height": 240}
+        created = service.client.post("/v1/streams", json=body, headers=a)
         assert created.status_code == 201, created.text
         stream = created.json()
         assert service.client.get(f"/v1/streams/{stream['id']}", headers=b).status_code == 404
@@ -319,11 +359,13 @@ def test_tenancy_of_streams(tmp_path: Path) -> None:
 
 
 def test_stream_request_is_validated(embedded: h.LiveService) -> None:
+    size = {"width": 320, "height": 240}
     for body, field in (
-        ({"parameters": {"method": "paper"}}, "method"),
-        ({"parameters": {"start_frame": 3}}, "start_frame"),
-        ({"max_duration_s": 1e9}, "max_duration_s"),
-        ({"target_relative_uncertainty": 0}, "target_relative_uncertainty"),
+        ({"parameters": {"method": "paper"}, **size}, "method"),
+        ({"parameters": {"start_frame": 3}, **size}, "start_frame"),
+        ({"max_duration_s": 1e9, **size}, "max_duration_s"),
+        ({"target_relative_uncertainty": 0, **size}, "target_relative_uncertainty"),
+        ({"height": 240}, "width"),
     ):
         response = embedded.client.post("/v1/streams", json=body)
         assert response.status_code == 422, (body, response.text)

@@ -1,32 +1,45 @@
-"""The measuring pipeline wired together: clip -> window -> flow -> spectra -> peaks -> segmentation ->
-objects measured -> result. :func:`analyze` is the one entry point; it takes a clip reader and dataclasses
-and returns an :class:`Analysis` dataclass (no files are written here).
+"""The measuring pipeline wired together: clip -> window -> look -> candidates -> region -> fine flow ->
+spectra -> segmentation -> objects measured and judged -> result. :func:`analyze` is the one entry point;
+it takes a clip reader and dataclasses and returns an :class:`Analysis` dataclass (no files are written
+here).
 
-Where each decision lives: :mod:`~workers.pipeline.window` (which frames), :mod:`~workers.pipeline.stream`
-(flow and camera motion), :mod:`~workers.pipeline.spectra` and :mod:`~workers.pipeline.peaks` (spectra and
-their peaks), :mod:`~workers.pipeline.segmentation` (which pixels), :mod:`~workers.pipeline.detection`
-(which peaks are objects), :mod:`~workers.pipeline.measure` (each object's figures).
+Where each decision lives: :mod:`~workers.pipeline.window` (which frames), :mod:`~workers.pipeline.look`
+(the first pass: the whole picture on a coarse grid), :mod:`~workers.pipeline.significance` and
+:mod:`~workers.pipeline.detection` (which frequencies stand out of the noise, where, and which measured
+regions are objects), :mod:`~workers.pipeline.fine` (the second pass: flow over the region that moves, at
+the resolution it needs), :mod:`~workers.pipeline.segmentation` (which pixels),
+:mod:`~workers.pipeline.artefacts` (the camera, the light, the codec), :mod:`~workers.pipeline.measure`
+(each object's figures).
 """
 
 from __future__ import annotations
 
-import dataclasses
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
-from workers.pipeline.camera import CameraRing
-from workers.pipeline.clipio.types import ClipInfo, ClipReader, Intrinsics
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.artefacts import artefact_verdict, block_coverage, camera_intermodulation
+from workers.pipeline.clipio.types import ClipInfo, ClipReader
+from workers.pipeline.confidence import Confidence, constrained_flow, flow_confidence
 from workers.pipeline.detection import (
-    ARTEFACT_EVIDENCE,
-    WindowEvidence,
-    candidate_peaks,
+    MIN_PERIODS,
+    Candidate,
     clip_regime,
     drop_objects,
     folded_verdicts,
     judge_objects,
-    reject_artefacts,
+    shared_region,
 )
-from workers.pipeline.flow import FlowConfig, needs_resampling, resample_uniform
-from workers.pipeline.measure import assign_excitations, measure_object
+from workers.pipeline.fine import plan_roi, stream_roi
+from workers.pipeline.flow import needs_resampling, resample_uniform
+from workers.pipeline.front import Front, coarse_region, front_of_buffers, front_of_look
+from workers.pipeline.light import BRIGHTNESS_BLOCKS
+from workers.pipeline.look import Look, frame_noise, look_at
+from workers.pipeline.measure import assign_excitations, bounding_box, measure_object
 from workers.pipeline.model import (
     DEFAULT_MAX_FRAMES,
     DEFAULT_WINDOW_MIB,
@@ -36,8 +49,10 @@ from workers.pipeline.model import (
     ObjectMeasurement,
     Progress,
     QualityNote,
+    RejectedPeak,
     Stopwatch,
 )
+from workers.pipeline.peaks import Peak
 from workers.pipeline.quality import (
     SECOND_MOTION,
     clip_notes,
@@ -47,16 +62,18 @@ from workers.pipeline.quality import (
     object_quality_notes,
     resolution_notes,
 )
+from workers.pipeline.roi import Roi
 from workers.pipeline.segmentation import (
     Exclusion,
+    Segmentation,
+    at_rest,
     exclude_background_surfaces,
-    frequency_map,
     segment,
-    upsample_labels,
 )
-from workers.pipeline.spectra import PixelSpectra, pixel_spectra
-from workers.pipeline.stream import FrameBuffers, stream_frames
+from workers.pipeline.spectra import PixelSpectra, background_spectrum, pixel_spectra
+from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.survey import Survey
+from workers.pipeline.tracking import CoarseView
 from workers.pipeline.window import Plan, analysis_band, plan_analysis, survey_notes
 
 
@@ -97,55 +114,32 @@ def analyze(
         main = next((e for e in excitations if e.object_id in (None, 1)), None)
         return analyze_paper(reader, config=config, excitation=main, progress=progress)
     result = _analyze_default(reader, config=config, excitations=excitations, progress=progress)
-    longer: float | None = None
-    if _needs_longer_window(result):
-        # Two oscillations share a region or stand closer than the window resolves, and the clip has
-        # more: analyse as long a window as the memory budget allows (every k-th frame if need be).
-        survey = result.window_survey
-        assert survey is not None
-        longer = survey.frames / survey.fps
-        first = result.timings_s
-        result = _analyze_default(
-            reader,
-            config=config,
-            excitations=excitations,
-            progress=progress,
-            survey=survey,
-            min_duration_s=longer,
+    if not _needs_longer_window(result):
+        return result
+    # Two oscillations share a region or stand closer than the window resolves, and the clip has more:
+    # analyse as long a window as the memory budget allows (every k-th frame if need be).
+    survey = result.window_survey
+    assert survey is not None
+    first = result.timings_s
+    result = _analyze_default(
+        reader,
+        config=config,
+        excitations=excitations,
+        progress=progress,
+        survey=survey,
+        min_duration_s=survey.frames / survey.fps,
+    )
+    result.timings_s = {
+        k: first.get(k, 0.0) + result.timings_s.get(k, 0.0) for k in {*first, *result.timings_s}
+    }
+    result.quality.append(
+        QualityNote(
+            "longer_window",
+            "two oscillations were closer than the first window resolves, so the clip was analysed "
+            f"again over frames {result.frames_used[0]}-{result.frames_used[1]}",
+            "info",
         )
-        result.timings_s = {"short_window_pass": sum(first.values()), **result.timings_s}
-        result.quality.append(
-            QualityNote(
-                "longer_window",
-                "two oscillations were closer than the first window resolves, so the clip was analysed "
-                f"again over frames {result.frames_used[0]}-{result.frames_used[1]}",
-                "info",
-            )
-        )
-    if config.flow is None and _needs_careful_flow(result):
-        # The fast default flow ("fine": no variational refinement) is five times cheaper than DIS
-        # "medium" and as accurate on clear motion; weak, sub-pixel motion is measured again on medium.
-        careful = dataclasses.replace(config, flow=FlowConfig(dis_preset="medium"))
-        first = result.timings_s
-        kept = [q for q in result.quality if q.code == "longer_window"]
-        result = _analyze_default(
-            reader,
-            config=careful,
-            excitations=excitations,
-            progress=progress,
-            survey=result.window_survey,
-            min_duration_s=longer,
-        )
-        result.timings_s = {"fast_flow_pass": sum(first.values()), **result.timings_s}
-        result.quality.extend(kept)
-        result.quality.append(
-            QualityNote(
-                "careful_flow",
-                "the fast optical flow found only weak motion, so the clip was analysed again with the "
-                "careful flow (DIS medium)",
-                "info",
-            )
-        )
+    )
     return result
 
 
@@ -164,25 +158,6 @@ def _needs_longer_window(result: Analysis) -> bool:
     return len(freqs) > 1 and bool(close_pairs(result.objects, bin_hz=float(freqs[1] - freqs[0])))
 
 
-#: Objects whose ring-down stands less than this above the noise are measured again on careful flow.
-CAREFUL_FLOW_SNR_DB = 10.0
-#: ... as are clips with a region dropped as incoherent whose ring-down fit still explained at least as
-#: much as its residual (a weak vibration the fast flow may have blurred); regions further below are
-#: noise (a clear 5 Hz object at 1280x720 left one at -5 dB, which cost a second, careful pass).
-CAREFUL_FLOW_INCOHERENT_DB = 0.0
-
-
-def _needs_careful_flow(result: Analysis) -> bool:
-    """Whether the fast flow may have missed or blurred something: no object, a weak one, a peak that
-    was rejected (a weak vibration on noisy flow can look like an artefact, and an artefact such as
-    flicker is characterised better on the careful flow), or a dropped region that was nearly coherent."""
-    if not result.objects or any(r.evidence in ARTEFACT_EVIDENCE for r in result.rejected_peaks):
-        return True
-    if any(snr >= CAREFUL_FLOW_INCOHERENT_DB for snr in result.incoherent_snr_db):
-        return True
-    return any(o.snr_db is None or o.snr_db < CAREFUL_FLOW_SNR_DB for o in result.objects)
-
-
 def _analyze_default(
     reader: ClipReader,
     *,
@@ -192,23 +167,333 @@ def _analyze_default(
     survey: Survey | None = None,
     min_duration_s: float | None = None,
 ) -> Analysis:
-    """One pass of the default method. ``survey``: a survey of this clip already made (a second pass
-    reuses the first's); ``min_duration_s``: the window must span at least this long (a second pass that
-    separates close frequencies)."""
+    """One pass of the default method: the window, the look at the whole picture, then the fine flow of
+    the region that moves (none when nothing stands out) and what is measured there. ``survey``: a
+    survey of this clip already made; ``min_duration_s``: the window spans at least this long."""
     watch = Stopwatch()
     info = reader.info
     plan = plan_analysis(
         info, config, reader=reader, progress=progress, survey=survey, min_duration_s=min_duration_s
     )
-    if progress:
-        progress("flow", 0.05)
     watch.lap("survey" if plan.survey is not None else "setup")
     source, first, last = plan.source(reader)
-    buffers = stream_frames(source, first, last, plan.grid, plan.flow, progress, keep_gray=True)
-    watch.stream_lap(buffers)
-    return analyze_window(
-        buffers, plan, info, config=config, excitations=excitations, watch=watch, progress=progress
+    look = look_at(source, first, last, progress=progress)
+    watch.stream_lap(look.decode_s)
+    band = analysis_band(config, plan.fps, look.count)
+    front = front_of_look(
+        look,
+        sample_rate_hz=plan.fps,
+        band_hz=band,
+        max_objects=config.max_objects,
+        asserted=len(excitations),
     )
+    watch.lap("spectrum")
+    if not front.candidates.found:
+        return _still(look_buffers(look), plan, info, front, config=config, watch=watch)
+    roi = plan_roi(look, front.candidates.regions, frame_shape=(info.height, info.width), samples=look.count)
+    buffers = stream_roi(
+        look if look.kept is not None else source,
+        roi,
+        start=first,
+        stop=last,
+        look=look,
+        flow_config=plan.flow,
+        progress=progress,
+    )
+    watch.stream_lap(buffers.decode_s - look.decode_s)
+    return analyze_window(
+        buffers,
+        plan,
+        info,
+        config=config,
+        excitations=excitations,
+        watch=watch,
+        progress=progress,
+        front=front,
+    )
+
+
+def look_buffers(look: Look) -> FrameBuffers:
+    """The look's whole-picture series as frame buffers without flow (what a still clip's result shows)."""
+    return FrameBuffers(
+        flow=look.flow[:, :0],
+        depth=None,
+        gray=None,
+        first_rgb=look.first_rgb,
+        count=look.count,
+        times_s=look.times_s,
+        camera_px=look.camera_px,
+        start_s=look.start_s,
+        decode_s=look.decode_s,
+        brightness=look.brightness,
+        frame_change=look.frame_change,
+        camera_removed=look.camera_removed,
+        border_px=look.border_px,
+        camera_still_fraction=look.camera_still_fraction,
+        announced=look.announced,
+    )
+
+
+@dataclass(frozen=True)
+class _Spectra:
+    """The window's per-pixel spectra on its grid: of the flow weighed by its confidence (a flat pixel's
+    flow is silenced), and of the constrained flow (what the image shows of each pixel's motion: along an
+    edge only its normal component); their sum over the pixels and the background's."""
+
+    pixels: PixelSpectra
+    constrained: PixelSpectra
+    summed: NDArray[np.float64]
+    noise: NDArray[np.float64]
+    confidence: Confidence
+
+
+def window_confidence(buffers: FrameBuffers) -> Confidence:
+    """The confidence of the window's flow: the structure tensor of its mean grey frame on the flow grid,
+    against one frame's noise there (:mod:`workers.pipeline.confidence`)."""
+    h, w = buffers.flow.shape[1:3]
+    if buffers.gray is None:
+        gray = cv2.cvtColor(buffers.first_rgb, cv2.COLOR_RGB2GRAY)
+        box = buffers.box(gray.shape)
+        return flow_confidence(box.on_grid(gray).astype(np.float32))
+    frames = buffers.gray[:: max(1, len(buffers.gray) // 32)].astype(np.float32)
+    if frames.shape[1:] != (h, w):
+        frames = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
+    change = np.abs(np.diff(frames, axis=0))
+    return flow_confidence(frames.mean(axis=0), frame_noise=frame_noise(change[:, None, :, :]))
+
+
+def _window_spectra(
+    buffers: FrameBuffers, plan: Plan, info: ClipInfo, quality: list[QualityNote]
+) -> _Spectra:
+    """Per-pixel spectra of the window's flow (resampled onto a uniform grid when frames were dropped)."""
+    confidence = window_confidence(buffers)
+    flow = buffers.flow
+    if needs_resampling(buffers.times_s, plan.fps):
+        flow, _ = resample_uniform(flow, buffers.times_s, plan.fps)
+        quality.append(
+            QualityNote(
+                "uneven_timing",
+                f"frame times deviate from a uniform {plan.fps:g} fps grid "
+                f"({info.dropped_frames} dropped frames): spectra were resampled and the ring-down "
+                "was fitted at the true frame times",
+                "info",
+            )
+        )
+    spectra = pixel_spectra(np.asarray(flow, np.float32), fps=plan.fps)
+    constrained = pixel_spectra(constrained_flow(flow, confidence), fps=plan.fps)
+    summed = spectra.power.sum(axis=1, dtype=np.float64)
+    return _Spectra(spectra, constrained, summed, background_spectrum(spectra), confidence)
+
+
+@dataclass(frozen=True)
+class _Regions:
+    """The segmented objects: labels on the window's grid and over the whole frame, their candidates."""
+
+    seg: Segmentation
+    labels_grid: NDArray[np.int32]
+    labels_full: NDArray[np.uint16]
+    exclusions: list[Exclusion]
+    candidates: list[Candidate]
+
+
+def _segment(
+    spectra: _Spectra, buffers: FrameBuffers, box: Roi, front: Front, config: AnalysisConfig
+) -> _Regions:
+    """Label the candidates' pixels on the window's grid (the look already scanned the whole picture for
+    weak local motion, so the segmentation does not): on the confidence-weighed flow, and for the
+    candidates that gave no region there (a thin, plain object moving a fraction of a pixel, whose flat
+    inside shows nothing), on the constrained flow."""
+    from dataclasses import replace
+
+    cfg = replace(config.segmentation, local_snr=None)
+    peaks = front.candidates.peaks
+    seg = segment(spectra.pixels, peaks, grid_shape=box.grid_shape, band_hz=front.band_hz, config=cfg)
+    missing = [p for p in peaks if all(abs(p.frequency_hz - q.frequency_hz) > 1e-9 for q in seg.peaks)]
+    if missing:
+        seg = _merged(
+            seg,
+            segment(
+                spectra.constrained, missing, grid_shape=box.grid_shape, band_hz=front.band_hz, config=cfg
+            ),
+            order=peaks,
+        )
+    # The segmentation may hand back copies of the peaks (with folded harmonics): match by frequency.
+    candidates = [_candidate_of(p, front.candidates.found) for p in seg.peaks]
+    labels_grid = seg.labels
+    exclusions: list[Exclusion] = []
+    if buffers.depth is not None and seg.peaks:
+        labels_grid, exclusions = exclude_background_surfaces(labels_grid, buffers.depth)
+    labels_full = np.asarray(box.to_frame(labels_grid.astype(np.uint16)), np.uint16)
+    return _Regions(seg, labels_grid, labels_full, exclusions, candidates)
+
+
+def _candidate_of(peak: Peak, found: list[Candidate]) -> Candidate:
+    """The candidate whose peak ``peak`` is (the nearest in frequency)."""
+    return min(found, key=lambda c: abs(c.peak.frequency_hz - peak.frequency_hz))
+
+
+def _merged(first: Segmentation, second: Segmentation, *, order: list[Peak]) -> Segmentation:
+    """Two segmentations of different peaks as one, labelled in ``order`` (the second's regions only
+    where the first has none)."""
+    sources = [(p, first, i) for i, p in enumerate(first.peaks)] + [
+        (p, second, i) for i, p in enumerate(second.peaks)
+    ]
+
+    def rank(peak: Peak) -> int:
+        return min(range(len(order)), key=lambda k: abs(order[k].frequency_hz - peak.frequency_hz))
+
+    sources.sort(key=lambda item: rank(item[0]))
+    labels = np.zeros_like(first.labels)
+    placed: list[tuple[Peak, Segmentation, int]] = []
+    for peak, seg, i in sources:
+        region = (seg.labels == i + 1) & (labels == 0)
+        if region.any():
+            placed.append((peak, seg, i))
+            labels[region] = len(placed)
+    sources = placed
+    if not sources:  # neither gave a region
+        return Segmentation(
+            labels=labels,
+            peaks=[],
+            band_power=np.zeros((0, *labels.shape), np.float32),
+            noise_power=np.zeros(0),
+        )
+    return Segmentation(
+        labels=labels,
+        peaks=[p for p, _, _ in sources],
+        band_power=np.stack([seg.band_power[i] for _, seg, i in sources]),
+        noise_power=np.array([seg.noise_power[i] for _, seg, i in sources]),
+    )
+
+
+def _measure(
+    regions: _Regions,
+    spectra: _Spectra,
+    buffers: FrameBuffers,
+    plan: Plan,
+    info: ClipInfo,
+    box: Roi,
+    front: Front,
+    *,
+    config: AnalysisConfig,
+    excitations: Sequence[Excitation],
+) -> tuple[list[ObjectMeasurement], dict[int, Excitation]]:
+    """Measure every segmented region."""
+    by_label = assign_excitations(list(excitations), regions.labels_full, len(regions.seg.peaks))
+    crop_shape = (box.height, box.width)
+    objects = [
+        measure_object(
+            label=label,
+            peak=peak,
+            mask=regions.labels_grid == label,
+            full_mask=regions.labels_full == label,
+            crop_shape=crop_shape,
+            buffers=buffers,
+            fps=plan.fps,
+            pixel_scale=box.pixel_scale,
+            intrinsics=info.intrinsics,
+            depth_override=config.depth_m,
+            excitation=by_label.get(label),
+            excluded=[e.reason for e in regions.exclusions if e.label == label],
+            band_hz=plan_band(plan, config, buffers),
+            confidence=spectra.confidence,
+            coarse=_coarse_view(front, regions, label),
+        )
+        for label, peak in enumerate(regions.seg.peaks, start=1)
+    ]
+    return objects, by_label
+
+
+def _coarse_view(front: Front, regions: _Regions, label: int) -> CoarseView:
+    """Object ``label`` on the first pass's grid: where its candidate moved there and where its mask lies."""
+    region = regions.candidates[label - 1].region | coarse_region(front, regions.labels_full == label)
+    return CoarseView(front.flow, region, front.scan_confidence, front.grid_factor)
+
+
+def _to_rest(objects: list[ObjectMeasurement], labels: NDArray[np.uint16]) -> None:
+    """Without depth to tell the background from an object, its region holds the background it swept:
+    each object's region becomes where it is at rest (:func:`~workers.pipeline.segmentation.at_rest`), in
+    ``labels`` and in its pixel count and box."""
+    for obj in objects:
+        if obj.axis_px is None or obj.amplitude_px is None or not math.isfinite(obj.amplitude_px):
+            continue
+        region = labels == obj.id
+        rest = at_rest(region, axis_px=obj.axis_px, amplitude_px=abs(obj.amplitude_px))
+        labels[region & ~rest] = 0
+        obj.pixel_count = int(rest.sum())
+        obj.bbox_px = bounding_box(rest)
+
+
+def plan_band(plan: Plan, config: AnalysisConfig, buffers: FrameBuffers) -> tuple[float, float]:
+    """The analysis band of the window (see :func:`workers.pipeline.window.analysis_band`)."""
+    return analysis_band(config, plan.fps, buffers.count)
+
+
+def _artefacts(
+    objects: list[ObjectMeasurement], regions: _Regions, front: Front, *, sample_rate_hz: float
+) -> dict[int, RejectedPeak]:
+    """The objects (by id) that are artefacts of the light, the codec or the camera."""
+    out: dict[int, RejectedPeak] = {}
+    for obj in objects:
+        cand = regions.candidates[obj.id - 1]
+        own = coarse_region(front, regions.labels_full == obj.id)
+        region_power, ring_power = front.band_powers(
+            obj.eigenfrequency_hz, cand.peak.width_bins, own | cand.region
+        )
+        verdict = artefact_verdict(
+            front.evidence,
+            frequency_hz=obj.eigenfrequency_hz,
+            sd_hz=obj.eigenfrequency_sd_hz or 0.0,
+            peak_hz=cand.peak.frequency_hz,
+            peak_sd_hz=peak_sd_hz(cand.peak, front.scan.bin_hz),
+            width_bins=cand.peak.width_bins,
+            localised=front.scan.localised_share(obj.eigenfrequency_hz, own),
+            coverage=block_coverage(regions.labels_full, obj.id, BRIGHTNESS_BLOCKS),
+            region_power=region_power,
+            ring_power=ring_power,
+            sample_rate_hz=sample_rate_hz,
+        )
+        if verdict is None:
+            stronger = [
+                o.eigenfrequency_hz
+                for o in objects
+                if (o.detection_z or 0.0) > (obj.detection_z or 0.0)
+                and o.id not in out
+                and shared_region(cand.region, regions.candidates[o.id - 1].region)
+            ]
+            verdict = camera_intermodulation(
+                front.evidence,
+                obj.eigenfrequency_hz,
+                objects_hz=stronger,
+                tolerance_hz=max(1.5 * front.scan.bin_hz, 2 * (obj.eigenfrequency_sd_hz or 0.0)),
+            )
+        if verdict is not None:
+            out[obj.id] = verdict
+    return out
+
+
+def peak_sd_hz(peak: Peak, bin_hz: float) -> float:
+    """Standard uncertainty of a scan peak's interpolated frequency: the Cramér-Rao bound of a tone's
+    frequency from its height over the noise (``power`` of the peak, normalised), with a floor of a tenth
+    of a bin for the interpolation's own error."""
+    return bin_hz * max(0.1, math.sqrt(3.0 / max(peak.power, 1.0)) / math.pi)
+
+
+def _ordered(
+    objects: list[ObjectMeasurement], labels: NDArray[np.uint16], window_s: float
+) -> tuple[list[ObjectMeasurement], NDArray[np.uint16]]:
+    """Objects most significant first, renumbered 1, 2, ...; one with fewer than ``MIN_PERIODS`` periods
+    in the window never first."""
+
+    def key(o: ObjectMeasurement) -> tuple[bool, float]:
+        return (o.eigenfrequency_hz * window_s < MIN_PERIODS, -(o.detection_z or 0.0))
+
+    ordered = sorted(objects, key=key)
+    relabelled = np.zeros_like(labels)
+    for new_id, o in enumerate(ordered, start=1):
+        relabelled[labels == o.id] = new_id
+        o.id = new_id
+    return ordered, relabelled
 
 
 def analyze_window(
@@ -220,19 +505,21 @@ def analyze_window(
     excitations: Sequence[Excitation] = (),
     watch: Stopwatch | None = None,
     progress: Progress | None = None,
+    front: Front | None = None,
 ) -> Analysis:
     """Everything after the frame stream: the window's flow, depth and grey frames to the result.
 
-    Spectra, candidate peaks, segmentation, the evidence that drops artefacts, each object measured and
-    judged, and the quality notes. :func:`analyze` calls it on the frames it streamed; a live stream
-    (:mod:`workers.pipeline.live`) calls it on the flow it computed as the frames arrived.
+    Spectra, segmentation of the candidates, each object measured and judged (its significance, the
+    artefact evidence, overtones), and the quality notes. :func:`analyze` calls it on the fine flow of
+    the region that moves; a live stream (:mod:`workers.pipeline.live`) on the whole-frame flow it
+    computed as the frames arrived.
 
     Parameters
     ----------
     buffers : FrameBuffers
-        The window's buffers (see :func:`workers.pipeline.stream.stream_frames`).
+        The window's buffers (``roi`` says which box of the frame their grid covers).
     plan : Plan
-        Which frames they are, their sample rate, the flow grid.
+        Which frames they are and their sample rate.
     info : ClipInfo
         The clip's metadata (frame size, rate and its source, intrinsics).
     config : AnalysisConfig
@@ -240,120 +527,151 @@ def analyze_window(
     watch : Stopwatch, optional
         Adds this function's stages to the stopwatch's laps (a new one when None).
     progress : callable, optional
+    front : Front, optional
+        The whole picture's findings (the look's); made from ``buffers`` when None.
 
     Returns
     -------
     Analysis
     """
     watch = watch or Stopwatch()
-    n = buffers.count
-    band = analysis_band(config, plan.fps, n)
+    if front is None:
+        band = analysis_band(config, plan.fps, buffers.count)
+        front = front_of_buffers(
+            buffers,
+            sample_rate_hz=plan.fps,
+            band_hz=band,
+            max_objects=config.max_objects,
+            asserted=len(excitations),
+        )
+        watch.lap("spectrum")
+    box = buffers.box((info.height, info.width))
     quality: list[QualityNote] = [*clip_notes(plan, buffers, info), *frame_notes(buffers)]
-
     if progress:
         progress("spectrum", 0.82)
-    uniform_flow = buffers.flow
-    if needs_resampling(buffers.times_s, plan.fps):
-        uniform_flow, _ = resample_uniform(buffers.flow, buffers.times_s, plan.fps)
-        quality.append(
-            QualityNote(
-                "uneven_timing",
-                f"frame times deviate from a uniform {plan.fps:g} fps grid "
-                f"({info.dropped_frames} dropped frames): spectra were resampled and the ring-down "
-                "was fitted at the true frame times",
-                "info",
-            )
-        )
-    spectra = pixel_spectra(uniform_flow, fps=plan.fps, band_hz=band)
-    del uniform_flow
-    peaks, summed, noise = candidate_peaks(spectra, band_hz=band, max_peaks=config.max_objects)
+    spectra = _window_spectra(buffers, plan, info, quality)
     watch.lap("spectrum")
-
     if progress:
         progress("segmentation", 0.88)
-    seg = segment(spectra, peaks, grid_shape=plan.grid, band_hz=band, config=config.segmentation)
-    evidence = window_evidence(buffers, spectra, grid=plan.grid)
-    seg, rejected = reject_artefacts(seg, spectra, evidence, band_hz=band)
-    labels_grid = seg.labels
-    exclusions: list[Exclusion] = []
-    if buffers.depth is not None and seg.peaks:
-        labels_grid, exclusions = exclude_background_surfaces(labels_grid, buffers.depth)
-    fmap, fvalid = frequency_map(spectra, grid_shape=plan.grid, band_hz=band)
-    labels_full = upsample_labels(labels_grid, (info.height, info.width))
+    regions = _segment(spectra, buffers, box, front, config)
     watch.lap("segmentation")
-
     if progress:
         progress("mechanics", 0.93)
-    intrinsics: Intrinsics | None = info.intrinsics
-    by_label = assign_excitations(list(excitations), labels_full, len(seg.peaks))
-    objects: list[ObjectMeasurement] = []
-    for label, peak in enumerate(seg.peaks, start=1):
-        mask = labels_grid == label
-        full_mask = labels_full == label
-        objects.append(
-            measure_object(
-                label=label,
-                peak=peak,
-                mask=mask,
-                full_mask=full_mask,
-                buffers=buffers,
-                fps=plan.fps,
-                pixel_scale=plan.pixel_scale,
-                intrinsics=intrinsics,
-                depth_override=config.depth_m,
-                excitation=by_label.get(label),
-                excluded=[e.reason for e in exclusions if e.label == label],
-                band_hz=band,
-            )
-        )
-    for item in rejected:
-        quality.append(QualityNote("artefact_peak", f"{item.reason}; not reported as an object", "info"))
-    # Every region measured is judged: a coherent oscillation inside the band, known well enough, that
-    # is no overtone of another (a region the user named in an excitation is always kept).
-    verdicts = judge_objects(objects, seg, band_hz=band, fps=plan.fps, bin_hz=spectra.bin_hz)
-    verdicts |= folded_verdicts(objects, plan.survey, sample_rate_hz=plan.fps, frame_step=plan.step)
-    dropped = {i: v for i, v in verdicts.items() if i not in by_label}
-    incoherent = [
-        o.snr_db or 0.0 for o in objects if o.id in dropped and dropped[o.id].evidence == "incoherent"
-    ]
-    rejected.extend(dropped.values())
-    objects, labels_full = drop_objects(objects, labels_full, dropped, quality)
-    if plan.survey is not None:
-        for obj in objects:
-            clip_regime(obj, plan.survey, clip_s=plan.survey.frames / plan.clip_fps)
-    if not objects:
-        quality.append(
-            QualityNote(
-                "no_motion",
-                "no vibrating object stands above the noise; check the frame rate, the band and that the "
-                "object moves in the analysed frames",
-                "error",
-            )
-        )
-    if not info.has_depth and config.depth_m is None:
-        quality.append(
-            QualityNote(
-                "no_depth",
-                "the clip has no depth: amplitudes in metres, stiffness and mass need depth or depth_m",
-            )
-        )
-    quality.extend(object_quality_notes(objects, fps=plan.fps, band=band, bin_hz=plan.fps / n))
-    quality.extend(resolution_notes(objects, bin_hz=spectra.bin_hz, window_s=float(buffers.times_s[-1])))
-    quality.extend(frame_rate_notes(objects, info, window_s=float(buffers.times_s[-1])))
-    quality.extend(survey_notes(plan, objects))
+    objects, by_label = _measure(
+        regions, spectra, buffers, plan, info, box, front, config=config, excitations=excitations
+    )
+    if buffers.depth is None:
+        _to_rest(objects, regions.labels_full)
+    objects, labels_full, rejected = _judge(objects, regions, front, plan, by_label, quality)
+    objects, labels_full = _ordered(objects, labels_full, float(buffers.times_s[-1]))
+    quality.extend(_notes(objects, plan, info, config, buffers, spectra))
     watch.lap("mechanics")
+    return _analysis(
+        objects, labels_full, spectra, front, buffers, plan, info, config, box, quality, watch, rejected
+    )
+
+
+def _judge(
+    objects: list[ObjectMeasurement],
+    regions: _Regions,
+    front: Front,
+    plan: Plan,
+    by_label: dict[int, Excitation],
+    quality: list[QualityNote],
+) -> tuple[list[ObjectMeasurement], NDArray[np.uint16], list[RejectedPeak]]:
+    """Drop what is not an object (every drop a rejected peak and a note); a region the user named in
+    an excitation is kept unless it is an artefact."""
+    verdicts = judge_objects(
+        objects,
+        regions.seg,
+        scan=front.scan,
+        band_hz=front.band_hz,
+        fps=plan.fps,
+        bin_hz=front.scan.bin_hz,
+    )
+    verdicts |= folded_verdicts(objects, plan.survey, sample_rate_hz=plan.fps, frame_step=plan.step)
+    # Artefact evidence is asked of what stands out of the noise only (what does not is just that).
+    significant = [o for o in objects if o.id not in verdicts or verdicts[o.id].evidence != "not_significant"]
+    artefacts = _artefacts(significant, regions, front, sample_rate_hz=plan.fps)
+    dropped = {i: v for i, v in verdicts.items() if i not in by_label} | artefacts
+    quality.extend(
+        QualityNote(
+            "low_snr",
+            f"{v.reason}; reported all the same, since an excitation names this object (its "
+            "false-alarm probability says how far to trust it)",
+        )
+        for i, v in verdicts.items()
+        if i in by_label and i not in artefacts and v.evidence == "not_significant"
+    )
+    rejected = [*front.candidates.rejected, *dropped.values()]
+    kept, labels = drop_objects(objects, regions.labels_full, dropped, quality)
+    if plan.survey is not None:
+        for obj in kept:
+            clip_regime(obj, plan.survey, clip_s=plan.survey.frames / plan.clip_fps)
+    return kept, labels, rejected
+
+
+def _notes(
+    objects: list[ObjectMeasurement],
+    plan: Plan,
+    info: ClipInfo,
+    config: AnalysisConfig,
+    buffers: FrameBuffers,
+    spectra: _Spectra,
+) -> list[QualityNote]:
+    """The quality notes of the objects, the clip and the window."""
+    notes: list[QualityNote] = []
+    if not objects:
+        notes.append(NO_MOTION)
+    if not info.has_depth and config.depth_m is None:
+        notes.append(NO_DEPTH)
+    band = analysis_band(config, plan.fps, buffers.count)
+    window_s = float(buffers.times_s[-1])
+    notes.extend(object_quality_notes(objects, fps=plan.fps, band=band, bin_hz=plan.fps / buffers.count))
+    notes.extend(resolution_notes(objects, bin_hz=spectra.pixels.bin_hz, window_s=window_s))
+    notes.extend(frame_rate_notes(objects, info, window_s=window_s))
+    notes.extend(survey_notes(plan, objects))
+    return notes
+
+
+NO_MOTION = QualityNote(
+    "no_motion",
+    "no vibrating object stands above the noise; check the frame rate, the band and that the object moves "
+    "in the analysed frames",
+    "error",
+)
+NO_DEPTH = QualityNote(
+    "no_depth", "the clip has no depth: amplitudes in metres, stiffness and mass need depth or depth_m"
+)
+
+
+def _analysis(
+    objects: list[ObjectMeasurement],
+    labels_full: NDArray[np.uint16],
+    spectra: _Spectra,
+    front: Front,
+    buffers: FrameBuffers,
+    plan: Plan,
+    info: ClipInfo,
+    config: AnalysisConfig,
+    box: Roi,
+    quality: list[QualityNote],
+    watch: Stopwatch,
+    rejected: list[RejectedPeak],
+) -> Analysis:
+    fmap, fvalid = front.scan.frequency_map()
     return Analysis(
         objects=objects,
         labels=labels_full,
-        frequencies_hz=spectra.frequencies_hz,
-        power=summed,
+        frequencies_hz=spectra.pixels.frequencies_hz,
+        power=spectra.summed,
         frequency_map_hz=fmap,
         frequency_map_valid=fvalid,
         frame_rgb=buffers.first_rgb,
         fps=plan.clip_fps,
         fps_source=info.fps_source or "unknown",
         frames_used=(plan.start, plan.start + buffers.count * plan.step + 1),
-        band_hz=band,
+        band_hz=front.band_hz,
         quality=quality,
         timings_s=watch.times,
         parameters=config.describe()
@@ -361,42 +679,41 @@ def analyze_window(
             "frames": buffers.count * plan.step + 1,
             "start_frame": plan.start,
             "frame_step": plan.step,
-            "band_hz": list(band),
-            "flow_scale": plan.flow.effective_scale(info.width),
+            "band_hz": list(front.band_hz),
+            "flow_scale": 1.0 / box.pixel_scale,
+            "region": box.describe(),
         },
         method="default",
-        peaks=seg.peaks,
-        noise_power=noise,
+        peaks=[o for o in front.candidates.peaks],
+        noise_power=spectra.noise,
         rejected_peaks=rejected,
-        incoherent_snr_db=incoherent,
         frame_step=plan.step,
         window_survey=plan.survey,
+        detection=front.detection(),
     )
 
 
-def window_evidence(buffers: FrameBuffers, spectra: PixelSpectra, *, grid: tuple[int, int]) -> WindowEvidence:
-    """What the whole picture did in the window (brightness, frame changes, the border's motion)."""
-    ring = CameraRing(grid)
-    if buffers.gray is not None:
-        import cv2
-
-        first = buffers.gray[0]
-        small = (
-            first
-            if first.shape == grid
-            else cv2.resize(first, (grid[1], grid[0]), interpolation=cv2.INTER_AREA)
-        )
-        ring.set_texture(small)
-    return WindowEvidence(
-        frequencies_hz=spectra.frequencies_hz,
-        nfft=spectra.n,
-        brightness=buffers.brightness,
-        frame_change=buffers.frame_change,
-        border_px=buffers.border_px,
-        camera_removed=buffers.camera_removed,
-        ring_pixels=ring.pixels,
-        ring_textured=ring.textured,
+def _still(
+    buffers: FrameBuffers,
+    plan: Plan,
+    info: ClipInfo,
+    front: Front,
+    *,
+    config: AnalysisConfig,
+    watch: Stopwatch,
+) -> Analysis:
+    """The result of a window in which nothing stands out of the noise (no second pass)."""
+    quality = [*clip_notes(plan, buffers, info), *frame_notes(buffers), NO_MOTION]
+    if not info.has_depth and config.depth_m is None:
+        quality.append(NO_DEPTH)
+    quality.extend(survey_notes(plan, []))
+    summed = front.spectra.power.sum(axis=1, dtype=np.float64)
+    box = Roi.whole((info.height, info.width), front.scan.grid_shape)
+    spectra = _Spectra(
+        front.spectra, front.spectra, summed, background_spectrum(front.spectra), front.scan_confidence
     )
+    labels = np.zeros((info.height, info.width), np.uint16)
+    return _analysis([], labels, spectra, front, buffers, plan, info, config, box, quality, watch, [])
 
 
 __all__ = [

@@ -28,6 +28,11 @@ STILL_POWER_RATIO = 0.5
 #: Mean gradient magnitude (grey levels per pixel, 5x5 average) from which a pixel is textured: flat
 #: pixels give no flow however the camera moves.
 TEXTURE_GRADIENT = 3.0
+#: Fewest textured ring pixels that can show the camera's motion, and their least share of the ring: a
+#: flat border (a plain wall) shows only its codec's noise, which pulses as a whole at every keyframe, and
+#: a border whose only texture is an object reaching into it (a fork's tines) shows the object's motion.
+MIN_TEXTURED = 16
+MIN_TEXTURED_SHARE = 0.25
 
 
 class CameraRing:
@@ -58,9 +63,17 @@ class CameraRing:
         ring[mh:-mh, mw:-mw] = False
         self.grid_shape = grid_shape
         self.pixels = np.flatnonzero(ring.ravel())[::every]
-        # (u, v) of the ring's pixels in a flattened (h, w, 2) map: u indices first, then v.
-        self._uv = (self.pixels[None, :] * 2 + np.arange(2)[:, None]).ravel()
         self.textured = np.ones(len(self.pixels), bool)
+        self._set_used()
+
+    def _set_used(self) -> None:
+        """The ring pixels whose median is the camera's motion: the textured ones (none when fewer than
+        ``MIN_TEXTURED`` or ``MIN_TEXTURED_SHARE`` of the ring)."""
+        enough = self.textured.sum() >= max(MIN_TEXTURED, MIN_TEXTURED_SHARE * len(self.pixels))
+        used = self.pixels[self.textured] if enough else self.pixels[:0]
+        self._used = used
+        # (u, v) of the used pixels in a flattened (h, w, 2) map: u indices first, then v.
+        self._uv = (used[None, :] * 2 + np.arange(2)[:, None]).ravel()
 
     def set_texture(self, gray: NDArray[np.uint8]) -> None:
         """Mark the ring pixels with texture enough for flow, from a grey frame on the grid."""
@@ -71,6 +84,7 @@ class CameraRing:
         gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8
         energy = cv2.blur(np.sqrt(gx * gx + gy * gy), (5, 5))
         self.textured = np.asarray(energy.ravel()[self.pixels] >= TEXTURE_GRADIENT)
+        self._set_used()
 
     def motion(self, flow: NDArray[np.float32]) -> NDArray[np.float32]:
         """The camera's motion in one flow map: the ring's median.
@@ -83,6 +97,8 @@ class CameraRing:
         -------
         ndarray of float32, shape (2,)
         """
+        if not self._used.size:
+            return np.zeros(2, np.float32)
         ring = flow.reshape(-1).take(self._uv).reshape(2, -1)
         return median_rows(np.ascontiguousarray(ring))
 
@@ -97,7 +113,9 @@ class CameraRing:
         -------
         ndarray of float32, shape (n, 2)
         """
-        return np.asarray(np.median(flows[:, self.pixels, :], axis=1), np.float32)
+        if not self._used.size:
+            return np.zeros((len(flows), 2), np.float32)
+        return np.asarray(np.median(flows[:, self._used, :], axis=1), np.float32)
 
     def still_fraction(self, flows: NDArray[np.float32], camera: NDArray[np.float32]) -> float:
         """Fraction of the textured ring pixels that moved less than ``STILL_POWER_RATIO`` of the camera's

@@ -1,52 +1,57 @@
 """Which motions are objects, and why the others are not: the one place that decides.
 
-An object is a spatially coherent region whose motion has a narrow spectral peak standing clearly above
-its noise. How it moves is a finding, not a filter: its **regime** is ``ring_down`` (it decays in the
-window, so its damping is measured), ``steady`` (a sustained or forced vibration: a motor, a shaker), or
-``growing``. A peak is dropped only for a stated reason:
+An object is a region whose motion has a coherent, narrow-band oscillation. One statistic decides for
+every regime: the scan statistic of :mod:`workers.pipeline.significance`, whose false-alarm probability
+per clip is measured on the clip itself. :func:`find_candidates` takes its significant peaks (at most
+:data:`~workers.pipeline.significance.MAX_FALSE_ALARM`), strongest first, each with the region where the
+picture moves at it; an overtone on the same pixels as a stronger peak is that peak's harmonic, and a
+peak whose fundamental (half, a third, a quarter of it) moves the same pixels significantly is that
+fundamental's overtone (a rotating wheel's rate, not its second harmonic).
 
-- positive evidence that it is an artefact of the camera or the light (:class:`WindowEvidence`):
-  ``camera_motion`` (the picture's border moves rigidly at that frequency and the region no more than
-  it), ``illumination_flicker`` (brightness oscillates at that frequency in phase along the picture's
-  rows, also where nothing moves), ``codec_keyframes`` (the picture changes in pulses every K frames and
-  the peak is a multiple of fps / K);
-- ``harmonic``: an overtone of an object already reported, possibly folded back below the Nyquist rate
-  (decided with the peaks, in :mod:`workers.pipeline.peaks` and :mod:`workers.pipeline.segmentation`);
-- ``incoherent``: the region's motion is no single oscillation (narrow-band noise, a wandering
-  frequency): neither does one damped oscillation explain most of its motion, nor most of its motion
-  near the peak over many samples (:func:`oscillation_verdict`);
+How an object moves is a finding, not a filter: its **regime** is ``ring_down`` (it decays in the
+window, so its damping is measured), ``steady`` (a sustained or forced vibration: a motor, a shaker), or
+``growing``. A measured object is dropped only for a stated reason, with its figures:
+
+- ``not_significant``: its false-alarm probability per clip is above the bound;
+- positive evidence that it is an artefact of the camera, the light or the codec
+  (:mod:`workers.pipeline.artefacts`: ``camera_motion``, ``illumination_flicker``, ``codec_keyframes``);
+- ``harmonic``: an overtone of an object already reported, on the same pixels, possibly folded back
+  below the Nyquist rate;
 - ``uncertain`` / ``out_of_band``: its frequency is not known to a quarter of itself, or lies outside
   the analysed band (the band is law).
 
-Every drop becomes a :class:`~workers.pipeline.model.RejectedPeak` and a quality note.
+Every drop becomes a :class:`~workers.pipeline.model.RejectedPeak` and a quality note. Objects are
+reported most significant first; one with fewer than :data:`MIN_PERIODS` periods in the window is never
+the main one.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.light import FLICKER_ROWS, FLICKER_SNR, flickering_rows, floor_of
 from workers.pipeline.model import ObjectMeasurement, QualityNote, RejectedPeak
-from workers.pipeline.peaks import Peak, PeakPolicy, detect_peaks, find_peaks
-from workers.pipeline.segmentation import Segmentation, band_mask
-from workers.pipeline.spectra import PixelSpectra, background_spectrum, whitened_spectrum
+from workers.pipeline.peaks import Peak, PeakPolicy, interpolate_peak
+from workers.pipeline.segmentation import Segmentation
+from workers.pipeline.significance import MAX_FALSE_ALARM, MotionScan
 
 if TYPE_CHECKING:
     from workers.pipeline.survey import Survey
 
 #: The evidence that a peak is an artefact of the camera or the light (rather than no object).
 ARTEFACT_EVIDENCE = ("camera_motion", "illumination_flicker", "codec_keyframes")
-#: A region whose motion one damped oscillation explains this well per sample (dB) is coherent ...
-MIN_RINGDOWN_SNR_DB = 3.0
-#: ... as is one whose oscillation explains this fraction of its motion near the peak ...
-MIN_CONCENTRATION = 0.8
-#: ... with this much energy over the noise's variance (dB) summed over the window.
-MIN_DETECTION_DB = 15.0
+#: An object is a coherent oscillation: one damped oscillation explains at least this share of its
+#: region's motion near its frequency (its fit's ``concentration``; 0.93-1.0 for the objects of the test
+#: scenes and real clips, under 0.5 for narrow-band random motion) ...
+MIN_COHERENCE = 0.5
+#: ... unless a second motion this strong shares its region (two unresolved oscillations: a longer window
+#: separates them; :data:`workers.pipeline.quality.SECOND_MOTION`).
+SECOND_MOTION_SHARE = 0.2
 #: No object is reported whose frequency's standard uncertainty is this fraction of it or more.
 MAX_RELATIVE_SD = 0.25
 #: A decay over the fitted span of at least this (nepers: 5 % of the amplitude), three standard
@@ -54,31 +59,26 @@ MAX_RELATIVE_SD = 0.25
 MIN_DECAY = 0.05
 #: An envelope that grows by this factor over the window, clearly, is ``growing``.
 MIN_GROWTH = 1.25
-#: Keyframe evidence: pulses every K frames stand this many robust deviations above the typical change
-#: of the whole picture ...
-KEYFRAME_Z = 8.0
-#: ... and (at half that) in this fraction of its blocks.
-KEYFRAME_BLOCKS = 0.6
-#: Camera evidence: the border's motion at the peak stands this far above its own floor ...
-CAMERA_SNR = 10.0
-#: ... and the region moves (in power) less than this multiple of the border's.
-CAMERA_RATIO = 4.0
-#: An overtone of the camera's shake left by the flow moves less than this fraction of the shake's power.
-CAMERA_OVERTONE_POWER = 0.1
-
-
-#: The analysis window's detectors.
-WINDOW_PEAKS = PeakPolicy(
-    strong_min_snr_db=10.0,
-    weak_min_snr_db=3.0,
-    weak_floor_bins=15,
-    weak_floor_fraction=6,
-    median_pixel=False,
-    min_separation_bins=1.5,
-    max_order=3,
-    min_bins=0.0,
-    peaks_per_object=2,
-)
+#: The main object spans at least this many periods of its frequency in the window.
+MIN_PERIODS = 2.0
+#: A peak's fundamental is sought at these fractions of it ...
+SUBHARMONIC_ORDERS = (2, 3, 4)
+#: ... where the region's statistic is at least this share of the peak's, and its line contrast this.
+FUNDAMENTAL_SHARE = 0.03
+FUNDAMENTAL_CONTRAST = 2.0
+#: An overtone (or a fundamental) shares the pixels of its peak when this much of the smaller region
+#: overlaps the other.
+SHARED_REGION = 0.3
+#: A line within this many bins of a stronger one on the same pixels, and below this share of its
+#: statistic, is its leakage (the Tukey window's side lobes stand below a twentieth of its main lobe from
+#: two bins on, :data:`~workers.pipeline.significance.TAPER_ALPHA`).
+LEAKAGE_BINS = 4.5
+LEAKAGE_LEVEL = 0.05
+#: Relative tolerance of a harmonic's frequency (or a bin and a half, whichever is wider).
+HARMONIC_TOLERANCE = 0.02
+#: An oscillation is a line: its statistic at least this many times its neighbours' in frequency
+#: (:func:`workers.pipeline.significance.line_contrast`).
+LINE_CONTRAST = 3.0
 #: A survey's detectors (Welch-averaged spectra: less noisy, so a weak peak must stand higher; adjacent
 #: bins of different detectors are two components, since a Hann window resolves about two).
 SURVEY_PEAKS = PeakPolicy(
@@ -94,412 +94,438 @@ SURVEY_PEAKS = PeakPolicy(
 )
 
 
-def candidate_peaks(
-    spectra: PixelSpectra, *, band_hz: tuple[float, float], max_peaks: int
-) -> tuple[list[Peak], NDArray[np.float64], NDArray[np.float64]]:
-    """Peaks of the window's spectra that may be objects (:func:`detect_peaks` with
-    :data:`WINDOW_PEAKS`), strongest first, harmonics folded in.
+@dataclass(frozen=True)
+class Candidate:
+    """A significant peak of the scan and where the picture moves at it.
 
-    Returns
-    -------
-    peaks : list of Peak
-    summed : ndarray of float64, shape (F,)
-        The spectrum summed over pixels.
-    noise : ndarray of float64, shape (F,)
-        What the summed spectrum would be over static background.
+    Attributes
+    ----------
+    peak : Peak
+        Its frequency (interpolated), harmonics and width; ``snr_db`` is its standardised height z.
+    z : float
+    false_alarm : float
+        Probability per clip that noise gives a peak as high.
+    region : ndarray of bool, shape (h, w)
+        Where it moves, on the scan's grid.
+    localised : float
+        Share of the picture's excess power at the peak inside ``region`` (1: one place; small: everywhere).
     """
-    summed = spectra.power.sum(axis=1, dtype=np.float64)
-    noise = background_spectrum(spectra)
-    whitened, _ = whitened_spectrum(spectra, band_hz=band_hz)
-    peaks = detect_peaks(
-        spectra.frequencies_hz,
-        summed=summed,
-        background=noise,
-        whitened=whitened,
-        band_hz=band_hz,
-        bin_hz=spectra.bin_hz,
-        max_objects=max_peaks,
-        policy=WINDOW_PEAKS,
+
+    peak: Peak
+    z: float
+    false_alarm: float
+    region: NDArray[np.bool_]
+    localised: float
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """What :func:`find_candidates` found: candidates strongest first, and the peaks it set aside."""
+
+    found: list[Candidate]
+    rejected: list[RejectedPeak] = field(default_factory=list)
+
+    @property
+    def peaks(self) -> list[Peak]:
+        return [c.peak for c in self.found]
+
+    @property
+    def regions(self) -> list[NDArray[np.bool_]]:
+        return [c.region for c in self.found]
+
+
+def significant_bins(scan: MotionScan, *, limit: float = MAX_FALSE_ALARM) -> list[int]:
+    """Bins of the scan's local maxima that are lines (their contrast at least :data:`LINE_CONTRAST`)
+    whose false-alarm probability per clip is at most ``limit``, highest first."""
+    z = scan.z
+    # The band's edge bins are no peaks: what lies beyond them rises towards them (below the lowest a drift,
+    # the camera creeping; above the highest, motion faster than the band).
+    padded = np.concatenate(([np.inf], z, [np.inf]))
+    local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]) & scan.searched)
+    p = scan.calibration.p_clip(z[local])
+    chosen = local[(p <= limit) & (scan.contrast[local] >= LINE_CONTRAST)]
+    return [int(k) for k in chosen[np.argsort(-z[chosen])]]
+
+
+def _peak_at(scan: MotionScan, k: int) -> Peak:
+    """The scan's peak at bin ``k``: parabolic interpolation of log T, its half-power width."""
+    t = scan.statistic
+    offset = interpolate_peak(t, k) - k
+    f = float(scan.frequencies_hz[k] + offset * scan.bin_hz)
+    half = 0.5 * t[k]
+    lo, hi = k, k
+    while lo > 0 and t[lo - 1] > half:
+        lo -= 1
+    while hi < len(t) - 1 and t[hi + 1] > half:
+        hi += 1
+    return Peak(
+        frequency_hz=f,
+        bin=k,
+        power=float(t[k]),
+        prominence_db=0.0,
+        snr_db=float(scan.z[k]),
+        width_bins=max(1.0, (hi - lo + 1) / 2),
     )
-    return peaks, summed, noise
 
 
-def _spectrum_of(series: NDArray[np.floating], nfft: int) -> NDArray[np.complex128]:
-    """Complex spectrum of each column of ``series`` (time along axis 0), mean removed, zero-padded."""
-    data = np.asarray(series, np.float64)
-    return np.asarray(np.fft.rfft(data - data.mean(axis=0), n=nfft, axis=0))
+def shared_region(a: NDArray[np.bool_], b: NDArray[np.bool_]) -> bool:
+    """Whether two regions share their pixels: :data:`SHARED_REGION` of the smaller lies in the other."""
+    smaller = min(int(a.sum()), int(b.sum()))
+    return smaller > 0 and int((a & b).sum()) >= SHARED_REGION * smaller
 
 
-@dataclass
-class WindowEvidence:
-    """What the whole picture did during the window, to tell the camera and the light from objects.
+def images_of(
+    f0: float, order: int, *, sample_rate_hz: float, max_folded_order: int
+) -> list[tuple[float, str]]:
+    """Where the overtone ``order`` of a motion at ``f0`` shows in frames at ``sample_rate_hz``, with how:
+    at ``order * f0`` itself; folded back below the Nyquist rate (orders up to ``max_folded_order``); and
+    mirrored about a quarter of the rate (the same orders), the image a camera or codec whose frames
+    alternate in two kinds (two read-outs, two frame types) makes of any motion: its amplitude changes
+    every other frame, which shifts it by half the rate. Order 1 gives only its images, not ``f0``."""
+    multiple = order * f0
+    found = [] if order == 1 else [(multiple, "")]
+    if order > max_folded_order:
+        return found
+    for rate, how in (
+        (sample_rate_hz, "folded back below the Nyquist rate"),
+        (sample_rate_hz / 2, "mirrored about a quarter of the frame rate"),
+    ):
+        image = abs(multiple - rate * round(multiple / rate))
+        if abs(image - multiple) > 1e-9 and image > 0:
+            found.append((image, f", {how} from {multiple:.4g} Hz"))
+    return found
+
+
+def _overtone_of(
+    f: float,
+    f0: float,
+    *,
+    sample_rate_hz: float,
+    bin_hz: float,
+    max_order: int = 10,
+    max_folded_order: int = 5,
+) -> tuple[int, float]:
+    """The order n (1 .. ``max_order``) of which ``f`` is an image n f0 (:func:`images_of`), and how far
+    it lies from it (Hz); (0, inf) when none is within the harmonic tolerance."""
+    slack = max(HARMONIC_TOLERANCE * f, 1.5 * bin_hz)
+    best = (0, math.inf)
+    for order in range(1, max_order + 1):
+        for image, _ in images_of(
+            f0, order, sample_rate_hz=sample_rate_hz, max_folded_order=max_folded_order
+        ):
+            error = abs(f - image)
+            if error <= slack and error < best[1]:
+                best = (order, error)
+    return best
+
+
+def _fundamental(scan: MotionScan, cand: Candidate, *, band_hz: tuple[float, float]) -> Candidate:
+    """``cand`` with its frequency moved to its fundamental when the same pixels have a line at f / n (the
+    lowest such n of :data:`SUBHARMONIC_ORDERS` wins), ``f`` then among its harmonics.
+
+    A line there is a local peak of the region's statistic at f / n (within the harmonic tolerance),
+    :data:`LINE_CONTRAST` times its neighbours' (a strongly moving object lifts every low frequency of
+    its region, which is no line), significant by the picture's law at that one frequency (held to the
+    bound divided by the number of fractions tried), and at least :data:`FUNDAMENTAL_SHARE` of the
+    line at f (a motor's faint trace at half its frequency does not make its vibration half as fast)."""
+    f = cand.peak.frequency_hz
+    try:
+        own = scan.within(cand.region)
+    except ValueError:
+        return cand
+    best: int | None = None
+    strongest = float(own.statistic[own.peak_bin(f, half_width_bins=1.0)])
+    for n in SUBHARMONIC_ORDERS:
+        sub = f / n
+        if sub < band_hz[0] or sub < 1.5 * scan.bin_hz:
+            break
+        k = own.peak_bin(sub, half_width_bins=1.0)
+        if own.statistic[k] < FUNDAMENTAL_SHARE * strongest:
+            continue  # a trace at f / n beside a strong line at f: the line is the motion
+        if _line_at(own, sub, bound=MAX_FALSE_ALARM / len(SUBHARMONIC_ORDERS)) and _divides(
+            scan, own.peak_bin(sub, half_width_bins=1.0), f, n
+        ):
+            best = n
+    if best is None:
+        return cand
+    base = _peak_at(scan, own.peak_bin(f / best, half_width_bins=1.0))
+    harmonics = sorted({*(m * base.frequency_hz for m in range(2, best)), f, *cand.peak.harmonics_hz})
+    peak = Peak(**{**vars(base), "harmonics_hz": [h for h in harmonics if h <= band_hz[1]]})
+    return Candidate(
+        peak, cand.z, cand.false_alarm, cand.region | scan.region(base.frequency_hz), cand.localised
+    )
+
+
+def _divides(scan: MotionScan, k: int, frequency_hz: float, order: int) -> bool:
+    """Whether the line at bin ``k`` (its interpolated frequency) times ``order`` is ``frequency_hz``,
+    within the harmonic tolerance or half a bin of that line times the order (a bin is wide; the line's
+    frequency is known to a fraction of one)."""
+    sub = _peak_at(scan, k).frequency_hz
+    return abs(order * sub - frequency_hz) <= max(
+        HARMONIC_TOLERANCE * frequency_hz, 0.5 * order * scan.bin_hz
+    )
+
+
+def _line_at(scan: MotionScan, frequency_hz: float, *, bound: float) -> bool:
+    """Whether ``scan`` has a line at ``frequency_hz``: a local peak there (within the harmonic
+    tolerance), its contrast at least :data:`FUNDAMENTAL_CONTRAST` (a fundamental sits among the low
+    frequencies a moving object lifts), and significant at that one frequency."""
+    k = scan.peak_bin(frequency_hz, half_width_bins=1.0)
+    t = scan.statistic
+    if abs(scan.frequencies_hz[k] - frequency_hz) > max(HARMONIC_TOLERANCE * frequency_hz, scan.bin_hz):
+        return False
+    if (k > 0 and t[k - 1] > t[k]) or (k < len(t) - 1 and t[k + 1] > t[k]):
+        return False
+    if scan.contrast[k] < FUNDAMENTAL_CONTRAST:
+        return False
+    return float(scan.calibration.p_frequency(scan.z[k])) <= bound
+
+
+def find_candidates(
+    scan: MotionScan, *, band_hz: tuple[float, float], max_objects: int, asserted: int = 0
+) -> Candidates:
+    """The scan's significant peaks as object candidates (see the module's description).
 
     Parameters
     ----------
-    frequencies_hz : ndarray of float64, shape (F,)
-        The spectra's frequencies (their transform length ``nfft``).
-    nfft : int
-    brightness : ndarray of float32, shape (N + 1, B, B), or None
-        Mean grey level of B x B blocks of each frame.
-    frame_change : ndarray of float32, shape (N, B, B), or None
-        Mean absolute grey-level change of each block between consecutive frames.
-    border_px : ndarray of float32, shape (N, 2), or None
-        Median motion of the picture's border in each flow map (before any removal), grid pixels.
-    camera_removed : bool
-        Whether that motion was removed from the flow as the camera's.
-    ring_pixels : ndarray of intp, shape (R,), or None
-        The border's pixels on the flow grid (flattened), and ``ring_textured`` which of them have
-        texture.
+    scan : MotionScan
+        Of the window's whole picture.
+    band_hz : (low, high)
+    max_objects : int
+    asserted : int
+        How many objects the user says were excited (the excitations given): when fewer peaks are
+        significant, the strongest lines are candidates up to that number, whatever their false-alarm
+        probability (which their objects report; :func:`significance_verdict` does not drop an object an
+        excitation names). The question is then where and at what frequency, not whether.
+
+    Returns
+    -------
+    Candidates
     """
-
-    frequencies_hz: NDArray[np.float64]
-    nfft: int
-    brightness: NDArray[np.float32] | None = None
-    frame_change: NDArray[np.float32] | None = None
-    border_px: NDArray[np.float32] | None = None
-    camera_removed: bool = False
-    ring_pixels: NDArray[np.intp] | None = None
-    ring_textured: NDArray[np.bool_] | None = None
-    _cache: dict[str, object] = field(default_factory=dict, repr=False)
-
-    @property
-    def sample_rate_hz(self) -> float:
-        """Rate of the samples the spectra are of, Hz."""
-        return self.bin_hz * self.nfft
-
-    @property
-    def bin_hz(self) -> float:
-        return float(self.frequencies_hz[1] - self.frequencies_hz[0]) if len(self.frequencies_hz) > 1 else 1.0
-
-    def _bins(self, peak: Peak) -> NDArray[np.bool_]:
-        return band_mask(self.frequencies_hz, peak, bin_hz=self.bin_hz, band_bins=max(1.5, peak.width_bins))
-
-    def _near(self, frequency_hz: float, width_bins: float) -> NDArray[np.bool_]:
-        return np.abs(self.frequencies_hz - frequency_hz) <= max(1.5, width_bins) * self.bin_hz
-
-    # -- the light ---------------------------------------------------------------------------------
-    def _brightness_spectra(self) -> tuple[NDArray[np.complex128], NDArray[np.float64]] | None:
-        if self.brightness is None or len(self.brightness) < 9:
-            return None
-        if "brightness" not in self._cache:
-            # Frame-to-frame change, aligned with the flow maps (and free of slow lighting drift).
-            change = np.diff(self.brightness.astype(np.float64), axis=0)
-            self._cache["brightness"] = (_spectrum_of(change, self.nfft), self.brightness.mean(axis=0))
-        found = self._cache["brightness"]
-        assert isinstance(found, tuple)
+    found = _candidates(scan, significant_bins(scan), band_hz=band_hz, max_objects=max_objects)
+    if len(found.found) >= min(asserted, max_objects):
         return found
-
-    def flicker(self, frequency_hz: float, width_bins: float, coverage: NDArray[np.float64]) -> str | None:
-        """Why a peak is illumination flicker, or None.
-
-        Most rows of the picture's blocks brighten and darken in phase at the peak (see
-        :mod:`workers.pipeline.light`); where the region leaves part of the picture out, the brightness
-        must oscillate there too: brightness that oscillates where nothing moves.
-
-        Parameters
-        ----------
-        frequency_hz, width_bins : float
-            The peak.
-        coverage : ndarray of float64, shape (B, B)
-            Fraction of each brightness block covered by the region.
-        """
-        spectra = self._brightness_spectra()
-        if spectra is None:
-            return None
-        spec, level = spectra
-        half_width = max(1.5, width_bins) * self.bin_hz
-        rows, k = flickering_rows(spec, self.frequencies_hz, frequency_hz, half_width)
-        if rows < FLICKER_ROWS:
-            return None
-        near = self._near(frequency_hz, width_bins)
-        outside = coverage < 0.1
-        where = " across the whole picture"
-        if outside.sum() >= 8:
-            block_power = np.abs(spec) ** 2
-            block_snr = block_power[near].max(axis=0) / floor_of(block_power)[near].max(axis=0)
-            if float(np.median(block_snr[outside])) < FLICKER_SNR:
-                return None  # the brightness changes only where the region moves: its own texture
-            where = ", also over the static background"
-        frames = 0 if self.brightness is None else len(self.brightness) - 1
-        # The spectrum is of frame-to-frame changes: a sine of amplitude a changes by 2 a sin(pi f / fs).
-        gain = 2 * abs(math.sin(math.pi * float(self.frequencies_hz[k]) / self.sample_rate_hz))
-        amplitude = 2 * float(np.abs(spec[k].mean(axis=1)).mean()) / max(frames, 1) / max(gain, 1e-6)
-        relative = amplitude / max(float(level.mean()), 1e-9)
-        return (
-            f"{frequency_hz:.4g} Hz is illumination flicker: the picture's brightness oscillates at it in "
-            f"phase along {rows * 100:.0f} % of its rows (by {relative * 100:.2g} % of the mean "
-            f"level){where}, without motion of its own"
-        )
-
-    # -- the codec ---------------------------------------------------------------------------------
-    def keyframe_period(self) -> int | None:
-        """The period K (frames) of pulses in the frame-to-frame change of the whole picture, or None.
-
-        A codec's keyframes (and some cameras' exposure steps) change the whole picture every K frames:
-        the change between consecutive frames then stands out at one phase modulo K, in most blocks of
-        the picture at once (a fast vibration makes the change pulse too, but only where it moves).
-        """
-        if "keyframes" in self._cache:
-            found = self._cache["keyframes"]
-            return found if isinstance(found, int) and found > 0 else None
-        period: int | None = None
-        blocks = None if self.frame_change is None else np.asarray(self.frame_change, np.float64)
-        if blocks is not None and len(blocks) >= 24:
-            series = blocks.reshape(len(blocks), -1)
-            scores = {
-                k: z
-                for k in range(2, len(series) // 3 + 1)
-                if (z := _pulse_score(series.mean(axis=1), k)) > 0
-            }
-            if scores:
-                # Every multiple of the period folds the pulses as well: the period is the shortest that
-                # does nearly as well as the best.
-                best = max(scores.values())
-                k = min(k for k, z in scores.items() if z >= 0.8 * best)
-                everywhere = np.mean(
-                    [_pulse_score(series[:, j], k, z_min=KEYFRAME_Z / 2) > 0 for j in range(series.shape[1])]
-                )
-                if everywhere >= KEYFRAME_BLOCKS:
-                    period = k
-        self._cache["keyframes"] = period if period is not None else 0
-        return period
-
-    def keyframes(self, frequency_hz: float, width_bins: float, fps: float) -> str | None:
-        """Why a peak is a codec keyframe pulse (a multiple of fps / K), or None."""
-        period = self.keyframe_period()
-        if period is None:
-            return None
-        base = fps / period
-        slack = max(1.5, width_bins) * self.bin_hz
-        order = max(1, round(frequency_hz / base))
-        if base < 3 * slack or abs(frequency_hz - order * base) > slack:
-            return None  # not on the comb, or its teeth too close to tell
-        return (
-            f"{frequency_hz:.4g} Hz is a codec keyframe pulse: the whole picture changes every {period} "
-            f"frames ({base:.4g} Hz), and this is {'it' if order == 1 else f'its {order}th multiple'}"
-        )
-
-    # -- the camera --------------------------------------------------------------------------------
-    def _border_power(self) -> NDArray[np.float64] | None:
-        """Power spectrum of the border's median motion (u and v summed), or None."""
-        if self.border_px is None or len(self.border_px) < 9:
-            return None
-        if "border" not in self._cache:
-            spec = _spectrum_of(self.border_px, self.nfft)
-            self._cache["border"] = (np.abs(spec) ** 2).sum(axis=1)
-        power = self._cache["border"]
-        assert isinstance(power, np.ndarray)
-        return power
-
-    def camera_frequencies(self) -> list[tuple[float, float]]:
-        """Frequencies at which the border moves (its own clear peaks), with their band power, strongest
-        first: the camera's shake when the border moved as a whole."""
-        power = self._border_power()
-        if power is None:
-            return []
-        if "camera_peaks" not in self._cache:
-            band = (self.frequencies_hz[1], self.frequencies_hz[-1])
-            found = find_peaks(
-                self.frequencies_hz, power, band_hz=band, noise=floor_of(power), min_snr_db=10.0
-            )
-            self._cache["camera_peaks"] = [
-                (p.frequency_hz, float(power[self._near(p.frequency_hz, p.width_bins)].sum())) for p in found
-            ]
-        peaks = self._cache["camera_peaks"]
-        assert isinstance(peaks, list)
-        return peaks
-
-    def camera(
-        self,
-        frequency_hz: float,
-        width_bins: float,
-        *,
-        region_power: float,
-        ring_power: NDArray[np.float32] | None,
-        fps: float,
-    ) -> str | None:
-        """Why a peak is the camera's own motion, or None.
-
-        The camera moving at the peak's frequency moves the picture's border rigidly. That is evidence
-        against an object only if the region moves no more than the border does (``CAMERA_RATIO`` in
-        power): a compressor shaking the floor shakes the camera too, but its own parts move more. The
-        overtones of a camera's shake (the second and third, also folded back below the Nyquist rate)
-        that the flow leaves behind where it was removed are its motion too, when the region moves far
-        less than the camera did (``CAMERA_OVERTONE_POWER`` of its power).
-
-        Parameters
-        ----------
-        region_power : float
-            The region's typical (median) band power at the peak, after any removal of the camera's
-            motion (the same units as the per-pixel spectra).
-        ring_power : ndarray of float32, shape (R,), or None
-            Band power of each border pixel at the peak (before removal it shows whether the border
-            moved as a whole; after removal it is what is left).
-        fps : float
-            Rate of the samples, Hz.
-        """
-        power = self._border_power()
-        if power is None:
-            return None
-        near = self._near(frequency_hz, width_bins)
-        camera = float(power[near].sum())
-        floor = float(floor_of(power)[near].max()) * max(int(near.sum()), 1)
-        if camera < CAMERA_SNR * floor:
-            return self._camera_overtone(frequency_hz, width_bins, region_power=region_power, fps=fps)
-        if not self.camera_removed:
-            # The border's median moved at the peak; did the whole border move, or an object in it?
-            if ring_power is None or self.ring_textured is None:
-                return None
-            textured = ring_power[self.ring_textured] if self.ring_textured.any() else ring_power
-            if float(np.mean(textured >= 0.5 * camera)) < 0.85:
-                return None
-            moved_more = region_power >= CAMERA_RATIO * camera
-        else:
-            # The camera's motion was removed: the region's power is what it moved relative to the scene.
-            moved_more = region_power >= camera / CAMERA_RATIO
-        if moved_more:
-            return None
-        n = len(self.border_px) if self.border_px is not None else 1
-        amplitude = 2 * math.sqrt(camera) / n
-        return (
-            f"{frequency_hz:.4g} Hz is camera motion: the picture's border moves rigidly at it "
-            f"({amplitude:.2g} px per frame) and the region no more than the border"
-        )
-
-    def _camera_overtone(
-        self, frequency_hz: float, width_bins: float, *, region_power: float, fps: float
-    ) -> str | None:
-        if not self.camera_removed:
-            return None
-        slack = self.bin_hz
-        for shake_hz, shake_power in self.camera_frequencies():
-            for order in range(2, 4):
-                multiple = order * shake_hz
-                image = abs(multiple - fps * round(multiple / fps))
-                if abs(image - frequency_hz) <= slack and region_power < CAMERA_OVERTONE_POWER * shake_power:
-                    folded = "" if image == multiple else f" (folded back from {multiple:.4g} Hz)"
-                    return (
-                        f"{frequency_hz:.4g} Hz is camera motion: overtone {order} of the camera's shake at "
-                        f"{shake_hz:.4g} Hz{folded}, left where that shake was removed, weaker than it"
-                    )
-        return None
+    return _candidates(scan, significant_bins(scan, limit=1.0), band_hz=band_hz, max_objects=asserted)
 
 
-def _pulse_score(change: NDArray[np.float64], period: int, *, z_min: float = KEYFRAME_Z) -> float:
-    """How far the pulses of ``change`` every ``period`` samples stand out (robust deviations above its
-    median), or 0 when they do not all stand out (a few large changes sharing a phase by chance)."""
-    median = float(np.median(change))
-    mad = 1.4826 * float(np.median(np.abs(change - median))) + 1e-9
-    usable = len(change) - len(change) % period
-    folded = change[:usable].reshape(-1, period)
-    pulses = folded[:, int(np.argmax(folded.mean(axis=0)))]
-    z = (float(np.median(pulses)) - median) / mad
-    if z >= z_min and float(np.mean(pulses > median + 3 * mad)) >= 0.8:
-        return z
-    return 0.0
-
-
-def block_coverage(labels: NDArray[np.integer], label: int, blocks: int) -> NDArray[np.float64]:
-    """Fraction of each of ``blocks`` x ``blocks`` blocks of the picture covered by ``label``.
-
-    Returns
-    -------
-    ndarray of float64, shape (blocks, blocks)
-    """
-    import cv2
-
-    mask = (labels == label).astype(np.float32)
-    return np.asarray(cv2.resize(mask, (blocks, blocks), interpolation=cv2.INTER_AREA), np.float64)
-
-
-def reject_artefacts(
-    seg: Segmentation,
-    spectra: PixelSpectra,
-    evidence: WindowEvidence,
-    *,
-    band_hz: tuple[float, float],
-) -> tuple[Segmentation, list[RejectedPeak]]:
-    """Drop the peaks with positive evidence of being the camera's or the light's (see
-    :class:`WindowEvidence`); the remaining objects are relabelled 1, 2, ...
-
-    Returns
-    -------
-    Segmentation
-    list of RejectedPeak
-    """
-    if not seg.peaks:
-        return seg, []
-    keep: list[int] = []
+def _candidates(
+    scan: MotionScan, bins: list[int], *, band_hz: tuple[float, float], max_objects: int
+) -> Candidates:
+    """The peaks at ``bins`` (strongest first) as candidates: see :func:`find_candidates`."""
+    kept: list[Candidate] = []
     rejected: list[RejectedPeak] = []
-    blocks = 0 if evidence.brightness is None else evidence.brightness.shape[1]
-    for i, peak in enumerate(seg.peaks):
-        region = (seg.labels == i + 1).ravel()
-        band_power = seg.band_power[i].ravel()
-        region_power = float(np.median(band_power[region])) if region.any() else 0.0
-        ring_power = None if evidence.ring_pixels is None else band_power[evidence.ring_pixels]
-        width = peak.width_bins
-        found: tuple[str, str] | None = None
-        if blocks:
-            why = evidence.flicker(peak.frequency_hz, width, block_coverage(seg.labels, i + 1, blocks))
-            if why:
-                found = ("illumination_flicker", why)
-        if found is None:
-            why = evidence.keyframes(peak.frequency_hz, width, spectra.fps)
-            if why:
-                found = ("codec_keyframes", why)
-        if found is None:
-            why = evidence.camera(
-                peak.frequency_hz, width, region_power=region_power, ring_power=ring_power, fps=spectra.fps
+    for k in bins:
+        peak = _peak_at(scan, k)
+        if _known(peak.frequency_hz, kept, scan.bin_hz):
+            continue
+        region = scan.region(peak.frequency_hz)
+        cand = Candidate(peak, float(scan.z[k]), float(scan.calibration.p_clip(scan.z[k])), region, 0.0)
+        if _leakage(cand, kept, scan.bin_hz):
+            continue
+        if _as_harmonic(cand, kept, scan) or len(kept) >= max_objects:
+            continue
+        trace = _subharmonic_trace(cand, kept, scan)
+        if trace is not None:
+            rejected.append(trace)
+            continue
+        cand = _fundamental(scan, cand, band_hz=band_hz)
+        f = cand.peak.frequency_hz
+        same = next((c for c in kept if abs(f - c.peak.frequency_hz) <= 1.5 * scan.bin_hz), None)
+        if same is not None:  # its fundamental is a candidate already: it is that one's overtone
+            same.peak.harmonics_hz.extend(
+                h for h in cand.peak.harmonics_hz if not _known(h, [same], scan.bin_hz)
             )
-            if why:
-                found = ("camera_motion", why)
-        if found is None:
-            keep.append(i)
-        else:
-            rejected.append(RejectedPeak(peak.frequency_hz, found[1], found[0]))
-    if len(keep) == len(seg.peaks):
-        return seg, rejected
-    labels = np.zeros_like(seg.labels)
-    for new, old in enumerate(keep, start=1):
-        labels[seg.labels == old + 1] = new
-    return (
-        Segmentation(
-            labels=labels,
-            peaks=[seg.peaks[i] for i in keep],
-            band_power=seg.band_power[keep],
-            noise_power=seg.noise_power[keep],
-        ),
-        rejected,
+            continue
+        localised = scan.localised_share(f, cand.region)
+        kept.append(Candidate(cand.peak, cand.z, cand.false_alarm, cand.region, localised))
+    kept = _merge_combs(kept, scan, band_hz=band_hz)
+    for c in kept:
+        c.peak.harmonics_hz.sort()
+    return Candidates(kept, rejected)
+
+
+def _merge_combs(kept: list[Candidate], scan: MotionScan, *, band_hz: tuple[float, float]) -> list[Candidate]:
+    """Candidates on shared pixels whose frequencies are all overtones of one fundamental present there, as
+    that one candidate: a wheel turning at f whose marks make lines at 2f, 5f, 10f ... is one motion at f.
+
+    The fundamental is the highest f0 (at least the band's lower edge and a bin and a half) of which every
+    line of the group (their frequencies and overtones) is a multiple up to :data:`MAX_COMB_ORDER` within
+    the harmonic tolerance, and where the group's pixels have a line (:func:`_line_at`) or a candidate."""
+    out: list[Candidate] = []
+    used: set[int] = set()
+    for i, c in enumerate(kept):
+        if i in used:
+            continue
+        group = [i] + [
+            j for j in range(i + 1, len(kept)) if j not in used and shared_region(c.region, kept[j].region)
+        ]
+        if len(group) < 2:
+            out.append(c)
+            continue
+        lines = sorted({kept[j].peak.frequency_hz for j in group})
+        f0 = _comb_fundamental(lines, scan, region=_union(kept[j].region for j in group), band_hz=band_hz)
+        if f0 is None:
+            out.append(c)
+            continue
+        used.update(group)
+        k = scan.peak_bin(f0, half_width_bins=1.0)
+        base = _peak_at(scan, k)
+        extra = {h for j in group for h in (kept[j].peak.frequency_hz, *kept[j].peak.harmonics_hz)}
+        harmonics = sorted(h for h in extra if abs(h - base.frequency_hz) > 1.5 * scan.bin_hz)
+        peak = Peak(**{**vars(base), "harmonics_hz": harmonics})
+        region = _union(kept[j].region for j in group)
+        best = max((kept[j] for j in group), key=lambda d: d.z)
+        out.append(
+            Candidate(peak, best.z, best.false_alarm, region, scan.localised_share(base.frequency_hz, region))
+        )
+    return out
+
+
+#: A comb's lines are overtones of its fundamental up to this order.
+MAX_COMB_ORDER = 16
+
+
+def _union(masks: Iterable[NDArray[np.bool_]]) -> NDArray[np.bool_]:
+    it = iter(masks)
+    out = np.array(next(it), bool)
+    for m in it:
+        out |= m
+    return out
+
+
+def _comb_fundamental(
+    lines: list[float], scan: MotionScan, *, region: NDArray[np.bool_], band_hz: tuple[float, float]
+) -> float | None:
+    """The highest frequency of which every one of ``lines`` is an overtone (see :func:`_merge_combs`),
+    other than what they are already (the lowest line when it divides the others is that line), or None."""
+    try:
+        own = scan.within(region)
+    except ValueError:
+        return None
+    floor = max(band_hz[0], 1.5 * scan.bin_hz)
+    tries = sorted(
+        {f / n for f in lines for n in range(1, MAX_COMB_ORDER + 1) if f / n >= floor}, reverse=True
+    )
+    for f0 in tries:
+        orders = [round(f / f0) for f in lines]
+        if max(orders) > MAX_COMB_ORDER or min(orders) < 1:
+            continue
+        slack = [max(HARMONIC_TOLERANCE * f, 0.5 * scan.bin_hz) for f in lines]  # interpolated lines
+        if any(abs(f - n * f0) > tol for f, n, tol in zip(lines, orders, slack, strict=True)):
+            continue
+        strongest = max(float(own.statistic[own.peak_bin(f, half_width_bins=1.0)]) for f in lines)
+        if float(own.statistic[own.peak_bin(f0, half_width_bins=1.0)]) < FUNDAMENTAL_SHARE * strongest:
+            return None  # a faint trace at f0 beside strong lines: the lines are the motions
+        present = any(abs(f - f0) <= tol for f, tol in zip(lines, slack, strict=True))
+        if present or _line_at(own, f0, bound=MAX_FALSE_ALARM / len(SUBHARMONIC_ORDERS)):
+            return f0
+        return None  # the highest common fundamental is not on these pixels: lower ones are guesses
+    return None
+
+
+def _subharmonic_trace(cand: Candidate, kept: list[Candidate], scan: MotionScan) -> RejectedPeak | None:
+    """Why a weaker line at 1/n of a kept candidate's frequency (n of :data:`SUBHARMONIC_ORDERS`), on the
+    same pixels, is no object of its own, or None: the stronger line's fundamental it is not (it stands
+    below :data:`FUNDAMENTAL_SHARE` of it, :func:`_fundamental`), so it is a faint modulation of that
+    motion (a motor's trace at half its rate), not another one."""
+    f = cand.peak.frequency_hz
+    for c in kept:
+        for n in SUBHARMONIC_ORDERS:
+            if abs(c.peak.frequency_hz - n * f) > max(HARMONIC_TOLERANCE * n * f, 1.5 * scan.bin_hz):
+                continue
+            if shared_region(cand.region, c.region):
+                f0 = c.peak.frequency_hz
+                return RejectedPeak(
+                    f,
+                    f"{f:.4g} Hz is a faint trace at 1/{n} of the motion at {f0:.4g} Hz, on the same pixels",
+                    "harmonic",
+                    figures={"fundamental_hz": f0, "order": 1.0 / n},
+                )
+    return None
+
+
+def _leakage(cand: Candidate, kept: list[Candidate], bin_hz: float) -> bool:
+    """Whether ``cand`` is the spectral leakage of a far stronger candidate a few lines away on the same
+    pixels: within :data:`LEAKAGE_BINS` of it and below :data:`LEAKAGE_LEVEL` of its statistic (the
+    tapered window's side lobes there)."""
+    f = cand.peak.frequency_hz
+    return any(
+        abs(f - c.peak.frequency_hz) <= LEAKAGE_BINS * bin_hz
+        and cand.peak.power <= LEAKAGE_LEVEL * c.peak.power
+        and shared_region(cand.region, c.region)
+        for c in kept
+    )
+
+
+def _known(f: float, kept: list[Candidate], bin_hz: float) -> bool:
+    """Whether ``f`` is one of the candidates' frequencies or harmonics (within their width)."""
+    for c in kept:
+        if abs(f - c.peak.frequency_hz) <= max(1.5, c.peak.width_bins) * bin_hz:
+            return True
+        if any(abs(f - h) <= 1.5 * bin_hz for h in c.peak.harmonics_hz):
+            return True
+    return False
+
+
+def _as_harmonic(cand: Candidate, kept: list[Candidate], scan: MotionScan) -> bool:
+    """Fold ``cand`` into the kept candidate it is most nearly an overtone of on the same pixels: its
+    pixels also move significantly at that candidate's frequency (or the two regions overlap)."""
+    f = cand.peak.frequency_hz
+    own: MotionScan | None = None
+    matches = []
+    for c in kept:
+        order, error = _overtone_of(
+            f, c.peak.frequency_hz, sample_rate_hz=scan.sample_rate_hz, bin_hz=scan.bin_hz
+        )
+        if order:
+            matches.append((error, order, c))
+    for _, order, c in sorted(matches, key=lambda m: m[0]):
+        if not shared_region(cand.region, c.region):
+            if own is None:
+                try:
+                    own = scan.within(cand.region)
+                except ValueError:
+                    return False
+            z = own.z_at(c.peak.frequency_hz, half_width_bins=1.0)
+            if float(own.calibration.p_frequency(z)) > MAX_FALSE_ALARM:
+                continue
+        if order > 1:  # an overtone; an image of the motion itself is no overtone of it
+            c.peak.harmonics_hz.append(f)
+        return True
+    return False
+
+
+def significance_verdict(obj: ObjectMeasurement, scan: MotionScan) -> RejectedPeak | None:
+    """Why a measured object is not significant, or None: its false-alarm probability per clip (set on
+    the object) exceeds :data:`~workers.pipeline.significance.MAX_FALSE_ALARM`."""
+    f = obj.eigenfrequency_hz
+    z = scan.z_at(f)
+    p = float(scan.calibration.p_clip(z))
+    obj.false_alarm_probability = p
+    obj.detection_z = z
+    if p <= MAX_FALSE_ALARM:
+        return None
+    return RejectedPeak(
+        f,
+        f"{f:.4g} Hz does not stand out of the noise: a peak as high comes from noise alone with "
+        f"probability {p:.2g} per clip (the bound is {MAX_FALSE_ALARM:g})",
+        "not_significant",
+        figures={"false_alarm_probability": p, "z": z, "bound": MAX_FALSE_ALARM},
     )
 
 
 def oscillation_verdict(obj: ObjectMeasurement, *, band_hz: tuple[float, float]) -> RejectedPeak | None:
-    """Why a measured region is not reported as an object, or None when it is one.
-
-    It is one when its motion is a single coherent oscillation: one damped oscillation explains
-    ``MIN_RINGDOWN_SNR_DB`` more than the rest per sample (a clear ring-down), or it explains
-    ``MIN_CONCENTRATION`` of the motion near the peak with ``MIN_DETECTION_DB`` over the noise across the
-    window (a weak but steady vibration, or a slow swing of few periods); its frequency must lie inside
-    the band and be known to better than ``MAX_RELATIVE_SD`` of itself.
-    """
+    """Why a measured region is not reported whatever its significance, or None: its frequency lies
+    outside the band, is not known to better than ``MAX_RELATIVE_SD`` of itself, or its motion near the
+    frequency is no oscillation (one damped oscillation explains less than :data:`MIN_COHERENCE` of it,
+    and it is not two unresolved ones, which a longer window separates)."""
     f = obj.eigenfrequency_hz
-    snr = obj.snr_db if obj.snr_db is not None else -math.inf
-    detection = obj.detection_db if obj.detection_db is not None else -math.inf
-    concentration = obj.concentration if obj.concentration is not None else 0.0
     if not (band_hz[0] <= f <= band_hz[1]):
         return RejectedPeak(
             f,
             f"{f:.4g} Hz lies outside the analysed band [{band_hz[0]:.3g}, {band_hz[1]:.3g}] Hz",
             "out_of_band",
-        )
-    sustained = concentration >= MIN_CONCENTRATION and detection >= MIN_DETECTION_DB
-    if snr < MIN_RINGDOWN_SNR_DB and not sustained:
-        return RejectedPeak(
-            f,
-            f"{f:.4g} Hz: the region's motion is no single coherent oscillation (one oscillation explains "
-            f"{concentration * 100:.0f} % of its motion near the peak, {snr:.1f} dB per sample, "
-            f"{detection:.1f} dB over the window)",
-            "incoherent",
+            figures={"band_low_hz": band_hz[0], "band_high_hz": band_hz[1]},
         )
     sd = obj.eigenfrequency_sd_hz
     if sd is None or not math.isfinite(sd) or sd >= MAX_RELATIVE_SD * f:
@@ -507,6 +533,16 @@ def oscillation_verdict(obj: ObjectMeasurement, *, band_hz: tuple[float, float])
             f,
             f"{f:.4g} Hz is too uncertain to report (± {sd:.3g} Hz, a quarter of itself or more)",
             "uncertain",
+            figures={"frequency_sd_hz": float("nan") if sd is None else sd},
+        )
+    share = obj.concentration
+    if share is not None and share < MIN_COHERENCE and obj.second_motion < SECOND_MOTION_SHARE:
+        return RejectedPeak(
+            f,
+            f"{f:.4g} Hz is no oscillation: a damped oscillation explains only {share * 100:.0f} % of the "
+            "region's motion near it (narrow-band random motion, a wandering frequency)",
+            "incoherent",
+            figures={"explained_share": share, "bound": MIN_COHERENCE},
         )
     return None
 
@@ -515,6 +551,7 @@ def judge_objects(
     objects: list[ObjectMeasurement],
     seg: Segmentation,
     *,
+    scan: MotionScan,
     band_hz: tuple[float, float],
     fps: float,
     bin_hz: float,
@@ -523,8 +560,9 @@ def judge_objects(
     max_order: int = 10,
     max_folded_order: int = 5,
 ) -> dict[int, RejectedPeak]:
-    """The objects (by id) that are not reported, and why: :func:`oscillation_verdict`, or an overtone of
-    a stronger object on the same pixels.
+    """The objects (by id) that are not reported, and why: :func:`oscillation_verdict`,
+    :func:`significance_verdict` (every object's false-alarm probability is set), or an overtone of a
+    stronger object on the same pixels.
 
     A region ringing at n times (n up to ``max_order``; or, folded back below the Nyquist rate, at
     |n f - m fps| for n up to ``max_folded_order``) the frequency of a stronger object, whose pixels
@@ -552,7 +590,8 @@ def judge_objects(
     out: dict[int, RejectedPeak] = {}
     kept: list[ObjectMeasurement] = []
     for obj in objects:
-        verdict = oscillation_verdict(obj, band_hz=band_hz)
+        verdict = significance_verdict(obj, scan)
+        verdict = oscillation_verdict(obj, band_hz=band_hz) or verdict
         if verdict is None:
             verdict = _overtone(
                 obj,
@@ -594,22 +633,39 @@ def _overtone(
         if not 0 <= index < len(seg.peaks):
             continue
         f0 = base.eigenfrequency_hz
-        for order in range(2, orders[0] + 1):
-            multiple = order * f0
-            folded = abs(multiple - fps * round(multiple / fps))
-            if folded != multiple and order > orders[1]:
+        for order in range(1, orders[0] + 1):
+            same = [(f0, "")] if order == 1 else []
+            for image, how in same + images_of(f0, order, sample_rate_hz=fps, max_folded_order=orders[1]):
+                if abs(f - image) > slack:
+                    continue
+                if order == 1 and not how:
+                    if not touching(region, seg.labels == base.id):
+                        continue  # the same frequency elsewhere: another object
+                elif float(np.median(seg.band_power[index][region])) < shared_power * own_power:
+                    continue  # its pixels do not move at the stronger object's frequency: another object
+                break
+            else:
                 continue
-            if abs(f - folded) > slack:
-                continue
-            if float(np.median(seg.band_power[index][region])) < shared_power * own_power:
-                continue  # its pixels do not move at the stronger object's frequency: an object of its own
-            how = "" if folded == multiple else f", folded back below the Nyquist rate from {multiple:.4g} Hz"
+            what = (
+                "the motion"
+                if order == 1 and not how
+                else ("an image" if order == 1 else f"overtone {order}")
+            )
             return RejectedPeak(
                 f,
-                f"{f:.4g} Hz is overtone {order} of the object at {f0:.4g} Hz, on the same pixels{how}",
+                f"{f:.4g} Hz is {what} of the object at {f0:.4g} Hz, on the same pixels{how}",
                 "harmonic",
+                figures={"fundamental_hz": f0, "order": float(order)},
             )
     return None
+
+
+def touching(a: NDArray[np.bool_], b: NDArray[np.bool_], *, gap_px: int = 3) -> bool:
+    """Whether two masks overlap or lie within ``gap_px`` of each other."""
+    import cv2
+
+    grown = cv2.dilate(a.astype(np.uint8), np.ones((2 * gap_px + 1, 2 * gap_px + 1), np.uint8)) > 0
+    return bool((grown & b).any())
 
 
 def folded_image(
@@ -742,18 +798,20 @@ def drop_objects(
 
 __all__ = [
     "ARTEFACT_EVIDENCE",
-    "MIN_RINGDOWN_SNR_DB",
+    "MIN_PERIODS",
     "SURVEY_PEAKS",
-    "WINDOW_PEAKS",
-    "WindowEvidence",
-    "block_coverage",
-    "candidate_peaks",
+    "Candidate",
+    "Candidates",
     "clip_regime",
     "drop_objects",
+    "find_candidates",
     "folded_image",
     "folded_verdicts",
     "judge_objects",
     "oscillation_verdict",
     "regime_of",
-    "reject_artefacts",
+    "shared_region",
+    "significance_verdict",
+    "significant_bins",
+    "touching",
 ]

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.clipio.types import Intrinsics
+from workers.pipeline.confidence import Confidence
 from workers.pipeline.detection import regime_of
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.mechanics import release_amplitude, release_instant, stiffness_and_mass
@@ -19,7 +20,7 @@ from workers.pipeline.model import Excitation, ObjectMeasurement
 from workers.pipeline.peaks import Peak
 from workers.pipeline.ringdown import Ringdown, RingdownFit, sliding_ringdown
 from workers.pipeline.stream import FrameBuffers
-from workers.pipeline.tracking import second_motion, track_object
+from workers.pipeline.tracking import CoarseView, second_motion, track_object
 
 #: Systematic floors on the ring-down fit's statistical uncertainties (model mismatch: projection
 #: nonlinearity, registration errors correlated with the motion), measured on randomised ground truth.
@@ -65,6 +66,9 @@ def measure_object(
     excitation: Excitation | None,
     excluded: list[str],
     band_hz: tuple[float, float] | None = None,
+    crop_shape: tuple[int, int] | None = None,
+    confidence: Confidence | None = None,
+    coarse: CoarseView | None = None,
 ) -> ObjectMeasurement:
     """Measure one object of the window.
 
@@ -77,7 +81,7 @@ def measure_object(
     mask : ndarray of bool, shape (h, w)
         Its pixels on the flow grid.
     full_mask : ndarray of bool, shape (H, W)
-        ... at input resolution.
+        ... at input resolution, over the whole frame.
     buffers : FrameBuffers
     fps : float
         Rate of the flow samples, Hz.
@@ -92,6 +96,13 @@ def measure_object(
         Notes on pixels removed from its mask.
     band_hz : (low, high), optional
         The analysed band (the fitted frequency stays inside it).
+    crop_shape : (Hc, Wc), optional
+        Size of the box of the frame the buffers' grid and grey frames cover (the whole frame when
+        None).
+    confidence : Confidence, optional
+        Of the grid's flow (:mod:`workers.pipeline.confidence`).
+    coarse : CoarseView, optional
+        The object on the first pass's coarse grid (see :func:`~workers.pipeline.tracking.track_object`).
 
     Returns
     -------
@@ -100,11 +111,13 @@ def measure_object(
     track = track_object(
         buffers,
         mask,
-        full_shape=full_mask.shape,
+        full_shape=crop_shape or full_mask.shape,
         fps=fps,
         pixel_scale=pixel_scale,
         frequency_guess_hz=peak.frequency_hz,
         band_hz=band_hz,
+        confidence=confidence,
+        coarse=coarse,
     )
     fit, onset, velocity = track.fit, track.onset, track.velocity_px
     f_sd = frequency_sd_hz(fit)
@@ -205,6 +218,7 @@ def measure_object(
         fitted_duration_s=float(buffers.times_s[n] - buffers.times_s[onset]),
         displacement_px=disp,
         model_displacement_px=model,
+        axis_px=track.axis_px,
     )
     # Whether it decays is judged on the fit's own (statistical) uncertainty, before systematic floors.
     decay_sd = fit.damping_sd * 2 * math.pi * fit.natural_frequency_hz * fit.duration_s

@@ -21,7 +21,6 @@ from workers.pipeline.ringdown import Ringdown
 from workers.pipeline.segmentation import SegmentationConfig
 
 if TYPE_CHECKING:
-    from workers.pipeline.stream import FrameBuffers
     from workers.pipeline.survey import Survey
 
 Method = Literal["default", "paper"]
@@ -168,14 +167,18 @@ class RejectedPeak:
         What was seen, in a sentence.
     evidence : str
         ``camera_motion``, ``illumination_flicker``, ``codec_keyframes``, ``harmonic`` (of an object
-        already reported, possibly folded back below the Nyquist rate), ``incoherent`` (no coherent
-        narrow-band oscillation), ``uncertain`` (frequency uncertainty a quarter of the frequency or more)
-        or ``out_of_band``.
+        already reported, possibly folded back below the Nyquist rate), ``not_significant`` (noise alone
+        gives as high a peak too often), ``uncertain`` (frequency uncertainty a quarter of the frequency
+        or more) or ``out_of_band``.
+    figures : dict of str to float
+        The numbers behind the verdict (the keyframe comb's period and the peak's distance from it, the
+        false-alarm probability, ...), named with their units.
     """
 
     frequency_hz: float
     reason: str
-    evidence: str = "incoherent"
+    evidence: str = "not_significant"
+    figures: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -229,6 +232,8 @@ class ObjectMeasurement:
     #: ``ring_down`` (decays in the window: damping measured), ``steady`` (sustained or forced: no decay
     #: in the window, damping null), ``growing`` or ``beating`` (two close, unresolved frequencies).
     regime: str = "ring_down"
+    #: Unit vector of the motion's axis in the image (x right, y down), when measured.
+    axis_px: tuple[float, float] | None = None
     #: The oscillation's energy over the noise's variance, dB (see RingdownFit.detection_db).
     detection_db: float | None = None
     #: Fraction of the motion's energy near its frequency that one oscillation explains.
@@ -236,6 +241,11 @@ class ObjectMeasurement:
     #: Power of a second, independent motion in the object's region near its frequency, relative to the
     #: first (0: one motion): two oscillations closer than the window resolves.
     second_motion: float = 0.0
+    #: Probability per clip that noise alone gives a peak as high as the object's, anywhere in the band
+    #: (:mod:`workers.pipeline.significance`).
+    false_alarm_probability: float | None = None
+    #: The object's standardised height in the scan statistic (see the same module).
+    detection_z: float | None = None
 
     @property
     def angular_frequency_rad_s(self) -> float:
@@ -303,6 +313,9 @@ class Analysis:
     incoherent_snr_db: list[float] = field(default_factory=list)
     frame_step: int = 1
     window_survey: Survey | None = None
+    #: The detection statistic's calibration on this clip: ``location`` and ``scale`` of the Gumbel law of
+    #: log T, ``bins_fitted`` and ``bins_searched``, and the bound on the false-alarm probability.
+    detection: dict[str, float] = field(default_factory=dict)
 
     @property
     def eigenfrequency_hz(self) -> float | None:
@@ -340,12 +353,18 @@ class Stopwatch:
         self.times[name] = self.times.get(name, 0.0) + now - self._t
         self._t = now
 
-    def stream_lap(self, buffers: FrameBuffers) -> None:
-        """The lap of the frame stream, as ``decode`` (the reader's share) and ``flow`` (the rest)."""
+    def stream_lap(self, decode_s: float) -> None:
+        """The lap of a pass over the frames, as ``decode`` (``decode_s``, the reader's share) and ``flow``
+        (the rest), each adding to its stage."""
         now = time.perf_counter()
-        self.times["decode"] = buffers.decode_s
-        self.times["flow"] = now - self._t - buffers.decode_s
+        self.times["decode"] = self.times.get("decode", 0.0) + decode_s
+        self.times["flow"] = self.times.get("flow", 0.0) + max(0.0, now - self._t - decode_s)
         self._t = now
+
+    def add(self, other: dict[str, float]) -> None:
+        """Add another pass's stages (an earlier pass over the same clip) to these."""
+        for name, seconds in other.items():
+            self.times[name] = self.times.get(name, 0.0) + seconds
 
 
 __all__ = [

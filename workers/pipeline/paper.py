@@ -45,7 +45,7 @@ def analyze_paper(
     info = reader.info
     plan = plan_analysis(info, config)  # the paper's recipe: the given (or first) window, every frame
     buffers = stream_frames(reader, plan.start, plan.stop, plan.grid, plan.flow, progress, magnitude=True)
-    watch.stream_lap(buffers)
+    watch.stream_lap(buffers.decode_s)
     n = buffers.count
     band = analysis_band(config, plan.fps, n)
     mags = buffers.flow[..., 0].reshape(n, -1)

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from workers.pipeline.detection import SECOND_MOTION_SHARE
 from workers.pipeline.model import ObjectMeasurement, QualityNote
 
 if TYPE_CHECKING:
@@ -19,7 +20,7 @@ if TYPE_CHECKING:
 #: Objects closer than this many lines of the window's resolution are not resolved from each other.
 CLOSE_LINES = 3.0
 #: A second motion in an object's region this strong (relative to the first) is not resolved.
-SECOND_MOTION = 0.2
+SECOND_MOTION = SECOND_MOTION_SHARE
 #: Container rates that high-speed cameras write into files whose frames they captured much faster.
 PLAYBACK_RATES = (23.976, 24.0, 25.0, 29.97, 30.0, 50.0, 59.94, 60.0)
 

@@ -4,6 +4,7 @@ noise floor, grouped into cleaned connected regions and labelled one object per 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -349,6 +350,7 @@ def _label(
         bp = band_power[i]
         snr = bp / (pixel_noise * band_bins[i])
         candidate = (bp > cfg.noise_factor * noise[i]) & (owner == i) & (bp > cfg.purity * total)
+        moving = candidate.copy()
         region = np.zeros(h * w, bool)
         if candidate.any():
             # The object's typical level: occlusion edges carry erratic, strong flow, so a high
@@ -381,6 +383,9 @@ def _label(
             region |= _clean(weak, min_area).ravel() & (labels == 0)
         if not region.any():
             continue
+        core = region & (bp >= float(np.median(bp[region])))
+        region |= _bridged(region.reshape(h, w), moving.reshape(h, w), cfg, core=core.reshape(h, w)).ravel()
+        region &= labels == 0
         kept.append(peak)
         kept_rows.append(i)
         labels[region] = len(kept)
@@ -390,6 +395,89 @@ def _label(
         band_power=band_power[kept_rows].reshape(len(kept_rows), h, w),
         noise_power=noise[kept_rows],
     )
+
+
+def _bridged(
+    region: NDArray[np.bool_],
+    moving: NDArray[np.bool_],
+    cfg: SegmentationConfig,
+    *,
+    core: NDArray[np.bool_] | None = None,
+) -> NDArray[np.bool_]:
+    """The pixels of ``moving`` (above the noise at the object's frequency, mostly its own) in the gaps of
+    ``region`` no wider than the edge neighbourhood; and for a long, thin region (a string, a wire, a
+    bar: :data:`THIN_ASPECT`), along its length up to :data:`BRIDGE_SHARE` of it, in its gaps and beyond
+    its ends. A thin object's nodes, and the stretches of it that show little contrast against the
+    background, move far less in the flow than the rest (the relative and edge tests drop them) and
+    still lie inside the object; a closing fills gaps and dents only, and growth along a thin object's
+    length does not widen it: it starts from the region's ``core`` (its pixels moving at least as
+    strongly as its median one, default all of it), not from the fringe that flow spreads around it."""
+    side = 2 * cfg.edge_radius_px + 1
+    closed = cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((side, side), np.uint8)) > 0
+    along = _length_kernel(region, min_px=side)
+    if along is not None:
+        closed |= cv2.dilate((region if core is None else core).astype(np.uint8), along) > 0
+    return np.asarray(closed & moving & ~region, bool)
+
+
+#: :func:`_bridged` grows a region along its length up to this share of its length ...
+BRIDGE_SHARE = 0.15
+#: ... when it is at least this many times longer than wide.
+THIN_ASPECT = 4.0
+
+
+def _length_kernel(region: NDArray[np.bool_], *, min_px: int) -> NDArray[np.uint8] | None:
+    """A line along a thin region's longer principal axis, :data:`BRIDGE_SHARE` of its length long (None
+    when the region is not thin, or the line would be no longer than ``min_px``)."""
+    ys, xs = np.nonzero(region)
+    if xs.size < 2:
+        return None
+    coords = np.stack([xs - xs.mean(), ys - ys.mean()]).astype(np.float64)
+    values, vectors = np.linalg.eigh(coords @ coords.T)
+    if values[1] < THIN_ASPECT**2 * max(float(values[0]), 1e-9):
+        return None
+    axis = vectors[:, 1]
+    along = axis @ coords
+    length = int(BRIDGE_SHARE * float(along.max() - along.min()))
+    if length <= min_px:
+        return None
+    reach = length // 2
+    kernel = np.zeros((2 * reach + 1, 2 * reach + 1), np.uint8)
+    dx, dy = axis[0] * reach, axis[1] * reach
+    cv2.line(kernel, (round(reach - dx), round(reach - dy)), (round(reach + dx), round(reach + dy)), 1, 1)
+    return kernel
+
+
+def at_rest(
+    mask: NDArray[np.bool_], *, axis_px: tuple[float, float], amplitude_px: float
+) -> NDArray[np.bool_]:
+    """Where an object is at rest, from the region its motion swept: the region eroded by its amplitude
+    along its motion's axis on either side (a body moving by A along an axis covers its resting outline
+    widened by A each way). Unchanged when that would leave less than :data:`REST_MIN_SHARE` of it (the
+    region did not hold the whole sweep). The erosion is by the amplitude's whole pixels: a sweep of less
+    than a pixel each way is not resolved by a region on the pixel grid.
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (H, W)
+    axis_px : (ux, uy)
+        Unit vector of the motion in the image.
+    amplitude_px : float
+        The motion's amplitude, pixels.
+    """
+    reach = math.floor(amplitude_px)
+    if reach < 1:
+        return mask
+    side = 2 * reach + 1
+    kernel = np.zeros((side, side), np.uint8)
+    dx, dy = axis_px[0] * reach, axis_px[1] * reach
+    cv2.line(kernel, (round(reach - dx), round(reach - dy)), (round(reach + dx), round(reach + dy)), 1, 1)
+    rest = cv2.erode(mask.astype(np.uint8), kernel) > 0
+    return rest if rest.sum() >= REST_MIN_SHARE * mask.sum() else mask
+
+
+#: :func:`at_rest` keeps at least this share of a region.
+REST_MIN_SHARE = 0.3
 
 
 def frequency_map(

@@ -14,15 +14,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.camera import CameraRing
-from workers.pipeline.clipio.types import ClipReader, Frame
+from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader, Frame
 from workers.pipeline.errors import AnalysisError
 from workers.pipeline.fft import warm_up as spectrum_warm_up
 from workers.pipeline.flow import FlowConfig, flow_magnitude, flow_stream, prepare_gray
 from workers.pipeline.light import BRIGHTNESS_BLOCKS
 from workers.pipeline.model import Progress
-
-#: Fewest frames a window may end with when the clip delivers fewer than it announced.
-MIN_FRAMES = 16
+from workers.pipeline.roi import Roi
 
 
 @dataclass
@@ -62,6 +60,8 @@ class FrameBuffers:
         means an object, not the camera, moved the border).
     announced : int
         Flow maps the reader announced; more than ``count`` when the clip ended early.
+    roi : Roi or None
+        The box of the frame the flow grid covers (None: the whole frame, ``gray`` at input resolution).
     """
 
     flow: NDArray[np.float32]
@@ -79,6 +79,13 @@ class FrameBuffers:
     border_px: NDArray[np.float32] | None = None
     camera_still_fraction: float = 0.0
     announced: int = 0
+    roi: Roi | None = None
+
+    def box(self, frame_shape: tuple[int, int]) -> Roi:
+        """The box the flow grid covers (the whole frame when ``roi`` is None)."""
+        if self.roi is not None:
+            return self.roi
+        return Roi.whole(frame_shape, (int(self.flow.shape[1]), int(self.flow.shape[2])))
 
 
 def stream_frames(
@@ -143,10 +150,7 @@ def stream_frames(
         nonlocal depth_buf, first_rgb, decode_s, frames_read
         # A reader that can sample depth onto the grid before converting it to metres saves the
         # conversion of pixels the grid drops (same values: nearest-neighbour either way).
-        on_grid = getattr(reader, "frames_with_depth_on", None)
-        frames: Iterator[Frame] = iter(
-            on_grid(grid, start, stop) if callable(on_grid) else reader.frames(start, stop)
-        )
+        frames: Iterator[Frame] = iter(reader.frames_with_depth_on(grid, start, stop))
         previous: NDArray[np.uint8] | None = None
         for i in itertools.count():
             # The reader's own CPU time: its wall time would count the moments the flow threads,
@@ -242,4 +246,4 @@ def stream_frames(
     )
 
 
-__all__ = ["BRIGHTNESS_BLOCKS", "MIN_FRAMES", "FrameBuffers", "stream_frames"]
+__all__ = ["BRIGHTNESS_BLOCKS", "FrameBuffers", "stream_frames"]

@@ -212,6 +212,7 @@ def survey_motion(
     width_px: int = 96,
     segment_frames: int | None = None,
     min_snr_db: float = 6.0,
+    band_hz: tuple[float, float] | None = None,
 ) -> Survey:
     """Stream a clip once and summarise its motion with bounded memory.
 
@@ -231,6 +232,9 @@ def survey_motion(
         Welch segment length in flow samples; default :func:`segment_length` of ``total_frames``.
     min_snr_db : float
         A peak of the whitened Welch spectrum must stand this far above its running median.
+    band_hz : (low, high), optional
+        The band the user asked for: peaks in it are sought there on their own as well, so that stronger
+        motions elsewhere never crowd them out (the band chooses where to look).
 
     Returns
     -------
@@ -318,16 +322,26 @@ def survey_motion(
     # Peaks are searched from the first bin so that a low peak's left flank counts for its prominence;
     # those below two bins (unresolved from the mean and slow drift) are dropped afterwards.
     band = (0.5 * bin_hz, 0.98 * nyquist)
-    peaks = detect_peaks(
-        freqs,
-        summed=power,
-        background=background,
-        whitened=whitened,
-        median_snr=median_snr,
-        band_hz=band,
-        bin_hz=bin_hz,
-        policy=dataclasses.replace(SURVEY_PEAKS, weak_min_snr_db=min_snr_db),
-    )
+    policy = dataclasses.replace(SURVEY_PEAKS, weak_min_snr_db=min_snr_db)
+
+    def peaks_in(searched: tuple[float, float]) -> list[Peak]:
+        return detect_peaks(
+            freqs,
+            summed=power,
+            background=background,
+            whitened=whitened,
+            median_snr=median_snr,
+            band_hz=searched,
+            bin_hz=bin_hz,
+            policy=policy,
+        )
+
+    peaks = peaks_in(band)
+    if band_hz is not None:
+        inside = (max(band[0], band_hz[0]), min(band[1], band_hz[1]))
+        if inside[1] - inside[0] >= 3 * bin_hz:
+            extra = peaks_in(inside)
+            peaks += [p for p in extra if all(abs(p.frequency_hz - q.frequency_hz) > bin_hz for q in peaks)]
     global_hz = [p.frequency_hz for p in peaks if median_snr[p.bin] > GLOBAL_MEDIAN_SNR]
     flicker_hz = _flicker(np.asarray(brightness, np.float32), fps=fps, peaks=peaks, bin_hz=bin_hz)
     starts, span, seg_power = acc.segments_stored()

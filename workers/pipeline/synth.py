@@ -55,6 +55,14 @@ class SceneObject:
         Amplitude of a ``steady`` oscillation, metres.
     release_frame : int
         Frames before this one show the object held still.
+    spin_hz : float
+        When non-zero, the object also turns about its own centre at this many revolutions per second (a
+        rotating wheel; its texture passes every image point once a revolution).
+    spin_symmetry : int
+        The spinning object's texture repeats this many times a turn (a wheel with two spokes: its
+        marks pass every point twice a turn), apart from ``spin_mark`` of its level.
+    spin_mark : float
+        How much of the texture breaks that symmetry (a valve, a scuff), 0 to 1.
     pivot_px : (x, y) or None
         When set, the object swings about this image point like a pendulum: its displacement is the arc
         travelled by its centre, the object turns with the angle, and a rod (flat, ``rod_px`` wide)
@@ -90,6 +98,9 @@ class SceneObject:
     texture: Literal["noise", "flat"] = "noise"
     pivot_px: tuple[float, float] | None = None
     rod_px: float = 6.0
+    spin_hz: float = 0.0
+    spin_symmetry: int = 1
+    spin_mark: float = 0.0
 
     @property
     def stiffness_n_per_m(self) -> float:
@@ -172,6 +183,9 @@ class Scene:
         Codec keyframes: every ``keyframe_every`` frames the image jumps by ``keyframe_pulse`` levels.
     depth_noise_m : float
         Standard deviation of depth noise at 1 m (grows with the square of depth).
+    background : ``"noise"`` or ``"shaded"``
+        A textured plane (band-limited colour noise, easy to track), or a flat wall in faint, smooth
+        shading (a few levels over the picture: where optical flow has nothing to hold on to).
     seed : int
     """
 
@@ -193,6 +207,7 @@ class Scene:
     flicker_rolling_px: float = 0.0
     keyframe_every: int = 0
     keyframe_pulse: float = 6.0
+    background: Literal["noise", "shaded"] = "noise"
 
     @property
     def intrinsics(self) -> tuple[float, float, float, float]:
@@ -269,6 +284,47 @@ def _texture(
     return np.asarray(np.clip(base + 38.0 * out, 0, 255), dtype=np.float32)
 
 
+def _shading(
+    rng: np.random.Generator, height: int, width: int, *, base: NDArray[np.float32], levels: float = 6.0
+) -> NDArray[np.float32]:
+    """A flat wall in faint, smooth shading: a gentle gradient and broad blotches, ``levels`` grey levels
+    across the picture (nothing for optical flow to hold on to, as on a painted wall)."""
+    import cv2
+
+    y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+    ramp = (x / max(width - 1, 1) - 0.5) * 0.6 + (y / max(height - 1, 1) - 0.5) * 0.4
+    blotch = cv2.GaussianBlur(rng.standard_normal((height, width)).astype(np.float32), (0, 0), width / 8)
+    blotch /= float(np.abs(blotch).max()) + 1e-6
+    shade = levels * (ramp + 0.5 * blotch)
+    return np.asarray(base[None, None, :] + shade[..., None], np.float32)
+
+
+def _symmetric(tex: NDArray[np.float32], n: int, mark: float) -> NDArray[np.float32]:
+    """A texture made to repeat ``n`` times a turn about its centre, keeping ``mark`` of the original."""
+    import cv2
+
+    h, w = tex.shape[:2]
+    centre = ((w - 1) / 2, (h - 1) / 2)
+    turns = [
+        cv2.warpAffine(
+            tex,
+            _turn_about(2 * math.pi * k / n, centre).astype(np.float32),
+            (w, h),
+            borderMode=cv2.BORDER_REFLECT,
+        )
+        for k in range(n)
+    ]
+    even = np.mean(turns, axis=0)
+    return np.asarray((1 - mark) * even + mark * tex, np.float32)
+
+
+def _turn_about(angle_rad: float, centre: tuple[float, float]) -> NDArray[np.float64]:
+    """2 x 3 matrix turning points by ``angle_rad`` (counter-clockwise on screen) about ``centre``."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    cx, cy = centre
+    return np.array([[c, s, cx - c * cx - s * cy], [-s, c, cy + s * cx - c * cy]], np.float64)
+
+
 def _shape_alpha(shape: str, w: int, h: int) -> NDArray[np.float32]:
     import cv2
 
@@ -298,6 +354,10 @@ def _check(scene: Scene) -> None:
             )
         if o.texture not in ("noise", "flat"):
             raise ParameterError(f"synth: texture={o.texture!r} is unknown; use 'noise' or 'flat'")
+        if o.spin_hz and o.pivot_px is not None:
+            raise ParameterError("synth: an object either spins (spin_hz) or swings (pivot_px), not both")
+    if scene.background not in ("noise", "shaded"):
+        raise ParameterError(f"synth: background={scene.background!r} is unknown; use 'noise' or 'shaded'")
 
 
 class _Layer:
@@ -315,6 +375,7 @@ class _Layer:
     ) -> None:
         self.label, self.obj, self.tex, self.alpha, self.anchor = label, obj, tex, alpha, anchor
         self.positions: NDArray[np.float64] | None = None  # (T, 3) camera coordinates of the centre
+        self.fps = 1.0  # frame rate (a spinning object's angle in frame k)
         self.angles: NDArray[np.float64] | None = None  # (T,) swing angle, radians, from the rest angle
         self.rest_angle = 0.0
 
@@ -348,6 +409,9 @@ class _Layer:
         v = fy * Y / Z + cy
         th, tw = self.alpha.shape
         M = np.array([[scale, 0, u - scale * (tw - 1) / 2], [0, scale, v - scale * (th - 1) / 2]], np.float32)
+        if self.obj.spin_hz:
+            turn = _turn_about(2 * math.pi * self.obj.spin_hz * k / self.fps, ((tw - 1) / 2, (th - 1) / 2))
+            M = (np.vstack([M, [0, 0, 1]]) @ np.vstack([turn, [0, 0, 1]]))[:2].astype(np.float32)
         return M, float(Z)
 
 
@@ -407,7 +471,11 @@ class _Renderer:
         self.rng = rng = np.random.default_rng(scene.seed)
         H, W, T = scene.height, scene.width, scene.frames
         fx, fy, cx, cy = self.intrinsics = scene.intrinsics
-        self.background = _texture(rng, H, W, base=np.array([110, 120, 100], np.float32))
+        base = np.array([110, 120, 100], np.float32)
+        if scene.background == "shaded":
+            self.background = _shading(rng, H, W, base=base)
+        else:
+            self.background = _texture(rng, H, W, base=base)
         t = np.arange(T, dtype=np.float64) / scene.fps
 
         layers: list[_Layer] = []
@@ -421,6 +489,8 @@ class _Renderer:
                 tex = np.broadcast_to(base, (h + 2 * pad, w + 2 * pad, 3)).astype(np.float32)
             else:
                 tex = _texture(rng, h + 2 * pad, w + 2 * pad, base=base)
+            if obj.spin_hz and obj.spin_symmetry > 1:
+                tex = _symmetric(tex, obj.spin_symmetry, obj.spin_mark)
             alpha = np.zeros((h + 2 * pad, w + 2 * pad), np.float32)
             alpha[pad : pad + h, pad : pad + w] = _shape_alpha(obj.shape, w, h)
             direction = np.asarray(obj.direction, np.float64)
@@ -435,6 +505,7 @@ class _Renderer:
                 positions = rest[None, :] + disp[:, None] * direction[None, :]
                 layer = _Layer(label, obj, tex, alpha, anchor=((w + 2 * pad - 1) / 2, (h + 2 * pad - 1) / 2))
                 layer.positions = positions
+                layer.fps = scene.fps
             else:
                 layer = _swing_layer(label, obj, tex, alpha, pad=pad, fx=fx, disp_m=disp)
             layers.append(layer)

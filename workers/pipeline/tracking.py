@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from workers.pipeline.confidence import Confidence
 from workers.pipeline.mechanics import detect_release
 from workers.pipeline.registration import register_translation
 from workers.pipeline.ringdown import RingdownFit, fit_ringdown
@@ -18,6 +19,8 @@ from workers.pipeline.stream import FrameBuffers
 
 #: Objects whose pixels move this coherently are registered as rigid bodies for their amplitude.
 RIGID_COHERENCE = 0.7
+#: The coarse grid's motion is followed when its line stands this many times clearer than the fine grid's.
+COARSE_ADVANTAGE = 2.0
 #: Objects whose motion spans this many grid pixels are also followed through the flow.
 FOLLOW_MIN_PX = 2.0
 
@@ -48,12 +51,22 @@ def object_motion(
     pixel_scale: float = 1.0,
     max_pixels: int = 20_000,
     seed: int = 0,
+    frequency_hz: float | None = None,
+    sample_rate_hz: float | None = None,
+    confidence: Confidence | None = None,
 ) -> ObjectMotion:
     """Dominant motion of the masked pixels by principal components over time.
 
     The first principal component of the pixels' signed flow is the common time course; each pixel's
     loading says how far and which way it moves. Parts that move in anti-phase load with opposite signs and
-    so reinforce the component instead of cancelling.
+    so reinforce the component instead of cancelling. Given the object's frequency, the component is the
+    one that explains most of the motion *near it* (the leading singular vector of the pixels' spectra
+    within two lines of it, made real): a weak vibration under broadband noise (a codec's pulses, which
+    move every pixel at once) is followed, not the noise. Given the flow's ``confidence``, each pixel's
+    flow counts by its weight (flat pixels' flow is noise); and where the pixels' common motion, their
+    flow averaged by what the image constrains of it (:func:`_mean_course`), stands out more clearly at
+    the frequency than that component, the common motion is the object's (a rigid object whose pixels are
+    individually lost in noise).
 
     Parameters
     ----------
@@ -76,9 +89,23 @@ def object_motion(
     n = flow.shape[0]
     sub = flow.reshape(n, -1, 2)[:, idx, :].astype(np.float64)  # (N, P, 2)
     mat = sub.reshape(n, -1)
-    gram = mat @ mat.T
-    _evals, evecs = np.linalg.eigh(gram)
-    u1 = evecs[:, -1]
+    mat = mat - mat.mean(axis=0)
+    weight = None if confidence is None else confidence.weight
+    counts = np.ones(mat.shape[1]) if weight is None else np.repeat(np.sqrt(weight.ravel()[idx]), 2)
+    mean_course: NDArray[np.float64] | None = None
+    if frequency_hz is not None and sample_rate_hz is not None:
+        nu = frequency_hz / sample_rate_hz
+        u1 = _band_component(mat * counts, nu)
+        if confidence is not None:
+            mean_course = _mean_course(sub, _tensors(confidence, idx), nu)
+        if mean_course is not None and line_snr(mean_course, nu) > line_snr(u1, nu):
+            u1 = mean_course / float(np.linalg.norm(mean_course))
+        else:
+            mean_course = None
+    else:
+        weighted = mat * counts
+        _evals, evecs = np.linalg.eigh(weighted @ weighted.T)
+        u1 = evecs[:, -1]
     loads = (mat.T @ u1).reshape(-1, 2)  # (P, 2): per-pixel amplitude vector for unit time course
     cov = loads.T @ loads
     _, axes = np.linalg.eigh(cov)
@@ -90,8 +117,85 @@ def object_motion(
     norms = np.linalg.norm(loads, axis=1)
     coherence = float(np.linalg.norm(loads.mean(axis=0)) / (norms.mean() + 1e-12))
     sign = 1.0 if np.sum(proj) >= 0 else -1.0
-    velocity = u1 * scale_px * sign * pixel_scale
+    if mean_course is not None:
+        # The mean flow over the pixels is the motion itself (grid pixels per frame), with its sign.
+        velocity = mean_course * pixel_scale
+        if float(np.dot(mean_course, u1)) < 0:
+            velocity = -velocity
+    else:
+        velocity = u1 * scale_px * sign * pixel_scale
     return ObjectMotion(velocity_px=velocity, axis_px=(float(axis[0]), float(axis[1])), coherence=coherence)
+
+
+def line_snr(course: NDArray[np.float64], cycles_per_sample: float) -> float:
+    """How far a time course's line near a frequency stands over its spectrum's median (Hann window):
+    the power within one line of it over the median power of all lines."""
+    n = len(course)
+    spectrum = np.abs(np.fft.rfft((course - course.mean()) * np.hanning(n))) ** 2
+    k = cycles_per_sample * n
+    near = spectrum[max(0, math.floor(k - 1)) : math.ceil(k + 1) + 1]
+    floor = float(np.median(spectrum[1:])) if len(spectrum) > 2 else 0.0
+    return float(near.max()) / floor if near.size and floor > 0 else 0.0
+
+
+def _tensors(confidence: Confidence, idx: NDArray[np.intp]) -> NDArray[np.float64]:
+    """The structure tensors (P, 2, 2) of the grid pixels ``idx``, weighed by their confidence (clipped
+    pixels count for nothing)."""
+    w = confidence.weight.ravel()[idx].astype(np.float64)
+    jxx, jxy, jyy = (
+        np.asarray(a, np.float64).ravel()[idx] * w for a in (confidence.jxx, confidence.jxy, confidence.jyy)
+    )
+    return np.stack([np.stack([jxx, jxy], axis=1), np.stack([jxy, jyy], axis=1)], axis=1)
+
+
+def _mean_course(
+    flow: NDArray[np.float64], tensors: NDArray[np.float64], cycles_per_sample: float
+) -> NDArray[np.float64] | None:
+    """The time course (N,) of the pixels' common motion along the direction in which it moves most near
+    a frequency, in the flow's units: a rigid object's motion, whose pixels move together while their
+    noise does not (a thin edge moving a fifth of a pixel under a codec's noise, where the pixels'
+    individual spectra are noise and a decomposition of them follows it).
+
+    The common motion of pixels with flows u_p (N, P, 2) and structure tensors J_p is the least-squares
+    m = (sum J_p)^-1 sum J_p u_p: along an edge only the component across it counts (the one the image
+    shows). None when the tensors constrain no direction.
+    """
+    total = tensors.sum(axis=0)
+    if np.linalg.det(total) <= 1e-12 * max(float(np.trace(total)) ** 2, 1e-30):
+        return None
+    mean = np.einsum("npc,pdc->nd", flow, tensors) @ np.linalg.inv(total).T  # (N, 2)
+    mean = mean - mean.mean(axis=0)
+    n = len(mean)
+    lines_at = np.arange(n // 2 + 1) / n
+    near = np.flatnonzero(np.abs(lines_at - cycles_per_sample) <= 1.0 / n)
+    if near.size == 0:
+        return None
+    basis = np.exp(-2j * np.pi * np.outer(lines_at[near], np.arange(n)))
+    spectra = basis @ mean  # (K, 2)
+    _, vecs = np.linalg.eigh((spectra.conj().T @ spectra).real)
+    return np.asarray(mean @ vecs[:, -1], np.float64)
+
+
+def _band_component(
+    mat: NDArray[np.float64], cycles_per_sample: float, *, lines: float = 2.0
+) -> NDArray[np.float64]:
+    """The unit time course (N,) of the spatial pattern that explains most of ``mat``'s (N, C) motion
+    within ``lines`` lines of a frequency: the leading right singular vector of the columns' spectra
+    there, its phase turned to make it as real as possible."""
+    n = mat.shape[0]
+    lines_at = np.arange(n // 2 + 1) / n
+    near = np.flatnonzero(np.abs(lines_at - cycles_per_sample) <= lines / n)
+    if near.size == 0:
+        near = np.array([int(np.argmin(np.abs(lines_at - cycles_per_sample)))])
+    t = np.arange(n)
+    basis = np.exp(-2j * np.pi * np.outer(lines_at[near], t))  # (K, N)
+    spectra = basis @ mat  # (K, C)
+    _, _, vh = np.linalg.svd(spectra, full_matrices=False)
+    pattern = vh[0].conj()
+    pattern = pattern * np.exp(-0.5j * np.angle(np.sum(pattern * pattern)))  # most nearly real
+    course = np.asarray(mat @ pattern.real, np.float64)
+    norm = float(np.linalg.norm(course))
+    return course / norm if norm > 0 else course
 
 
 def silhouette(
@@ -141,6 +245,26 @@ def silhouette(
     edge = max(2, round(2 * shape[1] / region.shape[1]))
     up = cv2.erode(up, np.ones((2 * edge + 1, 2 * edge + 1), np.uint8))
     return np.asarray(up.astype(bool))
+
+
+@dataclass(frozen=True)
+class CoarseView:
+    """The object on another, coarser grid of the same flow maps: its flow, where it moves there and that
+    grid's confidence (:func:`track_object` follows whichever grid shows its motion more clearly).
+
+    Attributes
+    ----------
+    flow : ndarray of float32, shape (N, h, w, 2)
+    region : ndarray of bool, shape (h, w)
+    confidence : Confidence
+    pixel_scale : float
+        Input pixels per pixel of this grid.
+    """
+
+    flow: NDArray[np.float32]
+    region: NDArray[np.bool_]
+    confidence: Confidence
+    pixel_scale: float
 
 
 @dataclass(frozen=True)
@@ -299,6 +423,8 @@ def track_object(
     pixel_scale: float,
     frequency_guess_hz: float,
     band_hz: tuple[float, float] | None = None,
+    confidence: Confidence | None = None,
+    coarse: CoarseView | None = None,
 ) -> Track:
     """Measure one object's motion and fit its ring-down.
 
@@ -323,6 +449,12 @@ def track_object(
         Where the fit starts (the object's spectral peak).
     band_hz : (low, high), optional
         The analysed band: the fitted frequency stays inside it.
+    confidence : Confidence, optional
+        Of the grid's flow (see :func:`object_motion`).
+    coarse : CoarseView, optional
+        The object on a coarser grid of the same maps: its motion there is followed when it stands out
+        more clearly at the frequency (:func:`line_snr`) than on this grid's (a codec's noise, averaged
+        away over a coarse pixel, can bury a sub-pixel motion at full resolution).
 
     Returns
     -------
@@ -340,7 +472,26 @@ def track_object(
             band_hz=band_hz,
         )
 
-    motion = object_motion(buffers.flow, mask, pixel_scale=pixel_scale)
+    motion = object_motion(
+        buffers.flow,
+        mask,
+        pixel_scale=pixel_scale,
+        frequency_hz=frequency_guess_hz,
+        sample_rate_hz=fps,
+        confidence=confidence,
+    )
+    if coarse is not None and coarse.region.any():
+        seen = object_motion(
+            coarse.flow,
+            coarse.region,
+            pixel_scale=coarse.pixel_scale,
+            frequency_hz=frequency_guess_hz,
+            sample_rate_hz=fps,
+            confidence=coarse.confidence,
+        )
+        nu = frequency_guess_hz / fps
+        if line_snr(seen.velocity_px, nu) > COARSE_ADVANTAGE * line_snr(motion.velocity_px, nu):
+            motion = seen
     velocity = motion.velocity_px
     axis = motion.axis_px
     source = "flow"
@@ -407,6 +558,7 @@ def track_object(
 
 __all__ = [
     "RIGID_COHERENCE",
+    "CoarseView",
     "ObjectMotion",
     "Track",
     "follow_region",

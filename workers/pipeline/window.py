@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.clipio.types import ClipInfo, ClipReader, ClosingReader, Frame
+from workers.pipeline.clipio.types import MIN_FRAMES, ClipInfo, ClipReader, ClosingReader, Frame
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.flow import FlowConfig
 from workers.pipeline.model import (
@@ -24,6 +24,31 @@ from workers.pipeline.model import (
 )
 from workers.pipeline.peaks import Peak
 from workers.pipeline.survey import Survey, survey_motion
+
+#: The band's default lower edge: this many periods of the window (nothing slower is an oscillation of it).
+BAND_MIN_PERIODS = 2.0
+#: The band's default upper edge: this fraction of the Nyquist rate.
+BAND_NYQUIST_FRACTION = 0.98
+#: A band holds at least this many of the window's frequencies (so that its noise can be measured).
+MIN_BAND_BINS = 16
+
+
+def band_asked(config: AnalysisConfig) -> tuple[float, float]:
+    """The band the user asked for before a window is chosen: 0 and infinity where they gave no edge
+    (the window's length sets the lower edge, its sample rate the upper, :func:`analysis_band`)."""
+    lo = config.min_frequency_hz if config.min_frequency_hz is not None else 0.0
+    hi = config.max_frequency_hz if config.max_frequency_hz is not None else math.inf
+    return lo, hi
+
+
+def frames_for_band(config: AnalysisConfig, fps: float) -> int:
+    """Frames a window needs for the band the user asked for to hold :data:`MIN_BAND_BINS` frequencies
+    (its lines are 1 / duration apart, whatever the frame step); 0 without a narrowed band."""
+    lo, hi = band_asked(config)
+    hi = min(hi, BAND_NYQUIST_FRACTION * fps / 2)
+    if (config.min_frequency_hz is None and config.max_frequency_hz is None) or hi <= lo:
+        return 0
+    return math.ceil(MIN_BAND_BINS * fps / (hi - lo)) + 1
 
 
 @dataclass(frozen=True)
@@ -70,11 +95,27 @@ class StridedReader(ClosingReader):
     def info(self) -> ClipInfo:
         return self._info
 
-    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+    def _span(self, start: int, stop: int | None) -> tuple[int, int]:
+        """The wrapped reader's frame range [first, last) holding frames ``start <= k < stop`` of this one."""
         stop = self._info.frames if stop is None else min(stop, self._info.frames)
-        first = self._start + start * self._step
-        last = self._start + (stop - 1) * self._step + 1
-        for i, frame in enumerate(self._reader.frames(first, last)):
+        return self._start + start * self._step, self._start + (stop - 1) * self._step + 1
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        for i, frame in enumerate(self._reader.frames(*self._span(start, stop))):
+            if i % self._step == 0:
+                yield dataclasses.replace(frame, index=start + i // self._step)
+
+    def gray_frames(self, start: int = 0, stop: int | None = None) -> Iterator[NDArray[np.uint8]]:
+        """Every ``step``-th grey frame, through the wrapped reader's own fast path."""
+        for i, gray in enumerate(self._reader.gray_frames(*self._span(start, stop))):
+            if i % self._step == 0:
+                yield gray
+
+    def frames_with_depth_on(
+        self, shape: tuple[int, int], start: int = 0, stop: int | None = None
+    ) -> Iterator[Frame]:
+        """Every ``step``-th frame with depth on ``shape``, through the wrapped reader's own fast path."""
+        for i, frame in enumerate(self._reader.frames_with_depth_on(shape, *self._span(start, stop))):
             if i % self._step == 0:
                 yield dataclasses.replace(frame, index=start + i // self._step)
 
@@ -112,19 +153,23 @@ def plan_analysis(
         and config.start_frame is None
         and info.frames > DEFAULT_MAX_FRAMES
     )
+    band = band_asked(config)
     if not surveyed:
-        start, stop = fixed_window(info.frames, config)
+        start, stop = fixed_window(info.frames, config, needed=frames_for_band(config, fps))
         return Plan(fps, fps, start, stop, 1, flow_cfg, grid, pixel_scale, decodable_frames=info.frames)
     assert reader is not None
     if survey is None:
-        survey = survey_motion(survey_grays(reader, progress), fps=fps, total_frames=info.frames)
+        grays = survey_grays(reader, progress)
+        survey = survey_motion(grays, fps=fps, total_frames=info.frames, band_hz=band)
     # A damaged file decodes fewer frames than it lists: plan within those.
     decodable = min(info.frames, survey.first_frame + survey.frames)
     # Bytes per flow map: flow (2 x float32), its share of the spectra and depth on the grid, and the
     # grey frame at input resolution kept for registration.
     per_sample = grid[0] * grid[1] * (8 + 4 + (4 if info.has_depth else 0)) + info.height * info.width
     budget = int(config.max_window_mib * 2**20 / per_sample)
-    band = (config.min_frequency_hz or 0.0, config.max_frequency_hz or fps / 2)
+    needed = frames_for_band(config, fps)
+    if needed:
+        min_duration_s = max(min_duration_s or 0.0, (needed - 1) / fps)
     window = plan_window(
         survey,
         total_frames=decodable,
@@ -152,37 +197,63 @@ def plan_analysis(
 
 def survey_grays(reader: ClipReader, progress: Progress | None) -> Iterator[NDArray[np.uint8]]:
     """Every frame of the clip in grey at input resolution (the reader's fast path when it has one)."""
-    import cv2
 
     total = max(reader.info.frames, 1)
-    fast = getattr(reader, "gray_frames", None)
-    frames: Iterator[NDArray[np.uint8]] = (
-        fast() if callable(fast) else (cv2.cvtColor(f.rgb, cv2.COLOR_RGB2GRAY) for f in reader.frames())
-    )
-    for i, gray in enumerate(frames):
+    for i, gray in enumerate(reader.gray_frames()):
         if progress is not None and i % 64 == 0:
             progress("survey", 0.05 * i / total)
         yield gray
 
 
-def fixed_window(total: int, config: AnalysisConfig) -> tuple[int, int]:
-    """The window the user gave (or the first ``DEFAULT_MAX_FRAMES`` frames)."""
+def fixed_window(total: int, config: AnalysisConfig, *, needed: int = 0) -> tuple[int, int]:
+    """The window the user gave (or the first ``DEFAULT_MAX_FRAMES`` frames, more when the band needs
+    ``needed`` frames and the clip has them).
+
+    Raises
+    ------
+    ParameterError
+        When the window leaves too few frames, or the user's window cannot resolve the band they asked for.
+    """
     start = config.start_frame or 0
     if start >= total - 2:
         raise ParameterError(f"start_frame={start} leaves fewer than 3 of the clip's {total} frames")
-    length = config.frames if config.frames is not None else min(total - start, DEFAULT_MAX_FRAMES)
-    if length < 8:
-        raise ParameterError(f"frames={length}: the analysis window needs at least 8 frames")
+    default = max(DEFAULT_MAX_FRAMES, needed)
+    length = config.frames if config.frames is not None else min(total - start, default)
+    if length < MIN_FRAMES:
+        raise ParameterError(f"frames={length}: the analysis window needs at least {MIN_FRAMES} frames")
     stop = min(total, start + length)
-    if stop - start < 8:
-        raise ParameterError(f"only {stop - start} frames from start_frame={start}; need at least 8")
+    if stop - start < MIN_FRAMES:
+        raise ParameterError(
+            f"only {stop - start} frames from start_frame={start}; need at least {MIN_FRAMES}"
+        )
+    if config.frames is not None and needed > stop - start:
+        raise ParameterError(
+            f"frames={config.frames}: the frequency band asked for needs at least {needed} frames to hold "
+            f"{MIN_BAND_BINS} of the window's frequencies; give more frames or widen the band"
+        )
     return start, stop
 
 
+def default_band(fps: float, n: int) -> tuple[float, float]:
+    """The band a window of ``n`` flow maps at ``fps`` can show: from :data:`BAND_MIN_PERIODS` periods of
+    the window up to :data:`BAND_NYQUIST_FRACTION` of the Nyquist rate."""
+    return BAND_MIN_PERIODS * fps / n, BAND_NYQUIST_FRACTION * fps / 2
+
+
 def analysis_band(config: AnalysisConfig, fps: float, n: int) -> tuple[float, float]:
+    """The band searched in a window of ``n`` flow maps at ``fps``: the user's, or from
+    :data:`BAND_MIN_PERIODS` periods of the window up to :data:`BAND_NYQUIST_FRACTION` of the Nyquist
+    rate (the one owner of the default band).
+
+    Raises
+    ------
+    ParameterError
+        When the band is empty at this rate and length.
+    """
     nyquist = fps / 2
-    lo = config.min_frequency_hz if config.min_frequency_hz is not None else 1.5 * fps / n
-    hi = config.max_frequency_hz if config.max_frequency_hz is not None else 0.98 * nyquist
+    default_lo, default_hi = default_band(fps, n)
+    lo = config.min_frequency_hz if config.min_frequency_hz is not None else default_lo
+    hi = config.max_frequency_hz if config.max_frequency_hz is not None else default_hi
     hi = min(hi, nyquist)
     if lo >= hi:
         raise ParameterError(
@@ -341,7 +412,11 @@ def plan_window(
     step_max_rate = _max_step_for_rate(survey, samples_per_period=samples_per_period)
     per_frame_grid_px = survey.max_step_px * grid_scale
     step_max_motion = max(1, math.floor(max_step_grid_px / max(per_frame_grid_px, 1e-9)))
-    step = max(1, min(step, step_max_rate, step_max_motion))
+    # The band's top stays below the Nyquist rate of the analysed frames: striding never folds it away.
+    step_max_band = (
+        max(1, math.floor(BAND_NYQUIST_FRACTION * fps / (2 * hi))) if math.isfinite(hi) else 1 << 30
+    )
+    step = max(1, min(step, step_max_rate, step_max_motion, step_max_band))
     length = min(length, step * max_samples + 1, total_frames)
     start = max(0, onset)
     stop = min(total_frames, start + length)
@@ -502,6 +577,7 @@ __all__ = [
     "StridedReader",
     "WindowPlan",
     "analysis_band",
+    "default_band",
     "fixed_window",
     "plan_analysis",
     "plan_window",

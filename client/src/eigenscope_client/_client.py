@@ -25,10 +25,12 @@ import httpx
 from eigenscope_client._errors import TransportError, WaitTimeoutError, error_for
 from eigenscope_client._models import (
     AnalysisParameters,
+    AnalysisResult,
     Clip,
     Excitation,
     Job,
     JobStatus,
+    JobSummary,
     Page,
     Stream,
 )
@@ -53,6 +55,7 @@ OPERATIONS = {
     "get_job": "get_job",
     "delete_job": "delete_job",
     "cancel_job": "cancel_job",
+    "get_job_result": "get_result",
     "get_job_artifact": "download_artifact",
     "create_stream": "create_stream",
     "list_streams": "list_streams",
@@ -465,6 +468,14 @@ class Client(_Protocol):
         """The job; with ``wait`` (seconds) the server answers once it has ended or the wait ran out."""
         return self._job(self._send(self._get_job_call(job_id, wait=wait, etag=None)))
 
+    def get_result(self, job: Job | JobSummary | str) -> AnalysisResult:
+        """A succeeded job's result alone (what a job list's ``result_url`` names)."""
+        job_id = job if isinstance(job, str) else job.id
+        result: AnalysisResult = AnalysisResult.from_dict(
+            self._send(_Call("GET", f"/v1/jobs/{job_id}/result")).json()
+        )
+        return result
+
     def create_stream(
         self,
         *,
@@ -531,14 +542,15 @@ class Client(_Protocol):
         clip_id: str | None = None,
         limit: int = 20,
         cursor: str | None = None,
-    ) -> Page[Job]:
-        """One page of jobs, newest first, optionally of some states or one clip."""
+    ) -> Page[JobSummary]:
+        """One page of jobs, newest first, optionally of some states or one clip: summaries (each with
+        its result's headline; :meth:`get_job` gives a job with its whole result)."""
         call = self._list_jobs_call(status=status, clip_id=clip_id, limit=limit, cursor=cursor)
-        return self._page(self._send(call), Job.from_dict)
+        return self._page(self._send(call), JobSummary.from_dict)
 
     def iter_jobs(
         self, *, status: JobStatus | list[JobStatus] | None = None, page_size: int = 50
-    ) -> Iterator[Job]:
+    ) -> Iterator[JobSummary]:
         cursor: str | None = None
         while True:
             page = self.list_jobs(status=status, limit=page_size, cursor=cursor)
@@ -709,6 +721,12 @@ class AsyncClient(_Protocol):
     async def get_job(self, job_id: str, *, wait: float | None = None) -> Job:
         return self._job(await self._send(self._get_job_call(job_id, wait=wait, etag=None)))
 
+    async def get_result(self, job: Job | JobSummary | str) -> AnalysisResult:
+        job_id = job if isinstance(job, str) else job.id
+        response = await self._send(_Call("GET", f"/v1/jobs/{job_id}/result"))
+        result: AnalysisResult = AnalysisResult.from_dict(response.json())
+        return result
+
     async def create_stream(
         self,
         *,
@@ -767,13 +785,13 @@ class AsyncClient(_Protocol):
         clip_id: str | None = None,
         limit: int = 20,
         cursor: str | None = None,
-    ) -> Page[Job]:
+    ) -> Page[JobSummary]:
         call = self._list_jobs_call(status=status, clip_id=clip_id, limit=limit, cursor=cursor)
-        return self._page(await self._send(call), Job.from_dict)
+        return self._page(await self._send(call), JobSummary.from_dict)
 
     async def iter_jobs(
         self, *, status: JobStatus | list[JobStatus] | None = None, page_size: int = 50
-    ) -> AsyncIterator[Job]:
+    ) -> AsyncIterator[JobSummary]:
         cursor: str | None = None
         while True:
             page = await self.list_jobs(status=status, limit=page_size, cursor=cursor)

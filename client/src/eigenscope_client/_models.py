@@ -165,6 +165,7 @@ class ObjectResult(_Model):
     harmonics_hz: list[float] = field(default_factory=list)
     release_time_s: float | None = None
     snr_db: float | None = None
+    false_alarm_probability: float | None = None
     null_reasons: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     ringdown: Ringdown | None = None
@@ -192,6 +193,20 @@ class Spectrum(_Model):
 
 
 @dataclass(frozen=True)
+class Detection(_Model):
+    """How objects were told from noise: the scan statistic's law on this clip (objects are reported at a
+    false-alarm probability per clip of at most ``max_false_alarm``)."""
+
+    schema: ClassVar[str] = "Detection"
+    max_false_alarm: float
+    location: float
+    scale: float
+    bins_searched: int
+    bins_fitted: int
+    statistic: str = "scan"
+
+
+@dataclass(frozen=True)
 class AnalysisResult(_Model):
     """Everything one analysis measured. ``artifacts`` maps image keys (``mask``, ``overlay`` ...) to URLs."""
 
@@ -201,6 +216,7 @@ class AnalysisResult(_Model):
         "spectrum": Spectrum.from_dict,
         "quality": _list_of(QualityFlag.from_dict),
         "rejected_peaks": _list_of(RejectedPeak.from_dict),
+        "detection": _optional(Detection.from_dict),
         "artifacts": lambda a: {k: v for k, v in (a or {}).items() if isinstance(v, str)},
     }
     eigenfrequency_hz: float | None
@@ -218,6 +234,7 @@ class AnalysisResult(_Model):
     rejected_peaks: list[RejectedPeak] = field(default_factory=list)
     frame_step: int = 1
     timings_s: dict[str, float] = field(default_factory=dict)
+    detection: Detection | None = None
 
     @property
     def main(self) -> ObjectResult | None:
@@ -236,19 +253,20 @@ class Callback(_Model):
     last_error: str | None = None
 
 
-@dataclass(frozen=True)
-class Job(_Model):
-    """An analysis job. ``etag`` identifies this representation (for long-polls that wait for a change)."""
+#: The converters of the members a job and its summary share.
+_JOB_CONVERT: dict[str, Callable[[Any], Any]] = {
+    "created_at": _datetime,
+    "started_at": _datetime,
+    "finished_at": _datetime,
+    "error": _optional(Problem.from_dict),
+    "callback": _optional(Callback.from_dict),
+}
 
-    schema: ClassVar[str] = "Job"
-    convert: ClassVar[dict[str, Callable[[Any], Any]]] = {
-        "created_at": _datetime,
-        "started_at": _datetime,
-        "finished_at": _datetime,
-        "error": _optional(Problem.from_dict),
-        "result": _optional(AnalysisResult.from_dict),
-        "callback": _optional(Callback.from_dict),
-    }
+
+@dataclass(frozen=True)
+class _JobFields(_Model):
+    """The members a job and its summary share."""
+
     id: str
     clip_id: str
     status: JobStatus
@@ -261,11 +279,8 @@ class Job(_Model):
     started_at: datetime | None = None
     finished_at: datetime | None = None
     error: Problem | None = None
-    result: AnalysisResult | None = None
     callback: Callback | None = None
     source: str = "upload"
-    etag: str | None = field(default=None, compare=False)
-    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def done(self) -> bool:
@@ -276,12 +291,56 @@ class Job(_Model):
     def succeeded(self) -> bool:
         return self.status == "succeeded"
 
+
+@dataclass(frozen=True)
+class Job(_JobFields):
+    """An analysis job. ``etag`` identifies this representation (for long-polls that wait for a change)."""
+
+    schema: ClassVar[str] = "Job"
+    convert: ClassVar[dict[str, Callable[[Any], Any]]] = {
+        **_JOB_CONVERT,
+        "result": _optional(AnalysisResult.from_dict),
+    }
+    result: AnalysisResult | None = None
+    etag: str | None = field(default=None, compare=False)
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
     def raise_for_status(self) -> Job:
         """Return the job if it succeeded (or has not ended yet); raise :class:`JobFailedError` if it
         failed or was cancelled."""
         if self.status in ("failed", "cancelled"):
             raise JobFailedError(self)
         return self
+
+
+@dataclass(frozen=True)
+class ResultSummary(_Model):
+    """The headline of a succeeded job's result, as job lists carry it (the main object's figures)."""
+
+    schema: ClassVar[str] = "ResultSummary"
+    eigenfrequency_hz: float | None
+    objects: int
+    warnings: int
+    eigenfrequency_uncertainty_hz: float | None = None
+    damping_ratio: float | None = None
+    stiffness_n_per_m: float | None = None
+    mass_kg: float | None = None
+
+
+@dataclass(frozen=True)
+class JobSummary(_JobFields):
+    """A job as :meth:`Client.list_jobs` gives it: the record without its result, the result's
+    ``summary``, ``url`` (the job) and ``result_url`` (its whole result: :meth:`Client.get_result`)."""
+
+    schema: ClassVar[str] = "JobSummary"
+    convert: ClassVar[dict[str, Callable[[Any], Any]]] = {
+        **_JOB_CONVERT,
+        "summary": _optional(ResultSummary.from_dict),
+    }
+    url: str = ""
+    summary: ResultSummary | None = None
+    result_url: str | None = None
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
 
 @dataclass(frozen=True)

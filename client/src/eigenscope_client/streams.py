@@ -16,9 +16,11 @@ Example::
 Only ``httpx`` and ``websockets`` are needed. Frames go as binary messages (a 4-byte big-endian header
 length, a JSON header, the image bytes); the server's JSON messages are ``ready``, ``accepted``,
 ``backpressure``, ``estimate``, ``converged``, ``result`` and ``error`` (see the server's AsyncAPI
-document). Flow control: :meth:`StreamSession.send_frame` keeps at most the server's window of frame
-messages in flight; by default it waits for room, with ``realtime=True`` it never waits (a camera cannot)
-and the server tells which frames it had to drop.
+document). Flow control, the protocol's one rule: a frame message is in flight from when it is sent until
+the server acknowledges it (``acked`` in ``accepted``, ``backpressure`` and ``error`` counts the
+connection's acknowledged frame messages); :meth:`StreamSession.send_frame` keeps fewer than the server's
+``window`` in flight. By default it waits for room; with ``realtime=True`` it never waits (a camera cannot)
+and the server tells which frames it had to drop. :attr:`StreamSession.stalls` counts the waits.
 """
 
 from __future__ import annotations
@@ -137,9 +139,12 @@ class _State:
     def __init__(self, on_message: Callable[[Message], None] | None) -> None:
         self.on_message = on_message
         self.window = 1
+        self.sent = 0  # frame messages sent on this connection
+        self.acked = 0  # ... of which the server is done with (the latest `acked`)
+        self.legacy = False  # a server older than `acked`: count by `messages` and drops instead
         self.base = 0
         self.consumed = 0
-        self.sent = 0
+        self.stalls = 0
         self.next_frame = 0
         self.estimate: Message | None = None
         self.converged: Message | None = None
@@ -151,17 +156,36 @@ class _State:
 
     @property
     def in_flight(self) -> int:
-        return self.sent - (self.consumed - self.base)
+        """Frame messages sent on this connection that the server has not acknowledged yet."""
+        if self.legacy:
+            return self.sent - (self.consumed - self.base) - self.acked
+        return self.sent - self.acked
+
+    @property
+    def has_room(self) -> bool:
+        """Whether one more frame message may be sent (the flow-control rule)."""
+        return self.in_flight < self.window
+
+    def _count(self, message: Message) -> None:
+        """Take the flow-control members of a message (see the module docstring)."""
+        if "acked" in message and message["acked"] is not None:
+            self.acked = max(self.acked, int(message["acked"]))
+        elif message.get("type") in ("accepted", "backpressure"):
+            self.legacy = True
+        if "messages" in message and message["messages"] is not None:
+            self.consumed = max(self.consumed, int(message["messages"]))
+        if self.legacy and message.get("type") == "backpressure" and message.get("action") == "dropped":
+            self.acked += 1  # an older server's drop, acknowledged by its arrival
 
     def take(self, text: str | bytes) -> Message:
         message: Message = json.loads(text)
         kind = message.get("type")
-        if "messages" in message:
-            self.consumed = max(self.consumed, int(message["messages"]))
+        if kind != "ready":
+            self._count(message)
         if kind == "ready":
             self.window = int(message["window"])
             self.base = self.consumed = int(message.get("messages", 0))
-            self.sent = 0
+            self.sent = self.acked = 0
             self.next_frame = int(message.get("next_frame", 0))
             self.job_id = message.get("job_id")
         elif kind == "estimate":
@@ -172,7 +196,6 @@ class _State:
         elif kind == "result":
             self.result = message
         elif kind == "backpressure" and message.get("action") == "dropped":
-            self.sent -= 1
             self.dropped.append(message)
         elif kind == "error":
             self.errors.append(message)
@@ -279,7 +302,11 @@ class StreamSession:
         url = self.info["websocket_url"] + (f"?resume_token={self.resume_token}" if resume else "")
         try:
             self._ws = connect_websocket(
-                url, additional_headers=self._headers, open_timeout=self.timeout_s, max_size=None
+                url,
+                additional_headers=self._headers,
+                open_timeout=self.timeout_s,
+                max_size=None,
+                compression=None,  # images: deflating them costs both ends more CPU than it saves
             )
         except Exception as exc:
             raise TransportError(f"cannot open the stream's WebSocket {url}: {exc}") from exc
@@ -352,14 +379,19 @@ class StreamSession:
         )
         for data in messages:
             if not self.realtime:
-                self._wait(
-                    lambda: self._state.in_flight < self._state.window, self.timeout_s, "room in the window"
-                )
+                self._wait_for_room()
             self._ws.send(data)
             self._state.sent += 1
         self._frame = index + 1
         self.poll()
         return index
+
+    def _wait_for_room(self) -> None:
+        """Wait until fewer than ``window`` frame messages are in flight (a stall, when it has to)."""
+        self.poll()
+        if not self._state.has_room:
+            self._state.stalls += 1
+            self._wait(lambda: self._state.has_room, self.timeout_s, "room in the window")
 
     def finish(self, timeout_s: float | None = None) -> dict[str, Any]:
         """Say the capture has ended and wait for the final result (the job's ``AnalysisResult``)."""
@@ -404,8 +436,13 @@ class StreamSession:
 
     @property
     def in_flight(self) -> int:
-        """Frame messages sent that the worker has not consumed yet."""
+        """Frame messages sent that the server has not acknowledged yet (the flow-control count)."""
         return self._state.in_flight
+
+    @property
+    def stalls(self) -> int:
+        """How many times :meth:`send_frame` had to wait for room in the window."""
+        return self._state.stalls
 
 
 class AsyncStreamSession:
@@ -461,7 +498,7 @@ class AsyncStreamSession:
                 retry_after=None,
             )
         info = response.json()
-        ws = await connect(info["websocket_url"], additional_headers=headers, max_size=None)
+        ws = await connect(info["websocket_url"], additional_headers=headers, max_size=None, compression=None)
         session = cls(_State(on_message), ws, info, realtime, timeout_s)
         await session._wait(lambda: session._state.job_id is not None, "the server's ready message")
         return session
@@ -500,8 +537,9 @@ class AsyncStreamSession:
             index, timestamp_s, color, depth, color_encoding, depth_encoding, width, height
         )
         for data in parts:
-            if not self.realtime:
-                await self._wait(lambda: self._state.in_flight < self._state.window, "room in the window")
+            if not self.realtime and not self._state.has_room:
+                self._state.stalls += 1
+                await self._wait(lambda: self._state.has_room, "room in the window")
             await self._ws.send(data)
             self._state.sent += 1
         self._frame = index + 1

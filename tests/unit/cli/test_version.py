@@ -1,4 +1,5 @@
-"""The version is written once, in ``eigenscope/__init__.py``; the installed metadata reads it from there."""
+"""The version is written once, in ``api_schemas/_version.py``; the installed metadata and
+``eigenscope.__version__`` read it from there."""
 
 from __future__ import annotations
 

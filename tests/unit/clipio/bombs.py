@@ -55,7 +55,7 @@ def png_bomb(side: int = PNG_BOMB_SIDE) -> bytes:
     )
 
 
-def png_bomb_zip(path: Path, *, frames: int = 12, bomb_index: int = 3) -> Path:
+def png_bomb_zip(path: Path, *, frames: int = 20, bomb_index: int = 3) -> Path:
     """Frames of 64x48 pixels under ``rgb/``; frame ``bomb_index`` is :func:`png_bomb`."""
     import cv2
 

@@ -30,7 +30,7 @@ def _png(img: np.ndarray) -> bytes:
     return bytes(cv2.imencode(".png", img)[1])
 
 
-def _rgb(n: int = 12, h: int = 32, w_: int = 40) -> np.ndarray:
+def _rgb(n: int = 20, h: int = 32, w_: int = 40) -> np.ndarray:
     rng = np.random.default_rng(0)
     return rng.integers(0, 255, (n, h, w_, 3), dtype=np.uint8)
 
@@ -80,7 +80,7 @@ def png_pixel_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
     png = b"\x89PNG\r\n\x1a\n" + chunk + b"\0" * 64
     p = d / "pixels.zip"
     with zipfile.ZipFile(p, "w") as zf:
-        for i in range(12):
+        for i in range(20):
             zf.writestr(f"rgb/{i:03d}.png", png)
     return p, {}
 
@@ -113,7 +113,7 @@ def mismatched_depth_count(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def mismatched_depth_size(d: Path) -> tuple[Path, dict[str, Any]]:
-    p = w.write_zip_frames(d / "size.zip", _rgb(), depth=np.full((12, 16, 20), 900, np.uint16), fps=30.0)
+    p = w.write_zip_frames(d / "size.zip", _rgb(), depth=np.full((20, 16, 20), 900, np.uint16), fps=30.0)
     return p, {}
 
 
@@ -123,7 +123,7 @@ def mismatched_depth_npz(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def eight_bit_depth(d: Path) -> tuple[Path, dict[str, Any]]:
-    p = w.write_zip_frames(d / "d8.zip", _rgb(), depth=np.full((12, 32, 40), 9, np.uint8), fps=30.0)
+    p = w.write_zip_frames(d / "d8.zip", _rgb(), depth=np.full((20, 32, 40), 9, np.uint8), fps=30.0)
     return p, {}
 
 
@@ -205,7 +205,7 @@ def bag_without_images(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def truncated_bag(d: Path) -> tuple[Path, dict[str, Any]]:
-    p = w.write_ros_bag(d / "cut.bag", _rgb(), stamps_ns=_stamps(12), intrinsics=(50, 50, 20, 16))
+    p = w.write_ros_bag(d / "cut.bag", _rgb(), stamps_ns=_stamps(20), intrinsics=(50, 50, 20, 16))
     data = p.read_bytes()
     p.write_bytes(data[: len(data) * 2 // 3])
     return p, {}
@@ -224,7 +224,7 @@ def empty_ros2_bag(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def truncated_mcap(d: Path) -> tuple[Path, dict[str, Any]]:
-    folder = w.write_ros_bag(d / "b2", _rgb(), stamps_ns=_stamps(12), intrinsics=(50, 50, 20, 16), version=2)
+    folder = w.write_ros_bag(d / "b2", _rgb(), stamps_ns=_stamps(20), intrinsics=(50, 50, 20, 16), version=2)
     mcap = next(folder.glob("*.mcap"))
     p = d / "cut.mcap"
     p.write_bytes(mcap.read_bytes()[:-2000])
@@ -236,7 +236,7 @@ def db3_topic_without_name(d: Path) -> tuple[Path, dict[str, Any]]:
     import sqlite3
 
     folder = w.write_ros_bag(
-        d / "b3", _rgb(), stamps_ns=_stamps(12), intrinsics=(50, 50, 20, 16), version=2, storage="sqlite3"
+        d / "b3", _rgb(), stamps_ns=_stamps(20), intrinsics=(50, 50, 20, 16), version=2, storage="sqlite3"
     )
     p = d / "noname.db3"
     p.write_bytes(next(folder.glob("*.db3")).read_bytes())
@@ -270,7 +270,7 @@ def zip_without_layout(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def video_depth_count_mismatch(d: Path) -> tuple[Path, dict[str, Any]]:
-    video = w.write_video(d / "v.mkv", _rgb(12), fps=30.0, codec="ffv1")
+    video = w.write_video(d / "v.mkv", _rgb(20), fps=30.0, codec="ffv1")
     comp = d / "dep.npz"
     np.savez(comp, depth=np.full((9, 32, 40), 1000, np.uint16))
     return video, {"depth": comp}
@@ -328,7 +328,7 @@ def hundred_entry_npz(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def repeated_timestamps(d: Path) -> tuple[Path, dict[str, Any]]:
-    stamps = np.arange(12, dtype=np.float64) / 30.0
+    stamps = np.arange(20, dtype=np.float64) / 30.0
     stamps[6] = stamps[5]
     return write_npz(d / "repeat.npz", _rgb(), fps=30.0, timestamps=stamps), {}
 
@@ -372,6 +372,16 @@ def jpeg_frame_bomb(d: Path) -> tuple[Path, dict[str, Any]]:
     return p, {}
 
 
+def many_tiny_entries(d: Path, count: int = 50_000) -> tuple[Path, dict[str, Any]]:
+    """A 5 MB zip of 50,000 one-byte "frames": looking each name up in a list of all names took the
+    readers 25-54 s before its refusal."""
+    p = d / "many.zip"
+    with zipfile.ZipFile(p, "w", zipfile.ZIP_STORED) as zf:
+        for i in range(count):
+            zf.writestr(f"rgb/{i:06d}.png", b"x")
+    return p, {}
+
+
 CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (zip_slip, ClipError, "points outside the archive"),
     # The API shows the entry without its folders (no absolute path in a problem detail).
@@ -380,7 +390,7 @@ CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (png_pixel_bomb, ClipTooLargeError, "60000x60000 frames exceed the cap"),
     (too_many_entries, ClipTooLargeError, "lists 300 entries"),
     (truncated_npz, ClipError, "npz: t.npz is a zip archive but is corrupt or truncated"),
-    (mismatched_depth_count, ClipError, "12 colour frames but 10 depth frames"),
+    (mismatched_depth_count, ClipError, "20 colour frames but 10 depth frames"),
     (mismatched_depth_size, ClipError, "depth frames are 20x16 but colour frames are 40x32"),
     (mismatched_depth_npz, ClipError, "'depth' has shape (11, 32, 40)"),
     (eight_bit_depth, ClipError, "must be a 16-bit single-channel PNG"),
@@ -400,7 +410,7 @@ CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (db3_topic_without_name, ClipError, "a connection has no topic name or message type"),
     (corrupt_png_frame, ClipError, "005.png: image data is corrupt"),
     (zip_without_layout, UnsupportedFormatError, "zip holds no clip layout"),
-    (video_depth_count_mismatch, ClipError, "12 video frames but 9 depth maps"),
+    (video_depth_count_mismatch, ClipError, "20 video frames but 9 depth maps"),
     (encrypted_zip_entry, ClipError, "entry 'rgb/004.png' is encrypted"),
     (encrypted_npz_member, ClipError, "npz: 'rgb' is encrypted"),
     (symlink_entry, ClipError, "entry 'rgb/002.png' is a symbolic link"),
@@ -412,6 +422,7 @@ CORPUS: list[tuple[Builder, type[Exception], str]] = [
     (npz_deflate_bomb, ClipTooLargeError, "this is a decompression bomb"),
     (frame_of_another_size, ClipError, "rgb/007.png: the frame declares 80x64 pixels, but the clip is 40x32"),
     (jpeg_frame_bomb, ClipTooLargeError, "rgb/002.jpg: the frame declares 60000x60000 pixels"),
+    (many_tiny_entries, ClipError, "rgb/000000.png: not a PNG or JPEG image"),
 ]
 
 
@@ -472,8 +483,19 @@ def test_every_malformed_clip_has_its_own_message(tmp_path: Path) -> None:
 def test_video_over_the_decoded_cap_is_refused_when_opened(tmp_path: Path) -> None:
     """A video's declared size times its frame count is checked when it is opened (from the demuxed
     packets), before any frame is decoded; the decoder itself is told the pixel cap."""
-    path = w.write_video(tmp_path / "long.mkv", _rgb(12), fps=30.0, codec="ffv1")
-    with pytest.raises(ClipTooLargeError, match="12 frames of 40x32 decode to 0 MiB, over the cap of 0 MiB"):
+    path = w.write_video(tmp_path / "long.mkv", _rgb(20), fps=30.0, codec="ffv1")
+    with pytest.raises(ClipTooLargeError, match="20 frames of 40x32 decode to 0 MiB, over the cap of 0 MiB"):
         open_clip(path, limits=ReadLimits(max_decoded_bytes=40 * 32 * 3 * 10))
-    with open_clip(path, limits=ReadLimits(max_decoded_bytes=40 * 32 * 3 * 12)) as reader:
-        assert sum(1 for _ in reader.frames()) == 12
+    with open_clip(path, limits=ReadLimits(max_decoded_bytes=40 * 32 * 3 * 20)) as reader:
+        assert sum(1 for _ in reader.frames()) == 20
+
+
+@pytest.mark.timeout(10)  # a generous bound: it is refused in well under a second (bench/refusal.py)
+def test_a_zip_of_fifty_thousand_entries_is_refused_at_once(tmp_path: Path) -> None:
+    """Frame names are looked up in constant time and the frame count is checked before any per-frame
+    work (the lookups were quadratic: 5k entries 0.8 s, 20k 8.4 s, 50k 25-54 s)."""
+    path, _ = many_tiny_entries(tmp_path)
+    with pytest.raises(ClipError, match="not a PNG or JPEG image"):
+        open_clip(path)
+    with pytest.raises(ClipTooLargeError, match="50000 frames"):
+        open_clip(path, limits=ReadLimits(max_frames=10_000))

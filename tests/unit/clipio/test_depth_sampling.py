@@ -44,7 +44,7 @@ def test_nearest_indices_reject_empty_axes() -> None:
 @pytest.mark.parametrize("stored", ["uint16", "float32"])
 def test_npz_frames_with_depth_on_a_grid_equal_the_resized_full_maps(tmp_path: Path, stored: str) -> None:
     rng = np.random.default_rng(1)
-    frames, height, width = 8, 48, 64
+    frames, height, width = 16, 48, 64
     rgb = rng.integers(0, 255, size=(frames, height, width, 3), dtype=np.uint8)
     if stored == "uint16":
         depth = rng.integers(0, 3000, size=(frames, height, width), dtype=np.uint16)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -113,3 +115,27 @@ def test_config_errors_say_the_fix() -> None:
         LiveConfig(window_frames=4)
     with pytest.raises(ParameterError, match="target_relative_uncertainty"):
         LiveConfig(target_relative_uncertainty=0)
+
+
+def test_a_stream_that_stops_early_is_analysed_over_a_band_its_window_barely_holds() -> None:
+    """Twenty frames of an 8 Hz vibration and a band from 5 Hz: the window holds 6 frequencies of the band,
+    too few to calibrate the detection on; every frequency the window holds calibrates it instead (a
+    stream that stopped early gets its result, not an internal error); ten frames are too few for
+    anything, which is said."""
+    from workers.pipeline.analysis import AnalysisConfig
+    from workers.pipeline.errors import AnalysisError
+
+    obj = SceneObject(center_px=(160, 120), size_px=(80, 60), frequency_hz=8.0, mass_kg=0.3, force_n=6.0)
+    scene = Scene(width=320, height=240, frames=20, fps=30.0, objects=(obj,), seed=6)
+    config = AnalysisConfig(min_frequency_hz=5.0)
+    live = _live(scene)
+    for frame in SceneReader(scene).frames():
+        live.push(rgb=frame.rgb, depth_m=frame.depth_m, timestamp_s=frame.timestamp_s)
+    analysis = live.finish(analysis_config=config, excitations=[Excitation(kind="step_release", value=6.0)])
+    assert analysis.objects
+    assert analysis.objects[0].eigenfrequency_hz == pytest.approx(8.0, rel=0.05)
+    short = _live(replace(scene, frames=10))
+    for frame in SceneReader(replace(scene, frames=10)).frames():
+        short.push(rgb=frame.rgb, depth_m=frame.depth_m, timestamp_s=frame.timestamp_s)
+    with pytest.raises(AnalysisError, match="analyse more frames"):
+        short.finish(analysis_config=config, excitations=[])

@@ -91,3 +91,27 @@ def test_overtones_folded_below_nyquist_join_their_fundamental():
     # Two strings a fourth apart stay two objects; unfolded multiples are left to fold_harmonics.
     kept = fold_aliased_harmonics([_peak(110.0), _peak(147.0), _peak(220.0)], fps=600.0, bin_hz=2.3)
     assert [p.frequency_hz for p in kept] == [110.0, 147.0, 220.0]
+
+
+def test_a_thin_object_s_weak_stretch_and_sub_pixel_sweep_stay_in_its_region():
+    """A string 4 px thick whose motion dips far below the rest over a stretch (little contrast against the
+    background there): the stretch and the string's weak end belong to it, and no row beside it does; a
+    sub-pixel amplitude does not erode it (no whole pixel was swept)."""
+    from workers.pipeline.segmentation import SegmentationConfig, _bridged, at_rest
+
+    h, w = 40, 200
+    string = np.zeros((h, w), bool)
+    string[18:22, 10:190] = True
+    region = string.copy()
+    region[:, 90:112] = False  # the weak stretch, 22 px: wider than a square closing's reach
+    region[:, 170:] = False  # the weak end
+    core = region.copy()
+    moving = np.zeros((h, w), bool)
+    moving[16:24, 5:195] = True  # above the noise at the frequency: the string and the flow's fringe
+    grown = region | _bridged(region, moving, SegmentationConfig(), core=core)
+    assert grown[18:22, 90:112].all()
+    assert grown[18:22, 170:180].all()  # up to BRIDGE_SHARE of its length beyond its end
+    assert not grown[16:18].any()
+    assert not grown[22:24].any()
+    assert (at_rest(grown, axis_px=(0.0, 1.0), amplitude_px=0.8) == grown).all()
+    assert at_rest(grown, axis_px=(0.0, 1.0), amplitude_px=1.2).sum() < grown.sum()

@@ -275,3 +275,20 @@ def test_write_errors_surface(one_object: Analysed, tmp_path: Path):
     blocker.write_text("not a directory")
     with pytest.raises(FileExistsError):
         draw_all(one_object.analysis, blocker)
+
+
+def test_the_spectrum_marks_the_harmonic_it_found(one_object: Analysed, texts: list[str]):
+    """A peak rejected as an overtone of an object is marked as that object's harmonic, with its
+    frequency, in the object's colour; not as an artefact."""
+    from workers.pipeline.figures import FIGURES
+    from workers.pipeline.model import RejectedPeak
+
+    a = one_object.analysis
+    f0 = a.objects[0].eigenfrequency_hz
+    harmonic = RejectedPeak(2 * f0, f"{2 * f0:.4g} Hz is overtone 2 of the object", "harmonic")
+    flicker = RejectedPeak(11.0, "rows flicker", "illumination_flicker")
+    plain = FIGURES["spectrum"](replace(a, rejected_peaks=[flicker]))
+    marked = FIGURES["spectrum"](replace(a, rejected_peaks=[harmonic, flicker]))
+    assert f"harmonic of #1 found at {2 * f0:.4g} Hz" in texts
+    assert "rejected artefact peak" in texts  # the flicker still is one
+    assert colour_mask(marked, object_color(1)).sum() > colour_mask(plain, object_color(1)).sum()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,10 @@ class RecordingQueue:
         if self.fail:
             raise ConnectionError("broker down")
 
+    def held_job_ids(self) -> set[str] | None:
+        """What a broker that cannot list its messages answers (the embedded one)."""
+        return None
+
     def close(self) -> None:
         pass
 
@@ -62,10 +67,11 @@ def upload(
 
 
 def finish(client: TestClient, job_id: str, output: bytes = b"\x89PNG\r\n") -> None:
-    """Run a job by hand: claim it, write an artifact, complete it."""
+    """Run a job by hand: claim it, write an artifact and ``result.json`` (as a worker does), complete it."""
     ctx = client.app.state.ctx  # type: ignore[attr-defined]
     assert ctx.store.claim_job(job_id, "me/1/x").job is not None
     out = ctx.storage.job_dir(job_id)
     out.mkdir(parents=True)
     (out / "mask.png").write_bytes(output)
+    (out / "result.json").write_text(json.dumps(RESULT))
     assert ctx.store.complete_job(job_id, "me/1/x", RESULT, output_bytes=len(output))

@@ -34,6 +34,9 @@ class BrokenQueue:
     def ping(self) -> None:
         self.publish("")
 
+    def held_job_ids(self) -> set[str] | None:
+        return None
+
     def close(self) -> None:
         pass
 
@@ -325,3 +328,5 @@ def test_uvicorn_limits_are_set_on_purpose(tmp_path: Path) -> None:
     assert context.params["limit_concurrency"] == 99
     assert context.params["backlog"] == 77
     assert context.params["h11_max_incomplete_event_size"] == settings.http_max_header_kb * 1024
+    # Frames are images: compressing WebSocket messages would cost a live stream the CPU it needs.
+    assert context.params["ws_per_message_deflate"] is False

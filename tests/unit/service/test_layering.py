@@ -1,7 +1,9 @@
-"""Dependencies point one way: ``service`` never imports ``workers`` (it enqueues by task name).
+"""Dependencies point one way: ``service`` never imports ``workers`` (it enqueues by task name), and no
+package imports the command line (``eigenscope``), which sits on top of them all.
 
 The workers may use the service's job store, storage and settings; the API process must stay free of the
-task code, the pipeline, OpenCV and FFTW.
+task code, the pipeline, OpenCV and FFTW. What they all need, the version included
+(``api_schemas._version``), lives below the command line.
 """
 
 from __future__ import annotations
@@ -10,11 +12,15 @@ import ast
 import json
 import subprocess
 import sys
+import tomllib
+from fnmatch import fnmatch
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[3]
 SERVICE = ROOT / "service"
 FORBIDDEN_IN_API = ("workers", "cv2", "pyfftw")
+#: The command line's package: it imports the others, none imports it.
+CLI = "eigenscope"
 
 
 def _imported_modules(tree: ast.AST) -> list[tuple[int, str]]:
@@ -90,3 +96,32 @@ print(json.dumps(sorted(sys.modules)))
     assert len(messages) == 1, messages
     body = messages[0].read_text()
     assert "eigenscope.run_job" in body
+
+
+def _shipped_packages() -> list[Path]:
+    """The folders of every top-level package the distributions ship (as pyproject.toml finds them), the
+    client's included, but the command line's."""
+    found = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
+    names = {
+        path.name
+        for path in ROOT.iterdir()
+        if (path / "__init__.py").is_file() and any(fnmatch(path.name, p) for p in found["include"])
+    }
+    folders = [ROOT / name for name in sorted(names - {CLI})]
+    return [*folders, ROOT / "client" / "src" / "eigenscope_client"]
+
+
+def test_no_package_but_the_command_line_imports_it() -> None:
+    folders = _shipped_packages()
+    assert {f.name for f in folders} >= {"api_schemas", "service", "workers", "eigenscope_client"}, folders
+    offenders = []
+    for folder in folders:
+        for path in sorted(folder.rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+            for line, module in _imported_modules(tree):
+                if module == CLI or module.startswith(f"{CLI}."):
+                    offenders.append(f"{path.relative_to(ROOT)}:{line} imports {module}")
+    assert not offenders, (
+        "only the command line imports eigenscope (the version is api_schemas._version): "
+        + "; ".join(offenders)
+    )

@@ -4,9 +4,11 @@ receiver on this machine."""
 from __future__ import annotations
 
 import json
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -77,9 +79,9 @@ def receiver() -> Iterator[Receiver]:
     r.close()
 
 
-def _ended_job(store: Store, url: str) -> str:
-    store.add_clip(clip_id="c1", filename="a.npz", path="clips/c1/clip.npz", info={}, size_bytes=1)
-    job, _ = store.create_job(clip_id="c1", excitation=None, parameters={}, callback_url=url)
+def _ended_job(store: Store, url: str, n: int = 1) -> str:
+    store.add_clip(clip_id=f"c{n}", filename="a.npz", path=f"clips/c{n}/clip.npz", info={}, size_bytes=1)
+    job, _ = store.create_job(clip_id=f"c{n}", excitation=None, parameters={}, callback_url=url)
     assert store.claim_job(job.id, "w/1/x").job is not None
     assert store.fail_job(
         job.id, "w/1/x", {"type": "about:blank", "title": "x", "status": 422, "detail": "d"}
@@ -169,3 +171,211 @@ def test_a_leased_callback_is_not_claimed_twice(store: Store) -> None:
     (first,) = store.claim_due_callbacks(limit=5, lease_s=30)
     assert first.id == job_id
     assert store.claim_due_callbacks(limit=5, lease_s=30) == []  # another API process finds it leased
+
+
+# Issue 27, item 4: URLs validated by the parser that delivers them; every error recorded ------------
+
+
+@pytest.mark.parametrize(
+    "url",
+    [
+        "http://127.0.0.1\t:19261/tab",
+        "http://127.0.0.1:19261/x\r\nX-Injected: 1",
+        "http://127.0.0.1:19261/a b",
+        "http://127.0.0.1:19261/\x00",
+        " http://127.0.0.1:19261/x",
+        "http://127.0.0.1:99999/x",
+        "http://127.0.0.1:19261\n/x",
+    ],
+)
+def test_a_callback_url_httpx_would_refuse_is_422_at_creation(
+    tmp_path: Path, small_clip: Path, url: str
+) -> None:
+    from tests.unit.service.helpers import make_client, upload
+
+    settings = Settings(data_dir=tmp_path / "data", callback_hosts="127.0.0.1:19261", callback_secret=SECRET)
+    with make_client(settings) as client:
+        clip = upload(client, small_clip).json()
+        response = client.post("/v1/jobs", json={"clip_id": clip["id"], "callback_url": url})
+        assert response.status_code == 422, (url, response.text)
+        assert response.json()["type"].endswith("/invalid-callback-url")
+        ok = client.post(
+            "/v1/jobs", json={"clip_id": clip["id"], "callback_url": "http://127.0.0.1:19261/ok"}
+        )
+        assert ok.status_code == 202, ok.text
+
+
+def _wait(predicate: Callable[[], bool], timeout_s: float = 20.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return predicate()
+
+
+def _dispatch_until_settled(store: Store, settings: Settings, job_id: str) -> Dispatcher:
+    dispatcher = Dispatcher(store, settings, lambda job: {"id": job.id})
+    dispatcher.start()
+    try:
+        assert _wait(lambda: store.get_job(job_id).callback_status in ("failed", "delivered"))
+    finally:
+        dispatcher.stop()
+    return dispatcher
+
+
+def _settings(tmp_path: Path, **extra: Any) -> Settings:
+    """Callbacks to 127.0.0.1:19261 (unless ``extra`` says otherwise), retried at once, 3 attempts."""
+    values: dict[str, Any] = {
+        "callback_hosts": "127.0.0.1:19261",
+        "callback_retry_base_s": 0.01,
+        "callback_max_attempts": 3,
+        "callback_poll_interval_s": 0.01,
+    }
+    return Settings(data_dir=tmp_path / "data", callback_secret=SECRET, **{**values, **extra})
+
+
+def test_a_stored_url_httpx_refuses_fails_its_callback_with_the_reason(store: Store, tmp_path: Path) -> None:
+    """A URL accepted before the creation check (the tab the allow-list's parser stripped) is failed at
+    its first attempt, with the reason, instead of escaping the delivery and being retried forever."""
+    job_id = _ended_job(store, "http://127.0.0.1\t:19261/tab")
+    _dispatch_until_settled(store, _settings(tmp_path), job_id)
+    record = store.get_job(job_id)
+    assert (record.callback_status, record.callback_attempts) == ("failed", 1)
+    assert record.callback_error is not None
+    assert "not usable" in record.callback_error
+
+
+def test_every_delivery_error_is_recorded_and_the_attempts_stop_at_the_maximum(
+    store: Store, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Whatever an attempt raises (here httpx's InvalidURL, which is no httpx.HTTPError) is recorded and
+    counted; the callback is given up at the maximum."""
+
+    def refuse(*_args: Any, **_kwargs: Any) -> Any:
+        raise httpx.InvalidURL("Invalid non-printable ASCII character in URL")
+
+    monkeypatch.setattr(httpx.Client, "send", refuse)
+    job_id = _ended_job(store, "http://127.0.0.1:19261/hook")
+    _dispatch_until_settled(store, _settings(tmp_path), job_id)
+    record = store.get_job(job_id)
+    assert (record.callback_status, record.callback_attempts) == ("failed", 3)
+    assert record.callback_error is not None
+    assert record.callback_error.startswith("InvalidURL")
+
+
+def test_a_callback_whose_last_attempt_never_reported_is_given_up(store: Store) -> None:
+    job_id = _ended_job(store, "http://robot.lab/x")
+    for _ in range(2):  # two attempts claimed, their processes died before recording anything
+        assert store.claim_callback(job_id, lease_s=-1, max_attempts=2) is not None
+    assert store.claim_callback(job_id, lease_s=30, max_attempts=2) is None
+    record = store.get_job(job_id)
+    assert (record.callback_status, record.callback_attempts) == ("failed", 2)
+    assert record.callback_error is not None
+
+
+# Issue 27, item 12: deliveries that cannot block one another ----------------------------------------
+
+
+def _leased(store: Store, job_id: str) -> bool:
+    from sqlalchemy import select
+
+    from service.store import JobRow
+
+    with store.engine.connect() as conn:
+        until = conn.execute(select(JobRow.callback_lease_until).where(JobRow.id == job_id)).scalar()
+    return until is not None and until > time.time()
+
+
+class Hanging:
+    """A receiver whose answers wait for ``release``; counts deliveries under way at once."""
+
+    def __init__(self) -> None:
+        self.release = threading.Event()
+        self.now = 0
+        self.most = 0
+        self.lock = threading.Lock()
+
+        def policy(_headers: dict[str, str], _seen: list[tuple[dict[str, str], bytes]]) -> int:
+            return 204
+
+        self.receiver = Receiver(policy)
+        handler = self.receiver.server.RequestHandlerClass
+        outer = self
+        original = handler.do_POST  # type: ignore[attr-defined]
+
+        def do_post(handler_self: Any) -> None:
+            with outer.lock:
+                outer.now += 1
+                outer.most = max(outer.most, outer.now)
+            outer.release.wait(60)
+            with outer.lock:
+                outer.now -= 1
+            original(handler_self)
+
+        handler.do_POST = do_post  # type: ignore[attr-defined]
+
+
+def test_a_hanging_receiver_delays_only_its_own_callbacks(store: Store, tmp_path: Path) -> None:
+    slow, fast = Hanging(), Receiver.scripted([])
+    try:
+        hosts = f"127.0.0.1:{slow.receiver.port},localhost:{fast.port}"
+        settings = _settings(tmp_path, callback_hosts=hosts, callback_timeout_s=60, callback_per_host=2)
+        hanging = [_ended_job(store, f"http://127.0.0.1:{slow.receiver.port}/h", n) for n in range(5)]
+        other = _ended_job(store, f"http://localhost:{fast.port}/f", 9)
+        dispatcher = Dispatcher(store, settings, lambda job: {"id": job.id})
+        dispatcher.start()
+        try:
+            # The other tenant's callback is delivered while the hanging receiver holds two deliveries.
+            assert _wait(lambda: store.get_job(other).callback_status == "delivered")
+            assert slow.now == 2
+            # Only what is being delivered is leased: the rest stays free for any API process.
+            leased = [_leased(store, j) for j in hanging]
+            assert sum(leased) == 2, leased
+            slow.release.set()
+            assert _wait(lambda: all(store.get_job(j).callback_status == "delivered" for j in hanging))
+        finally:
+            slow.release.set()
+            dispatcher.stop()
+        assert slow.most == 2  # never more than callback_per_host at once to one host
+        assert [store.get_job(j).callback_attempts for j in [*hanging, other]] == [1] * 6
+        assert len(slow.receiver.deliveries) == 5  # each delivered once
+        assert dispatcher.lease_s > 3 * settings.callback_timeout_s
+    finally:
+        slow.receiver.close()
+        fast.close()
+
+
+def test_a_delivery_is_what_the_documents_webhook_says(
+    store: Store, tmp_path: Path, receiver: Receiver
+) -> None:
+    """The body is a JobEvent (the OpenAPI document's ``webhooks``), the headers those it names, and the
+    signature checks out by the scheme its description gives."""
+    import base64
+    import hashlib
+    import hmac
+
+    from api_schemas import JobEvent
+    from service.context import _webhook_view
+
+    spec = json.loads((Path(__file__).resolve().parents[3] / "openapi" / "openapi.json").read_text())
+    hook = spec["webhooks"]["jobEnded"]["post"]
+    settings = Settings(
+        data_dir=tmp_path / "data", callback_hosts=f"127.0.0.1:{receiver.port}", callback_secret=SECRET
+    )
+    job_id = _ended_job(store, f"http://127.0.0.1:{receiver.port}/hook")
+    dispatcher = Dispatcher(store, settings, _webhook_view(settings))
+    with httpx.Client() as client:
+        for _ in range(20):
+            if any(dispatcher.deliver(client, job) for job in store.claim_due_callbacks(limit=5, lease_s=30)):
+                break
+            time.sleep(0.06)
+    headers, body = receiver.deliveries[-1]
+    event = JobEvent.model_validate_json(body)
+    assert (event.type, event.data.id) == ("job.failed", job_id)
+    named = {p["name"] for p in hook["parameters"] if p["in"] == "header"}
+    assert named <= {k.lower() for k in headers}
+    signed = f"{headers['webhook-id']}.{headers['webhook-timestamp']}.".encode() + body
+    key = base64.b64decode(SECRET.removeprefix("whsec_")) if SECRET.startswith("whsec_") else SECRET.encode()
+    expected = base64.b64encode(hmac.new(key, signed, hashlib.sha256).digest()).decode()
+    assert f"v1,{expected}" in headers["webhook-signature"].split()

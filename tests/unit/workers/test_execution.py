@@ -137,10 +137,10 @@ def test_unexpected_error_fails_once_without_retry(
 def test_job_over_its_memory_budget_fails_once(store: Store, settings: Settings, job_id: str) -> None:
     """The runner runs under an address-space cap: an allocation past it is a MemoryError, and the job
     fails at once with `resources-exhausted` instead of growing the worker (and is not retried)."""
-    from workers.execution import _vm_size_bytes
+    from workers.execution import vm_size_bytes
 
     before = resource.getrlimit(resource.RLIMIT_AS)
-    budget_mb = _vm_size_bytes() // 2**20 + 512
+    budget_mb = vm_size_bytes() // 2**20 + 512
     seen: dict[str, Any] = {}
 
     def runner(*_a: Any, **_k: Any) -> AnalysisResult:

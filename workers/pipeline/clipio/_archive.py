@@ -14,7 +14,7 @@ import shutil
 import stat
 import zipfile
 import zlib
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import IO
 
 from workers.pipeline.clipio._common import check_inflation
@@ -37,7 +37,7 @@ ZIP_ERRORS = (
 def _safe_name(raw: str, fmt: str) -> str:
     """Normalise an entry name to a relative POSIX path, refusing anything that escapes the archive."""
     name = raw.replace("\\", "/")
-    parts = PurePosixPath(name).parts
+    parts = name.split("/")  # as PurePosixPath's parts, once the empty and "." ones are dropped below
     if (
         name.startswith("/")
         or (len(name) > 1 and name[1] == ":")
@@ -124,7 +124,12 @@ class Archive:
 
     @property
     def names(self) -> list[str]:
+        """The files' names (a new list each time: for lookups use ``name in archive``)."""
         return list(self._sizes)
+
+    def __contains__(self, name: object) -> bool:
+        """Whether the archive holds a file ``name``, in constant time."""
+        return name in self._sizes
 
     def size(self, name: str) -> int:
         return self._sizes[name]

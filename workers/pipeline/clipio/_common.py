@@ -16,11 +16,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.clipio.types import ReadLimits, uniform_fps_from_timestamps
+from workers.pipeline.clipio.types import MIN_FRAMES, ReadLimits, uniform_fps_from_timestamps
 from workers.pipeline.errors import ClipError, ClipTooLargeError
 
 #: Fewest frames any reader accepts.
-MIN_FRAMES = 8
 #: Smallest frame side, pixels.
 MIN_SIDE = 16
 #: Declared and measured frame rates that differ by more than this fraction get a note.

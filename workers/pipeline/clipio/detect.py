@@ -67,16 +67,24 @@ def _is_zip(path: Path) -> bool:
 
 
 def _probe_video(path: Path) -> str | None:
-    """None when FFmpeg finds a video stream, else why not."""
+    """None when FFmpeg finds a video stream in an allowed container, else why not.
+
+    The file is opened as :func:`~workers.pipeline.clipio.video.open_video` opens it: a playlist, or a
+    container that is not on the allow-list, is refused here (a :class:`ClipError`) before it reads
+    anything but itself.
+    """
     import av
 
+    from workers.pipeline.clipio.video import open_video
+
     try:
-        with av.open(str(path), mode="r", metadata_errors="ignore") as container:
-            if container.format.name in ("tty", "image2"):
-                return "not a video container"
-            return None if container.streams.video else "no video stream"
+        opened = open_video(path, path.name)
     except (av.error.FFmpegError, OSError, ValueError, EOFError) as exc:
         return (str(exc).strip() or type(exc).__name__).splitlines()[0][:160]
+    try:
+        return None if opened.container.streams.video else "no video stream"
+    finally:
+        opened.close()
 
 
 def _container_kind(head: bytes) -> str | None:

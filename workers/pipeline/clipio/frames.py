@@ -231,11 +231,13 @@ class FramesClip(ClosingReader):
                     "rgb/ and depth/ must hold one frame each per time step (or remove depth/)"
                 )
             default_scale = DEFAULT_DEPTH_SCALE
+        # The frame count before any per-frame work; each lookup in constant time (a zip may list
+        # hundreds of thousands of entries).
+        check_frames(fmt, len(rgb_files), limits)
         for f in rgb_files + (depth_files or []):
-            if f not in self._archive.names:
+            if f not in self._archive:
                 raise ClipError(f"{fmt}: frame file {f!r} is listed but missing from the archive")
 
-        check_frames(fmt, len(rgb_files), limits)
         head = self._header(rgb_files[0])
         width, height = head.width, head.height
         check_size(fmt, width, height, limits)

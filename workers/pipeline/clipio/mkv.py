@@ -50,6 +50,7 @@ from workers.pipeline.clipio.types import (
     ReadLimits,
     depth_to_metres,
 )
+from workers.pipeline.clipio.video import OpenedVideo, open_video
 from workers.pipeline.errors import ClipError
 
 FORMAT = "k4a-mkv"
@@ -127,13 +128,18 @@ def find_tracks(container: Any) -> tuple[Any | None, Any | None]:
 
 def is_k4a_recording(path: str | Path) -> bool:
     """True when the Matroska file at ``path`` holds a K4A depth track (see :func:`find_tracks`)."""
-    import av
+    from workers.pipeline.clipio.video import open_video
 
     try:
-        with av.open(str(path), mode="r", metadata_errors="ignore") as container:
-            return find_tracks(container)[1] is not None
+        opened = open_video(path, Path(path).name, demuxers=("matroska",), decoders=None)
+    except ClipError:
+        return False
     except _av_errors():
         return False
+    try:
+        return find_tracks(opened.container)[1] is not None
+    finally:
+        opened.close()
 
 
 # ------------------------------------------------------------------------------------------ calibration
@@ -381,17 +387,16 @@ class K4aClip(ClosingReader):
         self._overrides = overrides or ClipOverrides()
         self._limits = limits or ReadLimits()
         self._calibration: K4aCalibration | None = None
-        container = self._open()
+        opened = self._open()
         try:
-            self._setup(container)
+            self._setup(opened.container)
         finally:
-            container.close()
+            opened.close()
 
-    def _open(self) -> Any:
-        import av
-
+    def _open(self) -> OpenedVideo:
+        """The recording, opened so that it cannot reach outside itself (Matroska only)."""
         try:
-            return av.open(str(self.path), mode="r", metadata_errors="ignore")
+            return open_video(self.path, self.path.name, demuxers=("matroska",), decoders=None)
         except _av_errors() as exc:
             raise ClipError(
                 f"{FORMAT}: {self.path.name} is not a readable Matroska file ({_msg(exc)})"
@@ -527,7 +532,8 @@ class K4aClip(ClosingReader):
 
     def _packets(self, index: int) -> Iterator[Any]:
         """Packets of stream ``index`` with presentation times, in file order (a container of its own)."""
-        container = self._open()
+        opened = self._open()
+        container = opened.container
         errors = _av_errors()
         try:
             stream = container.streams[index]
@@ -542,7 +548,7 @@ class K4aClip(ClosingReader):
                 if packet.pts is not None:
                     yield packet
         finally:
-            container.close()
+            opened.close()
 
     def _depth_maps(self) -> Generator[tuple[int, NDArray[np.uint16]]]:
         """``(pts, depth in millimetres (h, w) uint16)`` of the depth track, in file order."""

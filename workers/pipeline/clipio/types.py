@@ -13,6 +13,10 @@ from numpy.typing import NDArray
 
 from workers.pipeline.errors import ClipError, ParameterError
 
+#: Fewest frames a clip may have, and an analysis window: readers refuse shorter clips, every window is at
+#: least this long (16 frames give 15 flow maps, 7 frequencies above zero).
+MIN_FRAMES = 16
+
 
 @dataclass(frozen=True, slots=True)
 class Intrinsics:
@@ -253,13 +257,30 @@ class Frame:
 
 
 class ClipReader(Protocol):
-    """A clip opened for streaming. Readers are context managers and hold at most a few frames."""
+    """A clip opened for streaming. Readers are context managers and hold at most a few frames.
+
+    Every reader derives from :class:`ClosingReader`, which gives :meth:`gray_frames` and
+    :meth:`frames_with_depth_on` from :meth:`frames`; a reader overrides them where it has a faster way
+    (a video's luma plane, depth sampled before its conversion to metres), and a reader that wraps
+    another passes them through.
+    """
 
     @property
     def info(self) -> ClipInfo: ...
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
         """Yield frames ``start <= index < stop`` in order."""
+        ...
+
+    def gray_frames(self, start: int = 0, stop: int | None = None) -> Iterator[NDArray[np.uint8]]:
+        """Yield the grey image (H, W), uint8, of frames ``start <= index < stop`` in order."""
+        ...
+
+    def frames_with_depth_on(
+        self, shape: tuple[int, int], start: int = 0, stop: int | None = None
+    ) -> Iterator[Frame]:
+        """Yield frames as :meth:`frames`, with ``depth_m`` sampled (nearest) onto ``shape`` (rows,
+        columns)."""
         ...
 
     def close(self) -> None: ...
@@ -275,7 +296,33 @@ class ClipReader(Protocol):
 
 
 class ClosingReader:
-    """Context-manager plumbing shared by the readers: ``with reader:`` closes it."""
+    """What every reader shares: ``with reader:`` closes it, and the defaults of the protocol's fast paths
+    (grey frames and depth on a grid, from :meth:`frames`)."""
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:  # pragma: no cover
+        raise NotImplementedError
+
+    def gray_frames(self, start: int = 0, stop: int | None = None) -> Iterator[NDArray[np.uint8]]:
+        """The grey image (H, W), uint8, of frames ``start <= index < stop`` (from :meth:`frames`)."""
+        import cv2
+
+        for frame in self.frames(start, stop):
+            yield np.asarray(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), np.uint8)
+
+    def frames_with_depth_on(
+        self, shape: tuple[int, int], start: int = 0, stop: int | None = None
+    ) -> Iterator[Frame]:
+        """Frames as :meth:`frames`, with ``depth_m`` sampled (nearest) onto ``shape`` (rows, columns)."""
+        for frame in self.frames(start, stop):
+            if frame.depth_m is None or frame.depth_m.shape == tuple(shape):
+                yield frame
+            else:
+                yield Frame(
+                    index=frame.index,
+                    rgb=frame.rgb,
+                    depth_m=sample_nearest(frame.depth_m, shape),
+                    timestamp_s=frame.timestamp_s,
+                )
 
     def close(self) -> None:  # pragma: no cover - every reader overrides it
         raise NotImplementedError

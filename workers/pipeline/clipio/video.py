@@ -18,6 +18,7 @@ dropped-frame count, and ``--fps`` rescales the timeline (for high-speed cameras
 from __future__ import annotations
 
 import dataclasses
+import errno
 import math
 import re
 from collections.abc import Callable, Iterator
@@ -61,11 +62,133 @@ _LUMA_FIRST = frozenset(
 )
 
 
+#: Containers a video clip may come in (FFmpeg's demuxer names; MP4/MOV, Matroska/WebM, AVI, MPEG-TS,
+#: MPEG-PS, ASF/WMV, FLV). Each holds its own packets: playlists (``hls``), concatenation (``concat``),
+#: manifests (``dash``, ``imf``), image sequences (``image2``) and every other demuxer that opens further
+#: files or URLs are not among them.
+VIDEO_DEMUXERS = ("mov", "matroska", "avi", "mpegts", "mpeg", "asf", "flv")
+#: Video codecs a clip may hold (FFmpeg's canonical codec names).
+VIDEO_CODECS = frozenset(
+    {"h264", "hevc", "mpeg4", "mjpeg", "ffv1", "vp8", "vp9", "av1", "mpeg1video", "mpeg2video", "h263"}
+    | {"msmpeg4v2", "msmpeg4v3", "wmv1", "wmv2", "wmv3", "vc1", "flv1", "theora", "prores", "dnxhd"}
+    | {"rawvideo", "png", "huffyuv", "ffvhuff", "utvideo", "qtrle"}
+)
+#: The decoders of those codecs (FFmpeg's own, and the libraries PyAV's FFmpeg prefers for some).
+_VIDEO_DECODERS = (*sorted(VIDEO_CODECS - {"flv1", "msmpeg4v3"}), "flv", "msmpeg4", "libdav1d", "libvpx")
+_VIDEO_DECODERS += ("libvpx-vp9",)
+#: Text that FFmpeg would read as a list of other files or URLs (a playlist, a manifest, a script).
+_REFERRING_HEADS = (
+    (b"#EXTM3U", "an HLS playlist (.m3u8)"),
+    (b"ffconcat", "an FFmpeg concat list"),
+    (b"<?xml", "an XML document (a DASH or IMF manifest, a playlist)"),
+    (b"<MPD", "a DASH manifest"),
+    (b"[playlist]", "a playlist"),
+    (b"v=0", "an SDP session description (it names network streams)"),
+)
+
+
+class _OtherFileError(Exception):
+    """The demuxer asked to open a file or URL other than the clip itself."""
+
+
+def _refuse_other_files(url: str, flags: int, options: dict[str, Any]) -> Any:
+    raise _OtherFileError(url)
+
+
+def referring_kind(head: bytes) -> str | None:
+    """What a file that starts with ``head`` is when it is a list of other files or URLs, else None."""
+    start = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    for magic, kind in _REFERRING_HEADS:
+        if start[: len(magic)].lower() == magic.lower():
+            return kind
+    return None
+
+
+def _refused(name: str, kind: str) -> ClipError:
+    return ClipError(
+        f"video: {name} is {kind}, which names other files or URLs; Eigenscope reads only clips that hold "
+        "their own frames: upload the video file itself"
+    )
+
+
+@dataclass
+class OpenedVideo:
+    """A video opened by :func:`open_video`: the PyAV container and the file it reads."""
+
+    container: Any
+    file: IO[bytes]
+    owns_file: bool
+
+    def close(self) -> None:
+        try:
+            self.container.close()
+        finally:
+            if self.owns_file:
+                self.file.close()
+
+
+def open_video(
+    src: str | Path | IO[bytes],
+    name: str,
+    *,
+    demuxers: tuple[str, ...] = VIDEO_DEMUXERS,
+    decoders: tuple[str, ...] | None = _VIDEO_DECODERS,
+) -> OpenedVideo:
+    """Open ``src`` for demuxing so that it cannot reach outside itself.
+
+    FFmpeg reads the one file through a Python file object; the demuxer must be one of ``demuxers``
+    (checked before its header is parsed), the decoders FFmpeg opens to probe the streams one of
+    ``decoders``, no protocol is enabled, and any attempt to open another file or URL fails. A playlist
+    or a container off the list is a :class:`ClipError` that says so (``name`` names the clip in it).
+    """
+    import av
+
+    owns = isinstance(src, str | Path)
+    fh = Path(src).open("rb") if isinstance(src, str | Path) else src  # noqa: SIM115 - closed by OpenedVideo
+    try:
+        head = fh.read(64)
+        fh.seek(0)
+        kind = referring_kind(head)
+        if kind is not None:
+            raise _refused(name, kind)
+        options = {"format_whitelist": ",".join(demuxers), "protocol_whitelist": "none"}
+        if decoders is not None:
+            options["codec_whitelist"] = ",".join(decoders)
+        try:
+            container = av.open(
+                fh, mode="r", metadata_errors="ignore", container_options=options, io_open=_refuse_other_files
+            )
+        except _OtherFileError as exc:
+            raise _refused(name, f"a file that refers to another ({_msg(exc)})") from None
+        except av.error.ArgumentError as exc:
+            if exc.errno != errno.EINVAL:
+                raise
+            raise ClipError(
+                f"video: {name} is not in a container Eigenscope reads (MP4/MOV, Matroska/WebM, AVI, "
+                "MPEG-TS, MPEG-PS, ASF/WMV, FLV); re-encode it into one, or upload the camera's original file"
+            ) from exc
+    except BaseException:
+        if owns:
+            fh.close()
+        raise
+    return OpenedVideo(container, fh, owns)
+
+
+def check_codec(stream: Any, name: str) -> None:
+    """Refuse a video stream whose codec is not one of :data:`VIDEO_CODECS` (before it is decoded)."""
+    codec = stream.codec_context.codec.canonical_name if stream.codec_context is not None else None
+    if codec not in VIDEO_CODECS:
+        raise ClipError(
+            f"video: {name} holds a {codec or 'unknown'} video stream, a codec Eigenscope does not decode; "
+            "re-encode it (H.264, HEVC, VP9, AV1, MJPEG, FFV1, ...)"
+        )
+
+
 def _av_error_types() -> tuple[type[BaseException], ...]:
     """What decoding a broken video raises: FFmpeg's errors, and those of a zip member it reads."""
     import av
 
-    return (av.error.FFmpegError, *ZIP_ERRORS)
+    return (av.error.FFmpegError, _OtherFileError, *ZIP_ERRORS)
 
 
 @dataclass
@@ -199,32 +322,36 @@ class VideoClip(ClosingReader):
             self.close()
             raise
 
-    def _open_container(self) -> Any:
-        import av
-
-        src: str | IO[bytes]
+    def _open_container(self) -> OpenedVideo:
+        src: Path | IO[bytes]
         if self._archive is not None:
             assert self._member is not None
             src = self._archive.open(self._member)
         else:
-            src = str(self.path)
+            src = self.path
+        name = self._member or self.path.name
         try:
-            container = av.open(src, mode="r", metadata_errors="ignore")
-        except _av_error_types() as exc:
-            name = self._member or self.path.name
-            raise ClipError(
-                f"video: {name} is not a readable video ({_msg(exc)}); upload the camera's original file"
-            ) from exc
+            opened = open_video(src, name)
+        except BaseException as exc:
+            if not isinstance(src, Path):
+                src.close()
+            if isinstance(exc, _av_error_types()):
+                raise ClipError(
+                    f"video: {name} is not a readable video ({_msg(exc)}); upload the camera's original file"
+                ) from exc
+            raise
+        if not isinstance(src, Path):
+            opened.owns_file = True  # the zip member's handle closes with the container
         # The decoder refuses a picture over the pixel cap before allocating it (a stream that grows
         # in the middle, past the size its header declared).
-        for stream in container.streams.video:
+        for stream in opened.container.streams.video:
             if stream.codec_context is None:
                 continue
             stream.codec_context.options = {
                 **stream.codec_context.options,
                 "max_pixels": str(self._limits.max_pixels_per_frame),
             }
-        return container
+        return opened
 
     def _setup(self, depth: str | Path | None) -> None:
         overrides, limits = self._overrides, self._limits
@@ -253,13 +380,15 @@ class VideoClip(ClosingReader):
             self._depth, cam2 = _open_depth_companion(Path(depth), overrides, limits)
             camera = {**cam2, **camera}
 
-        container = self._open_container()
+        opened = self._open_container()
+        container = opened.container
         try:
             if not container.streams.video:
                 raise ClipError(f"video: {self._member or self.path.name} has no video stream")
             stream = container.streams.video[0]
             if stream.codec_context is None:
                 raise ClipError(f"video: {self._member or self.path.name} has no decodable video stream")
+            check_codec(stream, self._member or self.path.name)
             width, height = int(stream.codec_context.width), int(stream.codec_context.height)
             check_size("video", width, height, limits)
             rate = stream.average_rate or stream.guessed_rate or stream.base_rate
@@ -282,7 +411,7 @@ class VideoClip(ClosingReader):
                 f"video: {self._member or self.path.name} is corrupt or truncated ({_msg(exc)})"
             ) from exc
         finally:
-            container.close()
+            opened.close()
         check_frames("video", count, limits)
         check_decoded("video", count, width, height, self._depth is not None, limits)
         stamps: NDArray[np.float64] | None = None
@@ -419,7 +548,8 @@ class VideoClip(ClosingReader):
             )
         if start == stop:
             return
-        container = self._open_container()
+        opened = self._open_container()
+        container = opened.container
         errors = _av_error_types()
         index = 0
         try:
@@ -438,7 +568,7 @@ class VideoClip(ClosingReader):
                     yield index, frame
                 index += 1
         finally:
-            container.close()
+            opened.close()
         if index < stop:
             self.decodable_frames = (
                 index if self.decodable_frames is None else min(self.decodable_frames, index)

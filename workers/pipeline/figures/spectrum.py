@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,8 +50,22 @@ def _noise_floor(analysis: Analysis) -> tuple[NDArray[np.float64] | None, float 
     return None, float(np.median(power[inside]))
 
 
+def _harmonic_of(analysis: Analysis, f: float) -> int | None:
+    """The id of the object ``f`` is an overtone of (an integer multiple, within 3 %), if any."""
+    for obj in analysis.objects:
+        f0 = finite_or_none(obj.eigenfrequency_hz)
+        if (
+            f0 is not None
+            and f0 > 0
+            and round(f / f0) >= 2
+            and abs(f / f0 - round(f / f0)) < 0.03 * round(f / f0)
+        ):
+            return obj.id
+    return None
+
+
 def _rejected_peaks(analysis: Analysis) -> list[tuple[float, str]]:
-    """(frequency_hz, reason) of peaks the analysis rejected as artefacts, when it records them."""
+    """(frequency_hz, evidence or reason) of peaks the analysis rejected, when it records them."""
     out: list[tuple[float, str]] = []
     for name in ("rejected_peaks", "artefact_peaks", "artifact_peaks"):
         for item in getattr(analysis, name, None) or []:
@@ -62,11 +76,33 @@ def _rejected_peaks(analysis: Analysis) -> list[tuple[float, str]]:
                 f = float(item[0])
             if f is None or not math.isfinite(f):
                 continue
-            reason = getattr(item, "reason", None) or getattr(item, "code", None) or ""
+            reason = (
+                getattr(item, "evidence", None)
+                or getattr(item, "reason", None)
+                or getattr(item, "code", None)
+                or ""
+            )
             out.append((float(f), str(reason)))
         if out:
             break
     return out
+
+
+def _mark(
+    ax: Any, f: float, power: float, colour: Any, label: str, *, marker: str, size: int, zorder: int
+) -> None:
+    """One point of the spectrum marked (outlined in black) and named in the legend."""
+    ax.plot(
+        [f],
+        [power],
+        marker=marker,
+        markersize=size,
+        color=colour,
+        markeredgecolor="black",
+        linestyle="none",
+        zorder=zorder,
+        label=label,
+    )
 
 
 def draw_spectrum(analysis: Analysis) -> NDArray[np.uint8]:
@@ -138,17 +174,8 @@ def draw_spectrum(analysis: Analysis) -> NDArray[np.uint8]:
         if f is None:
             continue
         ax.axvline(f, color=colour, linewidth=2.2, zorder=2)
-        ax.plot(
-            [f],
-            [power_at(f)],
-            marker="o",
-            markersize=9,
-            color=colour,
-            markeredgecolor="black",
-            linestyle="none",
-            zorder=4,
-            label=f"#{obj.id} f = {format_quantity(f, obj.eigenfrequency_sd_hz, 'Hz')}",
-        )
+        label = f"#{obj.id} f = {format_quantity(f, obj.eigenfrequency_sd_hz, 'Hz')}"
+        _mark(ax, f, power_at(f), colour, label, marker="o", size=9, zorder=4)
         harmonics = [h for h in obj.harmonics_hz if math.isfinite(h) and 0 < h <= nyquist]
         for i, hf in enumerate(harmonics):
             ax.axvline(
@@ -159,7 +186,15 @@ def draw_spectrum(analysis: Analysis) -> NDArray[np.uint8]:
                 zorder=2,
                 label=f"#{obj.id} harmonics" if i == 0 else None,
             )
-    rejected = [(f, r) for f, r in _rejected_peaks(analysis) if 0 <= f <= nyquist]
+    found = [(f, r) for f, r in _rejected_peaks(analysis) if 0 <= f <= nyquist]
+    # A harmonic the analysis found (an overtone, rejected as an object of its own) is marked as such,
+    # in its object's colour, with its frequency; the other rejected peaks are artefacts.
+    for f, _ in [(f, r) for f, r in found if r == "harmonic"]:
+        owner = _harmonic_of(analysis, f)
+        tint: Any = _mpl_color(owner) if owner is not None else "crimson"
+        of = f" of #{owner}" if owner is not None else ""
+        _mark(ax, f, power_at(f), tint, f"harmonic{of} found at {f:.4g} Hz", marker="v", size=11, zorder=5)
+    rejected = [(f, r) for f, r in found if r != "harmonic"]
     if rejected:
         ax.plot(
             [f for f, _ in rejected],

@@ -1,0 +1,135 @@
+"""What a job or stream is asked to do: the excitation and the analysis parameters (requests), and the
+parameters an analysis used (``AnalysisResult.parameters``)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class StepReleaseExcitation(BaseModel):
+    """Object held by a known force, then released: A = F/k."""
+
+    model_config = ConfigDict(title="StepReleaseExcitation", allow_inf_nan=False, extra="forbid")
+
+    type: Literal["step_release"]
+    force_n: float = Field(gt=0, description="Holding force, newtons.")
+    force_uncertainty_n: float = Field(default=0.0, ge=0)
+    object_id: int | None = Field(default=None, ge=1, description="Which object; default the main one.")
+    point_px: list[float] | None = Field(
+        default=None, min_length=2, max_length=2, description="... or a point [x, y] on the object, pixels."
+    )
+    box_px: list[float] | None = Field(
+        default=None, min_length=4, max_length=4, description="... or a box [x, y, w, h] around it, pixels."
+    )
+
+
+class ImpulseExcitation(BaseModel):
+    """Object struck by a known impulse: v0 = J/m."""
+
+    model_config = ConfigDict(title="ImpulseExcitation", allow_inf_nan=False, extra="forbid")
+
+    type: Literal["impulse"]
+    impulse_ns: float = Field(gt=0, description="Impulse, newton-seconds.")
+    impulse_uncertainty_ns: float = Field(default=0.0, ge=0)
+    object_id: int | None = Field(default=None, ge=1, description="Which object; default the main one.")
+    point_px: list[float] | None = Field(
+        default=None, min_length=2, max_length=2, description="... or a point [x, y] on the object, pixels."
+    )
+    box_px: list[float] | None = Field(
+        default=None, min_length=4, max_length=4, description="... or a box [x, y, w, h] around it, pixels."
+    )
+
+
+Excitation = Annotated[StepReleaseExcitation | ImpulseExcitation, Field(discriminator="type")]
+
+#: One excitation (for the main object, or the one it names), or one per excited object.
+ExcitationSpec = Excitation | Annotated[list[Excitation], Field(min_length=1, max_length=16)]
+
+
+class AnalysisParameters(BaseModel):
+    """Analysis options; every field has a default that works without tuning."""
+
+    model_config = ConfigDict(title="AnalysisParameters", allow_inf_nan=False, extra="forbid")
+
+    method: Literal["default", "paper"] = "default"
+    flow: Literal["farneback", "dis"] | None = Field(
+        default=None, description="Optical flow; default depends on the method."
+    )
+    frames: int | None = Field(default=None, ge=8, le=100_000, description="Analysis window length N.")
+    start_frame: int | None = Field(default=None, ge=0)
+    fps: float | None = Field(default=None, gt=0, le=100_000, description="True recording rate, Hz.")
+    fx: float | None = Field(default=None, gt=0)
+    fy: float | None = Field(default=None, gt=0)
+    cx: float | None = None
+    cy: float | None = None
+    depth_scale: float | None = Field(default=None, gt=0, description="Metres per depth unit.")
+    depth_m: float | None = Field(
+        default=None, gt=0, description="Object distance when the clip has no depth."
+    )
+    color_topic: str | None = Field(
+        default=None,
+        max_length=256,
+        description="Bag topic of the colour images (default: chosen automatically).",
+    )
+    depth_topic: str | None = Field(
+        default=None,
+        max_length=256,
+        description="Bag topic of the depth images (default: chosen automatically; `none` ignores depth).",
+    )
+    min_frequency_hz: float | None = Field(default=None, ge=0)
+    max_frequency_hz: float | None = Field(default=None, gt=0)
+
+
+class SegmentationParameters(BaseModel):
+    """How the moving pixels were grouped into objects."""
+
+    model_config = ConfigDict(title="SegmentationParameters", allow_inf_nan=False)
+
+    noise_factor: float | None = None
+    relative_level: float | None = None
+    purity: float | None = None
+    band_bins: float | None = None
+    min_area_fraction: float | None = None
+
+
+class ParametersUsed(BaseModel):
+    """Every parameter an analysis used, defaults included (``AnalysisResult.parameters``): the request's own
+    (``overrides``), the excitations, and what the server resolved (flow, window, band, segmentation)."""
+
+    model_config = ConfigDict(
+        title="ParametersUsed",
+        allow_inf_nan=False,
+        extra="allow",
+        json_schema_serialization_defaults_required=True,
+    )
+
+    method: Literal["default", "paper"] = "default"
+    flow: Literal["farneback", "dis"] | None = Field(default=None, description="The optical flow used.")
+    flow_scale: float | str | None = Field(
+        default=None, description="Scale of the frames the flow ran on, or `auto` (chosen per clip)."
+    )
+    dis_preset: Literal["ultrafast", "fast", "fine", "medium"] | None = Field(
+        default=None, description="DIS preset, when the flow is DIS."
+    )
+    flow_threads: int | None = Field(default=None, description="Frame pairs whose flow ran at once.")
+    frames: int | None = Field(default=None, description="Window length asked for (None: automatic).")
+    start_frame: int | None = Field(default=None, description="First frame of the window.")
+    min_frequency_hz: float | None = None
+    max_frequency_hz: float | None = None
+    depth_m: float | None = None
+    segmentation: SegmentationParameters | None = None
+    max_objects: int | None = None
+    auto_window: bool | None = Field(default=None, description="Whether a long clip was surveyed first.")
+    max_window_mib: float | None = Field(default=None, description="Memory budget of an automatic window.")
+    fps: float | None = Field(default=None, description="The frame rate used, Hz.")
+    fps_source: str | None = Field(default=None, description="Where the rate came from (see `fps_source`).")
+    excitation: list[Excitation] | None = Field(default=None, description="The excitations given.")
+    overrides: AnalysisParameters = Field(
+        default_factory=lambda: AnalysisParameters(), description="The request's own parameters."
+    )
+    live: bool | None = Field(default=None, description="`true`: the analysis of a live stream.")
+    target_relative_uncertainty: float | None = Field(
+        default=None, description="A live stream's convergence target."
+    )

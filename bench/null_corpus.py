@@ -1,0 +1,133 @@
+"""The null corpus (issue 25): clips where nothing vibrates, and the detection statistic's false-alarm rate
+measured on them against the rate it states.
+
+Still scenes, textured and flat, at 30, 60 and 240 fps with sensor noise, each through one of the codecs of
+phones and action cameras (``workers.pipeline.synth_corpus.still_corpus``), and still parts of the shared
+real footage (the flat background beside the forks, when ``../shared`` is there). For each clip it prints
+the objects reported (there should be none) and the smallest false-alarm probability per clip of any line
+of the scan statistic (what noise alone reached); then, for several bounds alpha, the fraction of clips
+whose smallest probability is at most alpha: for a calibrated (or conservative) statistic it is at most
+alpha.
+
+    python bench/null_corpus.py [--out DIR] [--no-real]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import eigenscope  # noqa: F401  (thread settings before numpy)
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+from workers.pipeline.analysis import AnalysisConfig, analyze  # noqa: E402
+from workers.pipeline.clipio import ClipOverrides, open_clip  # noqa: E402
+from workers.pipeline.clipio.types import ClosingReader, Frame  # noqa: E402
+from workers.pipeline.detection import significant_bins  # noqa: E402
+from workers.pipeline.front import front_of_look  # noqa: E402
+from workers.pipeline.look import look_at  # noqa: E402
+from workers.pipeline.significance import MAX_FALSE_ALARM  # noqa: E402
+from workers.pipeline.synth_corpus import encode, still_corpus  # noqa: E402
+from workers.pipeline.window import analysis_band, plan_analysis  # noqa: E402
+
+SHARED = ROOT.parent / "shared" / "data" / "real" / "tuning-forks"
+REAL_CROPS = [
+    (32, 1000, 430, 640),
+    (32, 1000, 0, 240),
+    (64, 250, 430, 640),
+    (64, 250, 0, 240),
+    (128, 500, 430, 640),
+]
+
+
+class Crop(ClosingReader):
+    """Columns ``[x0, x1)`` of another reader's frames, without depth."""
+
+    def __init__(self, inner, x0: int, x1: int) -> None:
+        self._inner, self._x0, self._x1 = inner, x0, x1
+        self._info = dataclasses.replace(inner.info, width=x1 - x0, has_depth=False)
+
+    @property
+    def info(self):
+        return self._info
+
+    def frames(self, start=0, stop=None):
+        for frame in self._inner.frames(start, stop):
+            rgb = np.ascontiguousarray(frame.rgb[:, self._x0 : self._x1])
+            yield Frame(index=frame.index, rgb=rgb, depth_m=None, timestamp_s=frame.timestamp_s)
+
+    def close(self) -> None:
+        self._inner.close()
+
+
+def smallest_false_alarm(reader) -> float:
+    """The smallest false-alarm probability per clip of any line of the window's scan statistic."""
+    config = AnalysisConfig()
+    plan = plan_analysis(reader.info, config, reader=reader)
+    source, first, last = plan.source(reader)
+    look = look_at(source, first, last)
+    band = analysis_band(config, plan.fps, look.count)
+    scan = front_of_look(look, sample_rate_hz=plan.fps, band_hz=band, max_objects=config.max_objects).scan
+    lines = significant_bins(scan, limit=1.0)
+    return float(scan.calibration.p_clip(scan.z[lines[0]])) if lines else 1.0
+
+
+def clips(folder: Path, *, real: bool):
+    for still in still_corpus():
+        path = folder / f"{still.name}.mp4"
+        if not path.exists():
+            encode(
+                still.scene,
+                path,
+                codec=still.codec,
+                bit_rate=still.bit_rate,
+                keyframe_every=still.keyframe_every,
+            )
+        yield still.name, (lambda p=path: open_clip(p))
+    if real and SHARED.is_dir():
+        for f, fps, x0, x1 in REAL_CROPS:
+            path = SHARED / f"tuning_hz{f}_fps{fps}_50-1_640x420.mp4"
+            yield (
+                f"real {f} Hz fork clip at {fps} fps, columns {x0}-{x1}",
+                lambda p=path, r=fps, a=x0, b=x1: Crop(open_clip(p, overrides=ClipOverrides(fps=r)), a, b),
+            )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--out", type=Path, help="where the encoded clips are kept (default: a temporary folder)"
+    )
+    parser.add_argument("--no-real", action="store_true", help="leave out the shared real footage")
+    args = parser.parse_args()
+    folder = args.out or Path(tempfile.mkdtemp(prefix="null-corpus-"))
+    folder.mkdir(parents=True, exist_ok=True)
+    smallest: list[float] = []
+    false_objects = 0
+    print(f"{'clip':58s} {'objects':>7s} {'min p/clip':>11s} {'s':>6s}")
+    for name, make in clips(folder, real=not args.no_real):
+        started = time.perf_counter()
+        with make() as reader:
+            objects = analyze(reader).objects
+        with make() as reader:
+            p = smallest_false_alarm(reader)
+        smallest.append(p)
+        false_objects += len(objects)
+        print(f"{name:58s} {len(objects):7d} {p:11.3g} {time.perf_counter() - started:6.1f}", flush=True)
+    values = np.asarray(smallest)
+    print(f"\n{len(values)} clips, {false_objects} false objects (reported at p <= {MAX_FALSE_ALARM:g})")
+    print("stated alpha   measured rate (clips whose smallest probability per clip is <= alpha)")
+    for alpha in (MAX_FALSE_ALARM, 0.01, 0.05, 0.1, 0.3, 0.5):
+        print(f"{alpha:12g}   {float(np.mean(values <= alpha)):.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,122 @@
+"""The two passes' front end on small rendered scenes (workers.pipeline.look, roi, fine): the coarse grid,
+what the first pass keeps, the box around the moving region and its grid, and the second pass's flow
+from kept frames and from frames read again."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from workers.pipeline.fine import ROI_BUDGET_PX, grid_for, plan_roi, stream_roi
+from workers.pipeline.flow import FlowConfig
+from workers.pipeline.look import CoarseGrid, frame_noise, keeps_frames, look_at
+from workers.pipeline.roi import Roi
+from workers.pipeline.synth import Scene, SceneObject, SceneReader
+
+
+def _scene(**kw) -> Scene:
+    obj = SceneObject(center_px=(200, 120), size_px=(60, 50), frequency_hz=4.0, damping_ratio=0.02)
+    return Scene(width=320, height=240, frames=48, fps=30.0, objects=(obj,), **kw)
+
+
+@pytest.mark.parametrize(
+    ("size", "factor", "shape"),
+    [
+        ((480, 640), 4, (120, 160)),
+        ((420, 640), 4, (105, 160)),
+        ((240, 320), 2, (120, 160)),
+        ((120, 160), 1, (120, 160)),
+        ((720, 1280), 8, (90, 160)),
+        ((30, 40), 1, (30, 40)),
+    ],
+)
+def test_the_coarse_grid_is_an_integer_factor_about_160_wide(size, factor, shape):
+    grid = CoarseGrid.for_frame(*size)
+    assert (grid.factor, grid.shape) == (factor, shape)
+    small = grid.shrink(np.zeros(size, np.uint8))
+    assert small.shape == shape
+
+
+def test_the_look_keeps_a_short_window_and_says_where_it_moves():
+    scene = _scene()
+    with SceneReader(scene) as reader:
+        look = look_at(reader, 0, scene.frames)
+    assert look.count == scene.frames - 1
+    assert look.flow.shape == (scene.frames - 1, 120, 160, 2)
+    assert look.kept is not None
+    assert look.kept.gray.shape == (scene.frames, 240, 320)
+    assert look.kept.depth is not None
+    assert look.kept.depth.shape == (scene.frames, 120, 160)
+    assert not look.camera_removed
+    assert look.times_s[1] == pytest.approx(1 / 30.0)
+    assert 0.2 < look.max_step_px < 20.0
+
+
+def test_a_long_window_is_not_kept():
+    assert keeps_frames(256, 480, 640, has_depth=True)
+    assert not keeps_frames(1000, 420, 640, has_depth=False)
+
+
+def test_one_frame_noise_is_at_least_the_rounding_of_grey_levels():
+    assert frame_noise(np.zeros((10, 8, 8), np.float32)) == pytest.approx(1 / np.sqrt(12))
+    pulses = np.zeros((24, 8, 8), np.float32)
+    pulses[::12] = 4.0  # a codec changes the picture at its keyframes only
+    assert frame_noise(pulses) > 1.0
+
+
+def test_a_box_moves_maps_between_its_grid_and_the_frame():
+    roi = Roi(40, 20, 100, 60, (30, 50), (240, 320))
+    assert roi.pixel_scale == pytest.approx(2.0)
+    grid = np.arange(30 * 50, dtype=np.uint16).reshape(30, 50)
+    frame = roi.to_frame(grid)
+    assert frame.shape == (240, 320)
+    assert frame[:20].max() == 0
+    assert frame[:, :40].max() == 0
+    np.testing.assert_array_equal(roi.from_frame(frame), grid)
+    assert not roi.whole_frame
+    assert Roi.whole((240, 320), (120, 160)).whole_frame
+
+
+def test_the_box_grid_is_full_resolution_when_small_and_within_budgets():
+    assert grid_for(120, 300, samples=256) == (300, 120)
+    h, w = grid_for(640, 480, samples=256)
+    assert h * w <= ROI_BUDGET_PX * 1.01
+    long_h, long_w = grid_for(200, 400, samples=3000)
+    assert long_h * long_w < 200 * 400  # memory bounds a long window's grid
+
+
+def test_the_box_holds_the_regions_with_a_margin_and_falls_back_to_the_frame():
+    scene = _scene()
+    with SceneReader(scene) as reader:
+        look = look_at(reader, 0, scene.frames)
+    region = np.zeros(look.grid.shape, bool)
+    region[52:68, 85:115] = True  # coarse pixels: input x 170-230, y 104-136
+    roi = plan_roi(look, [region], frame_shape=(240, 320), samples=look.count)
+    assert roi.x <= 170 - 24
+    assert roi.x + roi.width >= 230 + 24
+    assert roi.y <= 104 - 24
+    assert roi.y + roi.height >= 136 + 24
+    assert roi.grid_shape == (roi.height, roi.width)  # small: full resolution
+    whole = plan_roi(look, [], frame_shape=(240, 320), samples=look.count)
+    assert whole.whole_frame
+
+
+def test_the_second_pass_reads_kept_frames_as_it_reads_the_clip():
+    scene = _scene()
+    with SceneReader(scene) as reader:
+        look = look_at(reader, 0, scene.frames)
+        roi = Roi(120, 60, 160, 120, (120, 160), (240, 320))
+        kept = stream_roi(look, roi, start=0, stop=scene.frames, look=look, flow_config=FlowConfig(threads=1))
+        again = stream_roi(
+            reader, roi, start=0, stop=scene.frames, look=look, flow_config=FlowConfig(threads=1)
+        )
+    assert kept.roi == roi
+    assert kept.flow.shape == (scene.frames - 1, 120, 160, 2)
+    assert kept.gray is not None
+    assert kept.gray.shape == (scene.frames, 120, 160)
+    np.testing.assert_allclose(kept.flow, again.flow, atol=1e-5)
+    assert kept.depth is not None
+    assert again.depth is not None
+    np.testing.assert_allclose(kept.depth, again.depth, equal_nan=True)
+    # the object (centre x 200, y 120) moves: the flow of the box sees it
+    assert float(np.abs(kept.flow[..., 0]).max()) > 0.3

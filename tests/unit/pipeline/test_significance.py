@@ -1,0 +1,183 @@
+"""The scan statistic and its false-alarm probability (workers.pipeline.significance), and the
+candidates taken from it (workers.pipeline.detection.find_candidates), on flow arrays with known truth:
+noise alone, a weak vibration of a small patch, the same on flat pixels, a whole-picture pulse, a
+harmonic and a fundamental on one patch."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from workers.pipeline.confidence import flow_confidence
+from workers.pipeline.detection import find_candidates
+from workers.pipeline.significance import MAX_FALSE_ALARM, fit_calibration, motion_scan
+
+FPS = 60.0
+N, H, W = 128, 48, 64
+BAND = (2 * FPS / N, 0.98 * FPS / 2)
+
+
+def _picture(seed: int = 0, flat_left: bool = False) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    image = cv2.GaussianBlur(rng.uniform(40, 200, (H, W)).astype(np.float32), (0, 0), 1.0)
+    if flat_left:
+        image[:, : W // 2] = 120.0
+    return image
+
+
+def _noise(seed: int, *, heavy: bool = False) -> np.ndarray:
+    """Flow noise, spatially smooth (as dense flow is), optionally with a codec's impulses."""
+    rng = np.random.default_rng(seed)
+    flow = rng.normal(0, 0.05, (N, H, W, 2)).astype(np.float32)
+    flow = np.stack([cv2.GaussianBlur(f, (0, 0), 1.5) for f in flow])
+    if heavy:
+        jumps = rng.random(N) < 0.05
+        flow[jumps] += rng.normal(0, 0.3, (int(jumps.sum()), H, W, 2)).astype(np.float32)
+    return flow
+
+
+def _vibrate(flow: np.ndarray, f: float, amplitude: float, region: tuple[slice, slice], phase: float = 0.0):
+    t = np.arange(N)
+    flow[:, region[0], region[1], 0] += (amplitude * np.sin(2 * np.pi * f * t / FPS + phase))[:, None, None]
+    return flow
+
+
+def _scan(flow: np.ndarray, picture: np.ndarray, **kw):
+    return motion_scan(
+        flow, flow_confidence(picture, frame_noise=1.0), sample_rate_hz=FPS, band_hz=BAND, **kw
+    )
+
+
+def test_noise_alone_is_rarely_significant_and_the_rate_is_not_above_the_stated_one():
+    """40 windows of noise (half with impulses): the most significant peak of each, as a false-alarm
+    probability per clip, is at most alpha in no more than about alpha of them (a conservative law)."""
+    best = []
+    for seed in range(40):
+        scan = _scan(_noise(seed, heavy=seed % 2 == 1), _picture(seed))
+        best.append(float(scan.calibration.p_clip(scan.z.max())))
+    best_arr = np.asarray(best)
+    assert (best_arr <= MAX_FALSE_ALARM).sum() == 0
+    for alpha in (0.1, 0.3):
+        assert float(np.mean(best_arr <= alpha)) <= alpha + 0.1, (alpha, np.sort(best_arr)[:8])
+
+
+def test_a_weak_small_vibration_is_found_where_and_at_what_it_moves():
+    flow = _vibrate(_noise(7), 9.0, 0.04, (slice(20, 28), slice(30, 34)))  # below the noise per sample
+    scan = _scan(flow, _picture(7))
+    assert scan.false_alarm(9.0) <= MAX_FALSE_ALARM
+    k = int(np.argmax(scan.z))
+    assert scan.frequencies_hz[k] == pytest.approx(9.0, abs=scan.bin_hz)
+    region = scan.region(9.0)
+    assert region[20:28, 30:34].mean() > 0.5
+    assert region.sum() < 0.1 * H * W
+    assert scan.localised_share(9.0, region) > 0.5
+
+
+def test_motion_on_flat_pixels_is_codec_noise_and_never_an_object():
+    """The same patch's flow 'vibrating' strongly on a flat part of the picture (where flow is only the
+    codec's noise) stands out of nothing."""
+    flow = _vibrate(_noise(8), 9.0, 0.5, (slice(20, 28), slice(6, 14)))
+    scan = _scan(flow, _picture(8, flat_left=True))
+    assert scan.false_alarm(9.0) > MAX_FALSE_ALARM
+
+
+def test_a_pulse_of_the_whole_picture_is_not_localised():
+    flow = _vibrate(_noise(9), 12.0, 0.05, (slice(0, H), slice(0, W)))
+    scan = _scan(flow, _picture(9))
+    assert scan.false_alarm(12.0) <= MAX_FALSE_ALARM  # something happens at 12 Hz ...
+    assert scan.localised_share(12.0, scan.region(12.0)) < 0.5  # ... everywhere at once
+
+
+def test_known_artefact_lines_are_left_out_of_the_fit():
+    """A comb of strong lines (a codec's keyframes) inflates the fitted spread unless it is left out."""
+    rng = np.random.default_rng(3)
+    freqs = np.linspace(1, 29, 120)
+    statistic = np.exp(rng.gumbel(2.0, 0.2, 120))
+    comb = [2.5 * m for m in range(1, 12)]
+    for f in comb:
+        statistic[np.argmin(np.abs(freqs - f))] *= 8.0
+    polluted = fit_calibration(statistic, frequencies_hz=freqs, rounds=1)
+    clean = fit_calibration(statistic, frequencies_hz=freqs, exclude_hz=comb, rounds=1)
+    assert clean.scale < polluted.scale
+    assert clean.scale == pytest.approx(0.2, rel=0.35)
+
+
+def _short_band(rng: np.random.Generator, bins: int = 29) -> tuple[np.ndarray, np.ndarray]:
+    """The scan statistic of a short window (64 frames: 29 bins): Gumbel noise of scale 0.2 on a slow
+    U-shaped course over the band (flow noise rises at both ends under H.264)."""
+    x = np.linspace(-1, 1, bins)
+    course = rng.uniform(0.5, 1.0) * x**2 + rng.uniform(-0.3, 0.3) * x
+    return np.linspace(1, 14, bins), np.exp(course + rng.gumbel(2.0, 0.2, bins))
+
+
+def test_a_short_band_follows_the_noise_s_course():
+    """On a band of 24 to 29 bins the calibration follows the noise's course with a parabola: a line
+    standing sixteen noise scales above its neighbourhood is significant, as on a flat course (the
+    course alone spreads log T over several scales)."""
+    rng = np.random.default_rng(11)
+    freqs, statistic = _short_band(rng)
+    flat = np.exp(rng.gumbel(2.0, 0.2, len(freqs)))
+    for series in (statistic, flat):
+        series[14] = np.exp(np.log(series[14]) + 16 * 0.2)
+    on_course = fit_calibration(statistic, frequencies_hz=freqs)
+    on_flat = fit_calibration(flat, frequencies_hz=freqs)
+    assert on_course.trend is not None
+    assert on_course.scale < 1.5 * on_flat.scale
+    assert float(on_course.p_clip(on_course.z(statistic)[14])) <= MAX_FALSE_ALARM
+
+
+def test_a_short_band_with_few_surrogates_left_fits_no_course():
+    """When an object's skirt leaves fewer than MIN_TREND_SURROGATES bins to fit, a parabola beside the
+    law would follow the noise itself: the law is fitted to log T as it is."""
+    rng = np.random.default_rng(12)
+    freqs, statistic = _short_band(rng)
+    statistic[2:14] *= np.exp(np.linspace(1.0, 4.0, 12))  # a strong, broad object over 12 bins
+    cal = fit_calibration(statistic, frequencies_hz=freqs)
+    assert cal.bins_fitted < 20
+    assert cal.trend is None
+
+
+def test_the_band_must_hold_frequencies():
+    with pytest.raises(ValueError, match="band"):
+        motion_scan(_noise(1)[:16], flow_confidence(_picture()), sample_rate_hz=FPS, band_hz=(20.0, 21.0))
+
+
+def test_an_overtone_on_the_same_pixels_is_a_harmonic_and_two_objects_stay_two():
+    patch = (slice(18, 30), slice(20, 32))
+    flow = _vibrate(_noise(11), 6.0, 0.3, patch)
+    flow = _vibrate(flow, 12.0, 0.15, patch, phase=0.4)  # a non-sinusoidal motion's overtone
+    flow = _vibrate(flow, 17.0, 0.3, (slice(30, 40), slice(44, 56)))  # another object
+    found = find_candidates(_scan(flow, _picture(11)), band_hz=BAND, max_objects=8)
+    freqs = [c.peak.frequency_hz for c in found.found]
+    assert len(freqs) == 2
+    assert freqs[0] == pytest.approx(6.0, abs=0.3) or freqs[1] == pytest.approx(6.0, abs=0.3)
+    six = next(c for c in found.found if abs(c.peak.frequency_hz - 6.0) < 0.3)
+    assert any(abs(h - 12.0) < 0.5 for h in six.peak.harmonics_hz)
+    assert any(abs(f - 17.0) < 0.5 for f in freqs)
+
+
+def test_a_stronger_overtone_resolves_to_its_fundamental_on_the_same_pixels():
+    """A wheel whose marks pass twice a turn: its second harmonic is stronger than its rate, but the
+    rate moves the same pixels; the fundamental is reported, the overtone among its harmonics."""
+    patch = (slice(14, 34), slice(18, 38))
+    flow = _vibrate(_noise(12), 3.75, 0.06, patch)
+    flow = _vibrate(flow, 7.5, 0.3, patch)
+    found = find_candidates(_scan(flow, _picture(12)), band_hz=BAND, max_objects=8)
+    assert len(found.found) == 1
+    peak = found.found[0].peak
+    assert peak.frequency_hz == pytest.approx(3.75, abs=0.3)
+    assert any(abs(h - 7.5) < 0.5 for h in peak.harmonics_hz)
+
+
+def test_an_object_the_user_says_was_excited_is_a_candidate_however_weak_its_line():
+    """A vibration below the bound is no candidate, unless an excitation says an object was pushed: then
+    the strongest line is one (where and at what it moves), with its own false-alarm probability."""
+    flow = _vibrate(_noise(13), 9.0, 0.012, (slice(20, 28), slice(30, 34)))
+    scan = _scan(flow, _picture(13))
+    assert scan.false_alarm(9.0) > MAX_FALSE_ALARM
+    assert not find_candidates(scan, band_hz=BAND, max_objects=8).found
+    asserted = find_candidates(scan, band_hz=BAND, max_objects=8, asserted=1).found
+    assert len(asserted) == 1
+    assert asserted[0].peak.frequency_hz == pytest.approx(9.0, abs=scan.bin_hz)
+    assert asserted[0].false_alarm > MAX_FALSE_ALARM

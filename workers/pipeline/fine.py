@@ -1,0 +1,270 @@
+"""The second pass over a window: dense flow over the region that moves, at the resolution it needs.
+
+The first pass (:mod:`workers.pipeline.look`) saw the whole picture on a coarse grid and found where it
+moves (:mod:`workers.pipeline.significance`). :func:`plan_roi` draws a box around those regions, with a
+margin of still background around them (the segmentation's noise reference), and chooses the box's flow
+grid: full resolution when the box is small (a thin bar, a string), coarser when it is large or the window
+long, within :data:`ROI_BUDGET_PX` grid pixels and :data:`ROI_BUDGET_MIB` of flow. :func:`stream_roi` then
+computes the flow of that box only, from the frames the first pass kept or read again, with its depth and
+its grey frames at input resolution (registration), into :class:`~workers.pipeline.stream.FrameBuffers`
+whose ``roi`` says where the box lies.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.artefacts import keyframe_maps, repair_keyframe_maps
+from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader
+from workers.pipeline.errors import AnalysisError
+from workers.pipeline.fft import warm_up as spectrum_warm_up
+from workers.pipeline.flow import FlowConfig, flow_stream
+from workers.pipeline.look import Look
+from workers.pipeline.model import Progress
+from workers.pipeline.roi import Roi
+from workers.pipeline.stream import FrameBuffers
+
+#: Most grid pixels the second pass computes flow for (the cost of half-resolution flow over 640 x 480).
+ROI_BUDGET_PX = 320 * 240
+#: Most memory the second pass's flow maps may take, MiB (the window's length bounds its grid).
+ROI_BUDGET_MIB = 192.0
+#: Background kept around the moving regions: this many input pixels at least ...
+MIN_MARGIN_PX = 24
+#: ... and this fraction of the square root of the regions' area (a large object gets a wide margin).
+MARGIN_FRACTION = 0.5
+
+
+def grid_for(width: int, height: int, *, samples: int, budget_px: int = ROI_BUDGET_PX) -> tuple[int, int]:
+    """The flow grid (h, w) of a ``width`` x ``height`` box: full resolution within ``budget_px`` and
+    :data:`ROI_BUDGET_MIB` of flow for ``samples`` maps (float32 u and v), area-averaged below."""
+    memory_px = ROI_BUDGET_MIB * 2**20 / (8 * max(samples, 1))
+    allowed = max(64 * 48, min(budget_px, memory_px))
+    scale = min(1.0, math.sqrt(allowed / max(width * height, 1)))
+    return max(8, round(height * scale)), max(8, round(width * scale))
+
+
+def plan_roi(
+    look: Look,
+    regions: Sequence[NDArray[np.bool_]],
+    *,
+    frame_shape: tuple[int, int],
+    samples: int,
+    budget_px: int = ROI_BUDGET_PX,
+) -> Roi:
+    """The box around the moving regions (coarse masks of the look's grid), with a margin of background,
+    and its grid (:func:`grid_for`); the whole frame when no region was found.
+
+    Parameters
+    ----------
+    look : Look
+    regions : sequence of ndarray of bool, shape (h, w)
+        Where the picture moves, on the look's grid.
+    frame_shape : (H, W)
+    samples : int
+        Flow maps of the window (memory).
+    budget_px : int
+
+    Returns
+    -------
+    Roi
+    """
+    H, W = frame_shape
+    union = np.zeros(look.grid.shape, bool)
+    for region in regions:
+        union |= region
+    if not union.any():
+        h, w = grid_for(W, H, samples=samples, budget_px=budget_px)
+        return Roi(0, 0, W, H, (h, w), frame_shape)
+    f = look.grid.factor
+    ys, xs = np.nonzero(union)
+    x0, x1 = int(xs.min()) * f, (int(xs.max()) + 1) * f
+    y0, y1 = int(ys.min()) * f, (int(ys.max()) + 1) * f
+    area = float(union.sum()) * f * f
+    margin = max(MIN_MARGIN_PX, round(MARGIN_FRACTION * math.sqrt(area)))
+    x0, y0 = max(0, x0 - margin), max(0, y0 - margin)
+    x1, y1 = min(W, x1 + margin), min(H, y1 + margin)
+    width, height = x1 - x0, y1 - y0
+    if width * height >= 0.6 * W * H:  # most of the frame: all of it (the border shows the camera)
+        x0, y0, width, height = 0, 0, W, H
+    return Roi(
+        x0, y0, width, height, grid_for(width, height, samples=samples, budget_px=budget_px), frame_shape
+    )
+
+
+@dataclass
+class _Window:
+    """The second pass's buffers, filled frame by frame."""
+
+    roi: Roi
+    n: int
+    has_depth: bool
+
+    def __post_init__(self) -> None:
+        h, w = self.roi.grid_shape
+        self.flow = np.empty((self.n, h, w, 2), np.float32)
+        self.gray = np.empty((self.n + 1, self.roi.height, self.roi.width), np.uint8)
+        self.depth = np.full((self.n + 1, h, w), np.nan, np.float32) if self.has_depth else None
+        self.frames = 0
+
+    def add(self, i: int, gray: NDArray[np.uint8], depth: NDArray[np.float32] | None) -> NDArray[np.uint8]:
+        """Frame ``i``: its grey crop kept, its depth on the grid; returns the grey frame on the grid."""
+        crop = self.roi.crop(gray)
+        self.gray[i] = crop
+        if self.depth is not None and depth is not None:
+            self.depth[i] = _depth_on(depth, self.roi)
+        self.frames = i + 1
+        h, w = self.roi.grid_shape
+        if crop.shape == (h, w):
+            return np.asarray(self.gray[i], np.uint8)
+        return np.asarray(cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
+
+
+def _depth_on(depth: NDArray[np.float32], roi: Roi) -> NDArray[np.float32]:
+    """A depth map of the whole frame on any grid, sampled (nearest) at the centres of the box's grid
+    pixels: each grid pixel's depth is the depth under it, whatever the box's offset from the depth
+    grid (a crop of the depth grid would shift it by up to a depth pixel: at an object's edge, a band of
+    background at the object's depth)."""
+    dh, dw = depth.shape
+    H, W = roi.frame_shape
+    h, w = roi.grid_shape
+    ys = roi.y + (np.arange(h) + 0.5) * roi.height / h
+    xs = roi.x + (np.arange(w) + 0.5) * roi.width / w
+    rows = np.clip((ys * dh / H).astype(np.intp), 0, dh - 1)
+    cols = np.clip((xs * dw / W).astype(np.intp), 0, dw - 1)
+    return np.asarray(depth[rows[:, None], cols[None, :]], np.float32)
+
+
+def _frames(
+    source: ClipReader | Look, start: int, stop: int, depth_shape: tuple[int, int]
+) -> Iterator[tuple[NDArray[np.uint8], NDArray[np.float32] | None]]:
+    """Grey frames at input resolution and depth (on any grid), from the look's kept frames or read again."""
+    if isinstance(source, Look):
+        kept = source.kept
+        assert kept is not None
+        for i in range(len(kept.gray)):
+            yield kept.gray[i], None if kept.depth is None else kept.depth[i]
+        return
+    if source.info.has_depth:
+        for frame in source.frames_with_depth_on(depth_shape, start, stop):
+            yield np.asarray(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), np.uint8), frame.depth_m
+    else:
+        for gray in source.gray_frames(start, stop):
+            yield gray, None
+
+
+def stream_roi(
+    source: ClipReader | Look,
+    roi: Roi,
+    *,
+    start: int,
+    stop: int,
+    look: Look,
+    flow_config: FlowConfig,
+    progress: Progress | None = None,
+) -> FrameBuffers:
+    """The second pass: flow, depth and grey frames of the box over frames ``[start, stop)``.
+
+    Parameters
+    ----------
+    source : ClipReader or Look
+        A reader to read the frames again, or the look whose kept frames to use.
+    roi : Roi
+    start, stop : int
+        The window's frame range (of the reader the look read).
+    look : Look
+        The first pass (its times, brightness, camera motion and first frame are the window's).
+    flow_config : FlowConfig
+        The flow's method and preset (its scale is the box's grid).
+    progress : callable, optional
+
+    Returns
+    -------
+    FrameBuffers
+        On the box's grid, ``roi`` set.
+
+    Raises
+    ------
+    AnalysisError
+        When fewer than :data:`~workers.pipeline.clipio.types.MIN_FRAMES` frames decode.
+    """
+    threading.Thread(target=spectrum_warm_up, name="spectrum-warm-up", daemon=True).start()
+    n = look.count
+    has_depth = isinstance(source, Look) and source.kept is not None and source.kept.depth is not None
+    if not isinstance(source, Look):
+        has_depth = source.info.has_depth
+    window = _Window(roi, n, has_depth)
+    depth_shape = ((roi.frame_shape[0] + 1) // 2, (roi.frame_shape[1] + 1) // 2)
+    decode_s = 0.0
+    frames = iter(_frames(source, start, stop, depth_shape))
+
+    def grays() -> Iterator[NDArray[np.uint8]]:
+        nonlocal decode_s
+        for i in itertools.count():
+            started = time.thread_time()
+            item = next(frames, None)
+            decode_s += time.thread_time() - started
+            if item is None or i > n:
+                return
+            yield window.add(i, *item)
+
+    count = 0
+    for i, _ in enumerate(flow_stream(grays(), config=flow_config, out=window.flow)):
+        count = i + 1
+        if progress is not None and (i % 16 == 0 or count == n):
+            progress("flow", 0.5 + 0.3 * count / max(n, 1))
+    if count + 1 < MIN_FRAMES:
+        raise AnalysisError(
+            f"the clip ended after {window.frames} of the {n + 1} frames it announced; at least "
+            f"{MIN_FRAMES} frames are needed"
+        )
+    return _buffers(window, count, look=look, decode_s=decode_s)
+
+
+def _buffers(window: _Window, count: int, *, look: Look, decode_s: float) -> FrameBuffers:
+    """The second pass's buffers, with the look's whole-picture series (times, brightness, camera)."""
+    roi = window.roi
+    to_grid = look.grid.factor / roi.pixel_scale  # grid pixels of the box per look grid pixel
+    camera = (look.camera_px[:count] * to_grid).astype(np.float32)
+    flow = window.flow[:count]
+    repair_keyframe_maps(flow, keyframe_maps(look.frame_change[:count]))
+    if look.camera_removed:
+        flow -= camera[:, None, None, :]
+    depth = None if window.depth is None else window.depth[: count + 1]
+    return FrameBuffers(
+        flow=flow,
+        depth=depth,
+        gray=window.gray[: count + 1],
+        first_rgb=look.first_rgb,
+        count=count,
+        times_s=look.times_s[: count + 1],
+        camera_px=camera,
+        start_s=look.start_s,
+        decode_s=look.decode_s + decode_s,
+        brightness=look.brightness[: count + 1],
+        frame_change=look.frame_change[:count],
+        camera_removed=look.camera_removed,
+        border_px=(look.border_px[:count] * to_grid).astype(np.float32),
+        camera_still_fraction=look.camera_still_fraction,
+        announced=look.announced,
+        roi=roi,
+    )
+
+
+__all__ = [
+    "MARGIN_FRACTION",
+    "MIN_MARGIN_PX",
+    "ROI_BUDGET_MIB",
+    "ROI_BUDGET_PX",
+    "grid_for",
+    "plan_roi",
+    "stream_roi",
+]

@@ -1,0 +1,263 @@
+"""What the whole picture says about a window, before any object is measured: the scan statistic, the
+significant peaks with the regions they move, and the evidence of the camera, the light and the codec.
+
+:func:`front_of_look` makes it from the first pass (:mod:`workers.pipeline.look`, a coarse grid over the
+whole frame); :func:`front_of_buffers` from a window's own whole-frame flow (a live stream, which computes
+its flow as frames arrive). Either way one :class:`Front` goes to
+:func:`workers.pipeline.analysis.analyze_window`, which measures the candidates on the fine grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.artefacts import WindowEvidence, flow_level
+from workers.pipeline.camera import CameraRing
+from workers.pipeline.confidence import Confidence, flow_confidence
+from workers.pipeline.detection import Candidates, find_candidates
+from workers.pipeline.errors import AnalysisError
+from workers.pipeline.look import Look, frame_noise
+from workers.pipeline.significance import MAX_FALSE_ALARM, MotionScan, motion_scan
+from workers.pipeline.spectra import PixelSpectra, pixel_spectra
+from workers.pipeline.stream import FrameBuffers
+from workers.pipeline.window import default_band
+
+
+@dataclass(frozen=True)
+class Front:
+    """The whole picture's findings about a window.
+
+    Attributes
+    ----------
+    band_hz : (low, high)
+    scan : MotionScan
+    candidates : Candidates
+    evidence : WindowEvidence
+        On ``spectra``'s grid.
+    spectra : PixelSpectra
+        Per-pixel spectra of the whole picture's flow on the scan's grid (camera and region powers).
+    ring : CameraRing
+        The picture's border on that grid.
+    grid_factor : float
+        Input pixels per pixel of that grid.
+    scan_confidence : Confidence
+        Of that grid.
+    flow : ndarray of float32, shape (N, h, w, 2)
+        The whole picture's flow on that grid (area-averaging lowers a codec's noise: a thin object moving
+        a fraction of a pixel may stand out more clearly here than at full resolution).
+    """
+
+    band_hz: tuple[float, float]
+    scan: MotionScan
+    candidates: Candidates
+    evidence: WindowEvidence
+    spectra: PixelSpectra
+    ring: CameraRing
+    grid_factor: float
+    scan_confidence: Confidence
+    flow: NDArray[np.float32]
+
+    def band_powers(
+        self, frequency_hz: float, width_bins: float, region: NDArray[np.bool_]
+    ) -> tuple[float, NDArray[np.float32]]:
+        """The region's median band power at a peak, and the ring pixels' (the camera evidence's inputs),
+        on the scan's grid."""
+        freqs = self.spectra.frequencies_hz
+        sel = np.abs(freqs - frequency_hz) <= max(1.5, width_bins) * self.spectra.bin_hz
+        power = self.spectra.power[sel].sum(axis=0)
+        inside = region.ravel()
+        region_power = float(np.median(power[inside])) if inside.any() else 0.0
+        return region_power, np.asarray(power[self.ring.pixels], np.float32)
+
+    def detection(self) -> dict[str, float]:
+        """The calibration's figures for the result."""
+        cal = self.scan.calibration
+        return {
+            "location": cal.location,
+            "scale": cal.scale,
+            "bins_fitted": float(cal.bins_fitted),
+            "bins_searched": float(cal.bins_searched),
+            "max_false_alarm": MAX_FALSE_ALARM,
+        }
+
+
+def _front(
+    flow: NDArray[np.float32],
+    mean_gray: NDArray[np.float32],
+    evidence: WindowEvidence,
+    ring: CameraRing,
+    *,
+    sample_rate_hz: float,
+    band_hz: tuple[float, float],
+    max_objects: int,
+    grid_factor: float,
+    frame_noise_levels: float,
+    asserted: int = 0,
+) -> Front:
+    confidence = flow_confidence(mean_gray, frame_noise=frame_noise_levels)
+    # The band the user narrowed is searched; the whole band the window shows calibrates the statistic.
+    default_lo, default_hi = default_band(sample_rate_hz, len(flow))
+    scanned = (min(band_hz[0], default_lo), max(band_hz[1], default_hi))
+    window_hz = np.fft.rfftfreq(len(flow), d=1.0 / sample_rate_hz)[1:]
+    if np.count_nonzero((window_hz >= scanned[0]) & (window_hz <= scanned[1])) < MIN_SCANNED_BINS:
+        # A short window (a live stream that stopped early): every frequency it holds calibrates.
+        if len(window_hz) < MIN_SCANNED_BINS:
+            raise AnalysisError(
+                f"the window of {len(flow)} flow maps is too short to tell motion from noise (it holds "
+                f"{len(window_hz)} frequencies, the detection needs {MIN_SCANNED_BINS}); analyse more frames"
+            )
+        scanned = (float(window_hz[0]), float(window_hz[-1]))
+    scan = motion_scan(flow, confidence, sample_rate_hz=sample_rate_hz, band_hz=scanned, search_hz=band_hz)
+    candidates = find_candidates(scan, band_hz=band_hz, max_objects=max_objects, asserted=asserted)
+    if evidence.flow_level is None:
+        evidence.flow_level = still_flow_level(flow, confidence, candidates)
+    spectra = pixel_spectra(flow, fps=sample_rate_hz)
+    return Front(band_hz, scan, candidates, evidence, spectra, ring, grid_factor, confidence, flow)
+
+
+def still_flow_level(
+    flow: NDArray[np.float32], confidence: Confidence, candidates: Candidates
+) -> NDArray[np.float32] | None:
+    """The level of the flow's noise in each map over the picture's still, textured parts (away from every
+    candidate's region): where a codec's cycle of frame types shows, and an object's own motion does not
+    (:func:`workers.pipeline.artefacts.frame_pattern_period`). None when too little of the picture is
+    still and textured (a surface filling it)."""
+    moving = np.zeros(confidence.shape, np.uint8)
+    for region in candidates.regions:
+        moving |= region.astype(np.uint8)
+    moving = cv2.dilate(moving, np.ones((5, 5), np.uint8))
+    textured = confidence.weight >= 0.5
+    still = textured & (moving == 0)
+    if still.sum() < STILL_SHARE * max(int(textured.sum()), 1):
+        return None
+    return flow_level(flow, still)
+
+
+#: The detection statistic is calibrated on at least this many of the window's frequencies
+#: (:func:`workers.pipeline.significance.motion_scan`).
+MIN_SCANNED_BINS = 8
+
+
+#: The flow noise's level is measured where at least this share of the textured picture is still.
+STILL_SHARE = 0.2
+
+
+def front_of_look(
+    look: Look,
+    *,
+    sample_rate_hz: float,
+    band_hz: tuple[float, float],
+    max_objects: int,
+    asserted: int = 0,
+) -> Front:
+    """The whole picture's findings from the first pass.
+
+    Parameters
+    ----------
+    look : Look
+    sample_rate_hz : float
+        Rate of the look's flow maps.
+    band_hz : (low, high)
+    max_objects : int
+    asserted : int
+        How many objects the user's excitations name (see
+        :func:`~workers.pipeline.detection.find_candidates`).
+    """
+    from workers.pipeline.fft import fast_length
+
+    nfft = fast_length(look.count)
+    evidence = WindowEvidence(
+        frequencies_hz=np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz).astype(np.float64),
+        nfft=nfft,
+        brightness=look.brightness,
+        frame_change=look.frame_change,
+        border_px=look.border_px,
+        camera_removed=look.camera_removed,
+        ring_pixels=look.ring.pixels,
+        ring_textured=look.ring.textured,
+    )
+    return _front(
+        look.flow,
+        look.mean_gray,
+        evidence,
+        look.ring,
+        sample_rate_hz=sample_rate_hz,
+        band_hz=band_hz,
+        max_objects=max_objects,
+        grid_factor=look.input_px_per_grid_px,
+        frame_noise_levels=frame_noise(look.frame_change),
+        asserted=asserted,
+    )
+
+
+def front_of_buffers(
+    buffers: FrameBuffers,
+    *,
+    sample_rate_hz: float,
+    band_hz: tuple[float, float],
+    max_objects: int,
+    asserted: int = 0,
+) -> Front:
+    """The whole picture's findings from a window's own whole-frame flow (a live stream's).
+
+    Parameters
+    ----------
+    buffers : FrameBuffers
+        Flow over the whole frame (``roi`` None), with the grey frames when kept.
+    sample_rate_hz : float
+    band_hz : (low, high)
+    max_objects : int
+    asserted : int
+        How many objects the user's excitations name (see
+        :func:`~workers.pipeline.detection.find_candidates`).
+    """
+    from workers.pipeline.fft import fast_length
+
+    n, h, w = buffers.flow.shape[:3]
+    if buffers.gray is not None:
+        step = max(1, len(buffers.gray) // 32)
+        mean_full = buffers.gray[::step].astype(np.float32).mean(axis=0)
+        mean = np.asarray(cv2.resize(mean_full, (w, h), interpolation=cv2.INTER_AREA), np.float32)
+    else:
+        mean = cv2.cvtColor(buffers.first_rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+        mean = np.asarray(cv2.resize(mean, (w, h), interpolation=cv2.INTER_AREA), np.float32)
+    ring = CameraRing((h, w))
+    ring.set_texture(np.clip(mean, 0, 255).astype(np.uint8))
+    nfft = fast_length(n)
+    evidence = WindowEvidence(
+        frequencies_hz=np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz).astype(np.float64),
+        nfft=nfft,
+        brightness=buffers.brightness,
+        frame_change=buffers.frame_change,
+        border_px=buffers.border_px,
+        camera_removed=buffers.camera_removed,
+        ring_pixels=ring.pixels,
+        ring_textured=ring.textured,
+    )
+    change = buffers.frame_change if buffers.frame_change is not None else np.zeros((0, 1, 1), np.float32)
+    return _front(
+        buffers.flow,
+        mean,
+        evidence,
+        ring,
+        sample_rate_hz=sample_rate_hz,
+        band_hz=band_hz,
+        max_objects=max_objects,
+        grid_factor=buffers.first_rgb.shape[1] / w,
+        frame_noise_levels=frame_noise(change),
+        asserted=asserted,
+    )
+
+
+def coarse_region(front: Front, mask_frame: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """A mask of the whole frame on the front's grid (a pixel is in when any of its input pixels is)."""
+    h, w = front.scan.grid_shape
+    small = cv2.resize(mask_frame.astype(np.uint8), (w, h), interpolation=cv2.INTER_AREA)
+    return np.asarray(small > 0, bool)
+
+
+__all__ = ["Front", "coarse_region", "front_of_buffers", "front_of_look", "still_flow_level"]

@@ -1,0 +1,424 @@
+"""The first pass over a window: the whole picture on a coarse grid, to find where and at what it moves.
+
+:func:`look_at` reads the window's frames once. Each is turned grey and area-averaged onto a grid about
+:data:`LOOK_WIDTH_PX` pixels wide (an integer factor: exact and cheap), and coarse optical flow (DIS at its
+fastest, on the grid's finest level) is computed between consecutive frames on a worker thread while the
+next frames decode. Averaging a frame down averages its sensor and codec noise with it, so a thin edge
+moving a fifth of a pixel stands out on this grid (its motion is a twentieth of a grid pixel, but coherent
+over the window). Kept, besides the coarse flow:
+
+- the mean grey frame (the texture the flow can hold on to, :mod:`workers.pipeline.confidence`);
+- the brightness of 8 x 8 blocks of each frame and their change (lighting flicker, codec keyframes);
+- the motion of the picture's border in each map (the camera's own, removed when the border moves as a
+  whole, :mod:`workers.pipeline.camera`);
+- the largest per-frame motion (how fine the second pass must be);
+- when they fit :data:`KEEP_FRAMES_MIB`, the window's grey frames at full resolution and its depth on a
+  half-resolution grid, so that the second pass (:mod:`workers.pipeline.fine`) reads no frame twice.
+
+The whole-picture statistics of :mod:`workers.pipeline.significance` and the artefact evidence of
+:mod:`workers.pipeline.detection` are computed from a :class:`Look`; the second pass measures the regions
+it found.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import TypeVar
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.artefacts import keyframe_maps, repair_keyframe_maps
+from workers.pipeline.camera import CameraRing
+from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader
+from workers.pipeline.confidence import Confidence, flow_confidence
+from workers.pipeline.errors import AnalysisError
+from workers.pipeline.light import BRIGHTNESS_BLOCKS
+from workers.pipeline.model import Progress
+
+#: Width of the coarse grid, pixels (an integer factor below the frame's width, never above it).
+LOOK_WIDTH_PX = 160
+#: The window's frames are kept for the second pass when grey frames and half-resolution depth fit this.
+KEEP_FRAMES_MIB = 192.0
+
+_T = TypeVar("_T")
+
+
+@dataclass(frozen=True)
+class CoarseGrid:
+    """The look's grid: input frames cropped to a multiple of ``factor`` and area-averaged by it.
+
+    Attributes
+    ----------
+    factor : int
+        Input pixels per grid pixel (along each axis).
+    shape : (h, w)
+    """
+
+    factor: int
+    shape: tuple[int, int]
+
+    @classmethod
+    def for_frame(cls, height: int, width: int, *, width_px: int = LOOK_WIDTH_PX) -> CoarseGrid:
+        """The grid for frames ``height`` x ``width``: about ``width_px`` wide, at least 16 x 12."""
+        factor = max(1, round(width / max(width_px, 1)))
+        while factor > 1 and (width // factor < 16 or height // factor < 12):
+            factor -= 1
+        return cls(factor, (height // factor, width // factor))
+
+    def shrink(self, gray: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """A grey frame (H, W) on the grid."""
+        if self.factor == 1:
+            return np.ascontiguousarray(gray[: self.shape[0], : self.shape[1]])
+        h, w = self.shape
+        crop = gray[: h * self.factor, : w * self.factor]
+        return np.asarray(cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
+
+
+@dataclass(frozen=True)
+class KeptFrames:
+    """The window's frames kept for the second pass.
+
+    Attributes
+    ----------
+    gray : ndarray of uint8, shape (N + 1, H, W)
+    depth : ndarray of float32, shape (N + 1, hd, wd), or None
+        Metres, NaN invalid, on ``depth_shape``.
+    depth_shape : (hd, wd)
+    """
+
+    gray: NDArray[np.uint8]
+    depth: NDArray[np.float32] | None
+    depth_shape: tuple[int, int]
+
+
+@dataclass
+class Look:
+    """What :func:`look_at` saw of a window.
+
+    Attributes
+    ----------
+    grid : CoarseGrid
+    flow : ndarray of float32, shape (N, h, w, 2)
+        Coarse flow, grid pixels per frame; the camera's motion removed when ``camera_removed``.
+    mean_gray : ndarray of float32, shape (h, w)
+    confidence : Confidence
+        Of ``mean_gray``.
+    count : int
+        Flow maps N.
+    announced : int
+        Flow maps the reader announced (more than ``count`` when the clip ended early).
+    times_s : ndarray of float64, shape (N + 1,)
+        Capture times from the window's first frame.
+    start_s : float
+        Capture time of the window's first frame, from the clip's first.
+    first_rgb : ndarray of uint8, shape (H, W, 3)
+    brightness : ndarray of float32, shape (N + 1, B, B)
+        Mean grey level of B x B blocks of each frame.
+    frame_change : ndarray of float32, shape (N, B, B)
+        Mean absolute change of each block between consecutive frames.
+    border_px : ndarray of float32, shape (N, 2)
+        Median motion of the picture's border in each map, grid pixels (before any removal).
+    camera_px : ndarray of float32, shape (N, 2)
+        The camera's motion removed from ``flow`` (zeros when none was).
+    camera_removed : bool
+    camera_still_fraction : float
+        See :meth:`workers.pipeline.camera.CameraRing.still_fraction`.
+    ring : CameraRing
+        The border ring on the grid, its texture set.
+    max_step_px : float
+        Per-frame motion of the fastest moving pixels, input pixels (99th percentile over the pixels,
+        90th over the frames).
+    decode_s : float
+        CPU seconds the reader spent.
+    kept : KeptFrames or None
+    """
+
+    grid: CoarseGrid
+    flow: NDArray[np.float32]
+    mean_gray: NDArray[np.float32]
+    confidence: Confidence
+    count: int
+    announced: int
+    times_s: NDArray[np.float64]
+    start_s: float
+    first_rgb: NDArray[np.uint8]
+    brightness: NDArray[np.float32]
+    frame_change: NDArray[np.float32]
+    border_px: NDArray[np.float32]
+    camera_px: NDArray[np.float32]
+    camera_removed: bool
+    camera_still_fraction: float
+    ring: CameraRing
+    max_step_px: float
+    decode_s: float
+    kept: KeptFrames | None
+
+    @property
+    def input_px_per_grid_px(self) -> float:
+        return float(self.grid.factor)
+
+
+def keeps_frames(frames: int, height: int, width: int, *, has_depth: bool) -> bool:
+    """Whether a window of ``frames`` frames is kept for the second pass (:data:`KEEP_FRAMES_MIB`)."""
+    per_frame = height * width + (((height + 1) // 2) * ((width + 1) // 2) * 4 if has_depth else 0)
+    return frames * per_frame <= KEEP_FRAMES_MIB * 2**20
+
+
+def _coarse_dis() -> cv2.DISOpticalFlow:
+    dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
+    dis.setFinestScale(0)  # the grid is already coarse: do not skip its finest level
+    return dis
+
+
+class _Frames:
+    """The window's frames as (grey at input resolution, depth on the depth grid or None, time), with
+    the first frame's colour and the reader's CPU time."""
+
+    def __init__(self, reader: ClipReader, start: int, stop: int, depth_shape: tuple[int, int]) -> None:
+        self.reader, self.start, self.stop, self.depth_shape = reader, start, stop, depth_shape
+        self.first_rgb: NDArray[np.uint8] | None = None
+        self.decode_s = 0.0
+
+    def __iter__(self) -> Iterator[tuple[NDArray[np.uint8], NDArray[np.float32] | None, float]]:
+        info = self.reader.info
+        stamps = info.timestamps_s
+        fps = info.fps or 1.0
+        if info.has_depth:
+            frames = self.reader.frames_with_depth_on(self.depth_shape, self.start, self.stop)
+            for frame in self._timed(frames):
+                if self.first_rgb is None:
+                    self.first_rgb = np.array(frame.rgb, copy=True)
+                gray = np.asarray(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), np.uint8)
+                yield gray, frame.depth_m, frame.timestamp_s
+            return
+        first = next(iter(self.reader.frames(self.start, self.start + 1)), None)
+        if first is not None:
+            self.first_rgb = np.array(first.rgb, copy=True)
+        for i, gray in enumerate(self._timed(self.reader.gray_frames(self.start, self.stop))):
+            index = self.start + i
+            yield gray, None, float(stamps[index]) if stamps is not None else index / fps
+
+    def _timed(self, items: Iterator[_T]) -> Iterator[_T]:
+        """``items``, adding the reader's own CPU time (its wall time would count the moments the flow
+        thread held the CPU)."""
+        while True:
+            started = time.thread_time()
+            item = next(items, None)
+            self.decode_s += time.thread_time() - started
+            if item is None:
+                return
+            yield item
+
+
+def look_at(
+    reader: ClipReader,
+    start: int,
+    stop: int,
+    *,
+    progress: Progress | None = None,
+    keep: bool | None = None,
+    width_px: int = LOOK_WIDTH_PX,
+) -> Look:
+    """The first pass over frames ``[start, stop)`` (see the module's description).
+
+    Parameters
+    ----------
+    reader : ClipReader
+    start, stop : int
+        Frame range of the window (of ``reader``: a strided reader for a window analysed every k-th frame).
+    progress : callable, optional
+    keep : bool, optional
+        Keep the frames for the second pass; default :func:`keeps_frames`.
+    width_px : int
+        Width of the coarse grid (about).
+
+    Returns
+    -------
+    Look
+
+    Raises
+    ------
+    AnalysisError
+        When fewer than :data:`MIN_FRAMES` frames decode.
+    """
+    info = reader.info
+    grid = CoarseGrid.for_frame(info.height, info.width, width_px=width_px)
+    n = stop - start - 1
+    if keep is None:
+        keep = keeps_frames(n + 1, info.height, info.width, has_depth=info.has_depth)
+    depth_shape = ((info.height + 1) // 2, info.width // 2 + info.width % 2)
+    state = _LookState(
+        grid,
+        n,
+        full_shape=(info.height, info.width) if keep else None,
+        depth_shape=depth_shape if keep and info.has_depth else None,
+    )
+    source = _Frames(reader, start, stop, depth_shape)
+    dis = _coarse_dis()
+
+    def flow(prev: NDArray[np.uint8], nxt: NDArray[np.uint8], i: int) -> int:
+        state.flow[i] = dis.calc(prev, nxt, None)
+        return i
+
+    pending: deque[Future[int]] = deque()
+    previous: NDArray[np.uint8] | None = None
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="look") as pool:
+        try:
+            for i, (gray, depth, stamp) in enumerate(source):
+                small = state.add(i, gray, depth, stamp)
+                if previous is not None:
+                    pending.append(pool.submit(flow, previous, small, i - 1))
+                    if len(pending) >= 3:
+                        state.flowed(pending.popleft().result())
+                previous = small
+                if progress is not None and i % 16 == 0:
+                    progress("flow", 0.05 + 0.45 * i / max(n, 1))
+                if i >= n:
+                    break
+            while pending:
+                state.flowed(pending.popleft().result())
+        finally:
+            for job in pending:
+                job.cancel()
+    if source.first_rgb is None or state.frames < MIN_FRAMES:
+        raise AnalysisError(
+            f"the clip ended after {state.frames} of the {n + 1} frames it announced; at least "
+            f"{MIN_FRAMES} frames are needed"
+        )
+    return state.finish(first_rgb=source.first_rgb, decode_s=source.decode_s)
+
+
+class _LookState:
+    """The buffers :func:`look_at` fills frame by frame, and what it makes of them at the end."""
+
+    def __init__(
+        self,
+        grid: CoarseGrid,
+        n: int,
+        *,
+        full_shape: tuple[int, int] | None,
+        depth_shape: tuple[int, int] | None,
+    ) -> None:
+        h, w = grid.shape
+        blocks = BRIGHTNESS_BLOCKS
+        self.grid, self.n = grid, n
+        self.flow = np.empty((n, h, w, 2), np.float32)
+        self.sum = np.zeros((h, w), np.float64)
+        self.times = np.empty(n + 1, np.float64)
+        self.brightness = np.empty((n + 1, blocks, blocks), np.float32)
+        self.change = np.zeros((n, blocks, blocks), np.float32)
+        self.ring = CameraRing(grid.shape)
+        self.frames = 0
+        self.flows = 0
+        self._previous: NDArray[np.uint8] | None = None
+        self.gray = None if full_shape is None else np.empty((n + 1, *full_shape), np.uint8)
+        self.depth_shape = depth_shape
+        self.depth = None if depth_shape is None else np.empty((n + 1, *depth_shape), np.float32)
+
+    def add(
+        self, i: int, gray: NDArray[np.uint8], depth: NDArray[np.float32] | None, stamp: float
+    ) -> NDArray[np.uint8]:
+        """Frame ``i``: its coarse image (returned), brightness, change, and what is kept of it."""
+        small = self.grid.shrink(gray)
+        self.sum += small
+        self.times[i] = stamp
+        blocks = (BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS)
+        self.brightness[i] = cv2.resize(small, blocks, interpolation=cv2.INTER_AREA)
+        if self._previous is not None:
+            diff = cv2.absdiff(small, self._previous)
+            self.change[i - 1] = cv2.resize(diff, blocks, interpolation=cv2.INTER_AREA)
+        self._previous = small
+        if self.gray is not None:
+            self.gray[i] = gray
+        if self.depth is not None:
+            self.depth[i] = depth if depth is not None else np.nan
+        self.frames = i + 1
+        return small
+
+    def flowed(self, i: int) -> None:
+        self.flows = max(self.flows, i + 1)
+
+    def finish(self, *, first_rgb: NDArray[np.uint8], decode_s: float) -> Look:
+        count = min(self.flows, self.frames - 1)
+        flow, times = self.flow[:count], self.times[: count + 1]
+        repair_keyframe_maps(flow, keyframe_maps(self.change[:count]))
+        mean = (self.sum / max(self.frames, 1)).astype(np.float32)
+        self.ring.set_texture(np.clip(mean, 0, 255).astype(np.uint8))
+        flat = flow.reshape(count, -1, 2)
+        border = self.ring.motions(flat)
+        removed = self.ring.moves_as_whole(flat, border)
+        still = self.ring.still_fraction(flat, border)
+        camera = border.copy() if removed else np.zeros_like(border)
+        if removed:
+            flow -= camera[:, None, None, :]
+        kept = None
+        if self.gray is not None:
+            depth = None if self.depth is None else self.depth[: count + 1]
+            kept = KeptFrames(self.gray[: count + 1], depth, self.depth_shape or (0, 0))
+        confidence = flow_confidence(mean, frame_noise=frame_noise(self.change[:count]))
+        return Look(
+            grid=self.grid,
+            flow=flow,
+            mean_gray=mean,
+            confidence=confidence,
+            count=count,
+            announced=self.n,
+            times_s=times - times[0],
+            start_s=float(times[0]),
+            first_rgb=first_rgb,
+            brightness=self.brightness[: count + 1],
+            frame_change=self.change[:count],
+            border_px=border,
+            camera_px=camera,
+            camera_removed=removed,
+            camera_still_fraction=still,
+            ring=self.ring,
+            max_step_px=_fastest(flow, confidence.weight >= 0.5) * self.grid.factor,
+            decode_s=decode_s,
+            kept=kept,
+        )
+
+
+def frame_noise(change: NDArray[np.float32]) -> float:
+    """One frame's noise (standard deviation, grey levels) from the mean absolute change of blocks
+    between consecutive frames (E|X| = 2 sigma / sqrt(pi) for the difference X of two frames' noise): the
+    median block's (most of a picture is still), as a root mean square over the frames (a codec repeats
+    a still picture between its keyframes and changes it at each: the noise's power is in those
+    changes); never below the rounding of grey levels to integers (the flow is computed on 8-bit
+    frames)."""
+    quantisation = 1 / math.sqrt(12)
+    if change.size == 0:
+        return quantisation
+    per_frame = np.median(change.reshape(len(change), -1).astype(np.float64), axis=1)
+    return max(quantisation, math.sqrt(float(np.mean(per_frame**2))) * math.sqrt(math.pi) / 2)
+
+
+def _fastest(flow: NDArray[np.float32], textured: NDArray[np.bool_]) -> float:
+    """The per-frame motion of the fastest moving textured pixels (flat ones show noise): the 99th
+    percentile over the pixels of each map, the 90th over the maps (robust to a few glitches), grid
+    pixels."""
+    if len(flow) == 0 or not textured.any():
+        return 0.0
+    step = max(1, len(flow) // 64)
+    sample = flow[::step].reshape(len(flow[::step]), -1, 2)[:, textured.ravel()]
+    speed = np.sqrt((sample.astype(np.float32) ** 2).sum(axis=2))
+    top = np.percentile(speed, 99, axis=1)
+    return float(np.percentile(top, 90)) if math.isfinite(float(top.max())) else 0.0
+
+
+__all__ = [
+    "KEEP_FRAMES_MIB",
+    "LOOK_WIDTH_PX",
+    "CoarseGrid",
+    "KeptFrames",
+    "Look",
+    "keeps_frames",
+    "look_at",
+]

@@ -1,0 +1,765 @@
+"""One detection statistic for every regime, with a stated false-alarm probability.
+
+Is anything oscillating at frequency f, anywhere in the picture? :func:`motion_scan` answers with a scan
+statistic over the whole frame, computed on the *constrained flow* z = J^(1/2) u
+(:mod:`workers.pipeline.confidence`: flat, clipped or codec-blocked pixels carry no weight):
+
+1. z's spectra are pooled coherently over square blocks of 1, 2, 4, 8 and 16 grid pixels (the levels of
+   an area-averaging pyramid): parts of a rigid object moving in phase add up, the smallest block is one
+   pixel;
+2. each block's power spectrum is normalised twice: by the block's own level (a low percentile of its
+   power over the band, robust to its own peak) and by the spectral colour of the noise (the median
+   block's normalised power at each frequency, smoothed over frequency: broad, so that a line, even one
+   a surface filling the picture makes, stays a line);
+3. ``T(f)`` is the largest normalised power over every block of every size at f. Its *line contrast*
+   (T over its neighbours' in frequency, :func:`line_contrast`) says whether a peak is a narrow-band
+   line, what an oscillation is: a strongly moving object's broadband flow errors lift whole stretches
+   of the spectrum at once (:mod:`workers.pipeline.detection` asks both).
+
+Under "nothing moves here", T at one frequency is the maximum of many correlated, heavy-tailed noise
+values. Its distribution is measured on the clip itself, from every frequency of the band (the
+surrogates): log T is fitted by a Gumbel law, robustly (frequencies that stand out, and those known to be
+artefacts such as a codec's keyframe comb, are left out of the fit). The fit gives each frequency's
+standardised height ``z`` and its false-alarm probability; the probability *per clip* allows for every
+frequency searched (:attr:`Calibration.bins_searched`). On a corpus of still scenes through H.264 and
+MPEG-4, and still crops of real footage, the rate measured is below the rate stated
+(``bench/null_corpus.py`` prints both).
+
+An object is reported when its false-alarm probability per clip is at most :data:`MAX_FALSE_ALARM`
+(:mod:`workers.pipeline.detection`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.confidence import Confidence, tensor_sqrt
+from workers.pipeline.peaks import noise_floor
+
+#: An object is reported when the probability that noise alone gives a peak as high, anywhere in the
+#: clip's band, is at most this.
+MAX_FALSE_ALARM = 1e-3
+#: Pyramid levels pooled (blocks of 2**level grid pixels a side) for a grid about 160 pixels wide; one
+#: more for each doubling of the width.
+LEVELS = 5
+#: A single pixel counts when its confidence weight is at least this (it holds texture); a block of side s
+#: when its textured pixels (their weight summed) are at least this times s: a thin edge across it.
+MIN_BLOCK_WEIGHT = 0.3
+#: A block's own level: this percentile of its power over the band's frequencies.
+BLOCK_LEVEL_PERCENTILE = 30.0
+#: The fitted scale of log T is never below this: the largest of even a million independent noise values
+#: varies by about a tenth of its logarithm (a fit on few frequencies can say less; it would overstate
+#: every peak's significance).
+MIN_SCALE = 0.1
+#: Below this many frequencies fitted, the calibration allows for its own uncertainty (see
+#: :func:`fit_calibration`).
+MIN_SURROGATES = 48
+#: Frequencies standing this many standardised units above the fit are left out of the next fit.
+FIT_OUTLIER_Z = 3.0
+#: Frequencies within this many bins of a known artefact frequency are left out of the fit.
+ARTEFACT_BINS = 1.6
+#: The calibration follows log T's slow course over the band with a running median this wide (bins), or a
+#: third of the band when that is wider; on a band narrower than twice this, with a parabola ...
+TREND_WIDTH_BINS = 15
+#: ... down to a band of this many bins (a 64-frame window at 30 fps holds 29): below it the law is
+#: fitted to log T as it is (and when fewer than :data:`MIN_TREND_SURROGATES` frequencies are left to fit
+#: the law beside a parabola).
+MIN_TREND_BINS = 24
+MIN_TREND_SURROGATES = 20
+#: The picture is cut into TILES x TILES tiles; each tile at each frequency is one sample of the fit.
+TILES = 4
+#: The noise colour is smoothed over this many frequencies (odd).
+COLOUR_WIDTH_BINS = 9
+#: A line's contrast is T over the median of the frequencies 2 to this many bins away on either side.
+CONTRAST_WIDTH_BINS = 8
+#: A region at a frequency holds every connected part peaking at this share of the strongest pixel.
+REGION_SHARE = 0.02
+#: The flow is tapered by a Tukey window with this fraction of it in cosine lobes (0: none; 1: Hann).
+TAPER_ALPHA = 0.5
+#: Frequencies per block of work (bounds the working memory of one pass).
+_CHUNK = 64
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The Gumbel law of log T fitted over the band's frequencies.
+
+    Attributes
+    ----------
+    location, scale : float
+        Of log T over its trend: ``z = (log T - trend - location) / scale``.
+    bins_fitted : int
+        Frequencies the fit used.
+    bins_searched : int
+        Frequencies of the band (the per-clip probability allows for each).
+    trend : ndarray of float64, shape (B,), or None
+        The slow course of log T over the band (a running median over :data:`TREND_WIDTH_BINS`): the
+        noise's level drifts over frequency (more flow noise at low frequencies, a codec's at high ones);
+        a line stands out of its neighbourhood, not of the band's average.
+    """
+
+    location: float
+    scale: float
+    bins_fitted: int
+    bins_searched: int
+    trend: NDArray[np.float64] | None = None
+
+    def z(self, statistic: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """Standardised heights of T over the band's bins (an array of the band's length when there is a
+        trend)."""
+        log_t = np.log(np.maximum(np.asarray(statistic, np.float64), 1e-30))
+        if self.trend is not None:
+            log_t = log_t - self.trend
+        return np.asarray((log_t - self.location) / self.scale, np.float64)
+
+    def p_frequency(self, z: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """Probability that noise reaches ``z`` at one frequency (the Gumbel survival function)."""
+        zz = np.clip(np.asarray(z, np.float64), -50.0, 700.0)
+        return np.asarray(-np.expm1(-np.exp(-zz)), np.float64)
+
+    def p_clip(self, z: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """Probability that noise reaches ``z`` at any of the band's frequencies."""
+        p = self.p_frequency(z)
+        m = self.bins_searched
+        whole = -np.expm1(m * np.log1p(-np.minimum(p, 1 - 1e-16)))
+        return np.asarray(np.where(p < 1e-9, np.minimum(m * p, 1.0), whole), np.float64)
+
+
+@dataclass
+class _Level:
+    """One pyramid level: which blocks count, their raw power, own levels and the noise colour."""
+
+    level: int
+    shape: tuple[int, int]
+    positions: NDArray[np.intp]  # flattened indices (at this level) of the blocks that count
+    raw: NDArray[np.float32]  # (B, P) power of the counted blocks' mean z
+    own: NDArray[np.float32]  # (P,) each block's own level
+    colour: NDArray[np.float32]  # (B,) the median block's normalised power per band bin
+
+    def power(self, bins: slice | NDArray[np.intp]) -> NDArray[np.float32]:
+        """Normalised power (len(bins), P) of the blocks that count."""
+        return np.asarray(self.raw[bins] / self.own[None, :] / self.colour[bins][:, None], np.float32)
+
+    def subset(self, inside: NDArray[np.bool_]) -> _Level:
+        """The level with only the counted blocks where ``inside`` (per counted block) holds."""
+        return _Level(
+            self.level, self.shape, self.positions[inside], self.raw[:, inside], self.own[inside], self.colour
+        )
+
+
+@dataclass(frozen=True)
+class MotionScan:
+    """The scan statistic of a window (see the module's description).
+
+    Attributes
+    ----------
+    frequencies_hz : ndarray of float64, shape (B,)
+        The band's frequencies (bins of the window's transform).
+    statistic : ndarray of float64, shape (B,)
+        T per frequency.
+    contrast : ndarray of float64, shape (B,)
+        T over its neighbours' in frequency (:func:`line_contrast`).
+    z : ndarray of float64, shape (B,)
+        Standardised height of log T over the fitted law.
+    calibration : Calibration
+    best_level : ndarray of int64, shape (B,)
+        Pyramid level of the block that gave T (its side is ``2 ** level`` grid pixels).
+    best_position : ndarray of int64, shape (B,)
+        Flattened grid index of that block's centre.
+    grid_shape : (h, w)
+    sample_rate_hz : float
+    """
+
+    frequencies_hz: NDArray[np.float64]
+    statistic: NDArray[np.float64]
+    contrast: NDArray[np.float64]
+    z: NDArray[np.float64]
+    calibration: Calibration
+    best_level: NDArray[np.int64]
+    best_position: NDArray[np.int64]
+    grid_shape: tuple[int, int]
+    sample_rate_hz: float
+    _levels: list[_Level] = field(repr=False)
+    search_hz: tuple[float, float] = (0.0, math.inf)
+
+    @property
+    def searched(self) -> NDArray[np.bool_]:
+        """Which of the band's bins are searched for objects (the others only calibrate)."""
+        lo, hi = self.search_hz
+        return np.asarray((self.frequencies_hz >= lo) & (self.frequencies_hz <= hi), bool)
+
+    @property
+    def bin_hz(self) -> float:
+        return float(self.frequencies_hz[1] - self.frequencies_hz[0]) if len(self.frequencies_hz) > 1 else 1.0
+
+    def near(self, frequency_hz: float, *, half_width_bins: float = 1.5) -> NDArray[np.intp]:
+        """Band bins within ``half_width_bins`` of ``frequency_hz`` (at least the nearest one)."""
+        gap = np.abs(self.frequencies_hz - frequency_hz)
+        near = np.flatnonzero(gap <= half_width_bins * self.bin_hz)
+        return near if near.size else np.array([int(np.argmin(gap))], np.intp)
+
+    def peak_bin(self, frequency_hz: float, *, half_width_bins: float = 1.5) -> int:
+        """The bin of the highest T within ``half_width_bins`` of ``frequency_hz``."""
+        near = self.near(frequency_hz, half_width_bins=half_width_bins)
+        return int(near[np.argmax(self.statistic[near])])
+
+    def z_at(self, frequency_hz: float, *, half_width_bins: float = 1.5) -> float:
+        """The highest z within ``half_width_bins`` of ``frequency_hz``."""
+        return float(self.z[self.peak_bin(frequency_hz, half_width_bins=half_width_bins)])
+
+    def false_alarm(self, frequency_hz: float, *, half_width_bins: float = 1.5) -> float:
+        """False-alarm probability per clip of the peak near ``frequency_hz``."""
+        return float(self.calibration.p_clip(self.z_at(frequency_hz, half_width_bins=half_width_bins)))
+
+    def power_map(self, bin_index: int, level: int = 0) -> NDArray[np.float32]:
+        """Normalised power of every block of ``level`` at band bin ``bin_index``, upsampled to the grid
+        (0 where a block does not count)."""
+        lv = self._levels[level]
+        values = np.zeros(lv.shape[0] * lv.shape[1], np.float32)
+        values[lv.positions] = lv.power(np.array([bin_index]))[0]
+        small = values.reshape(lv.shape)
+        if lv.shape == self.grid_shape:
+            return small
+        h, w = self.grid_shape
+        return np.asarray(cv2.resize(small, (w, h), interpolation=cv2.INTER_NEAREST), np.float32)
+
+    def region(self, frequency_hz: float, *, level: float = 6.0) -> NDArray[np.bool_]:
+        """Where the picture moves at ``frequency_hz``: at the peak's bin and the bins beside it (two
+        objects a line apart share one peak), the grid pixels whose single-pixel normalised power exceeds
+        ``level``, in the connected parts that touch the best block or peak at twice ``level`` and
+        :data:`REGION_SHARE` of that bin's strongest (a weaker object at the same frequency elsewhere: the
+        second pass and its segmentation see it too); with the best block itself.
+
+        Returns
+        -------
+        ndarray of bool, shape (h, w)
+        """
+        k = self.peak_bin(frequency_hz)
+        h, w = self.grid_shape
+        block = np.zeros((h, w), bool)
+        side = 1 << int(self.best_level[k])
+        cy, cx = divmod(int(self.best_position[k]), w)
+        r = max(side // 2, 1)
+        block[max(0, cy - r) : cy + r + 1, max(0, cx - r) : cx + r + 1] = True
+        mask = block.copy() if side > 1 else np.zeros((h, w), bool)
+        for j in range(max(0, k - 1), min(len(self.frequencies_hz), k + 2)):
+            q = self.power_map(j, 0)
+            strong = q >= level
+            count, parts = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
+            peak = np.zeros(count)
+            np.maximum.at(peak, parts.ravel(), q.ravel())
+            keep = peak >= max(2 * level, REGION_SHARE * float(q.max()))
+            if j == k:
+                keep[np.unique(parts[block])] = True
+                mask |= block & strong
+            keep[0] = False
+            mask |= keep[parts]
+        return mask
+
+    def frequency_map(self, *, level: float = 8.0) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+        """Each grid pixel's dominant frequency and whether it stands out: its single-pixel normalised
+        power peaks above ``level`` there (pixels without texture never do).
+
+        Returns
+        -------
+        frequency_hz : ndarray of float32, shape (h, w)
+        valid : ndarray of bool, shape (h, w)
+        """
+        lv = self._levels[0]
+        h, w = self.grid_shape
+        freq = np.zeros(h * w, np.float32)
+        valid = np.zeros(h * w, bool)
+        if lv.positions.size:
+            best = np.zeros(lv.positions.size, np.float32)
+            arg = np.zeros(lv.positions.size, np.intp)
+            for k in range(0, len(self.frequencies_hz), _CHUNK):
+                power = lv.power(slice(k, k + _CHUNK))
+                j = np.argmax(power, axis=0)
+                top = power[j, np.arange(power.shape[1])]
+                better = top > best
+                best[better], arg[better] = top[better], j[better] + k
+            freq[lv.positions] = self.frequencies_hz[arg]
+            valid[lv.positions] = best > level
+        return freq.reshape(h, w), valid.reshape(h, w)
+
+    def localised_share(self, frequency_hz: float, region: NDArray[np.bool_]) -> float:
+        """How much the picture's excess power at ``frequency_hz`` (single pixels, above 1) concentrates
+        in ``region``, beyond what its share of the picture's texture would hold were the power spread
+        evenly: 1 when all of it is there, 0 or less when it is all over the picture (a codec's pulse,
+        flicker, the camera); 0 for a region that holds most of the picture's texture (it is no one
+        place)."""
+        excess = np.maximum(self.power_map(self.peak_bin(frequency_hz), 0) - 1.0, 0.0)
+        total = float(excess.sum())
+        if total <= 0:
+            return 0.0
+        textured = self._levels[0]
+        counted = np.zeros(excess.size, bool)
+        counted[textured.positions] = True
+        spread = float((counted & region.ravel()).sum()) / max(int(counted.sum()), 1)
+        if spread > 0.5:
+            return 0.0
+        share = float(excess[region].sum() / total)
+        return (share - spread) / (1.0 - spread)
+
+    def within(self, mask: NDArray[np.bool_]) -> MotionScan:
+        """The same scan over the blocks whose centre lies in ``mask`` only (a region's own statistic),
+        judged by the picture's law: a region's largest block is no larger than the picture's, so its z
+        and probabilities are conservative.
+
+        Raises
+        ------
+        ValueError
+            When the mask holds no block that counts.
+        """
+        levels: list[_Level] = []
+        for lv in self._levels:
+            small = cv2.resize(
+                mask.astype(np.uint8), (lv.shape[1], lv.shape[0]), interpolation=cv2.INTER_AREA
+            )
+            levels.append(lv.subset(small.ravel()[lv.positions] > 0))
+        if not any(lv.positions.size for lv in levels):
+            raise ValueError("within: the mask holds no block that counts")
+        return _finish(
+            levels,
+            frequencies_hz=self.frequencies_hz,
+            grid_shape=self.grid_shape,
+            sample_rate_hz=self.sample_rate_hz,
+            calibration=self.calibration,
+            search_hz=self.search_hz,
+        )
+
+
+def pyramid_levels(width_px: int) -> int:
+    """Levels pooled on a grid ``width_px`` wide (:data:`LEVELS` at 160 pixels)."""
+    return max(1, LEVELS + round(math.log2(max(width_px, 1) / 160.0)))
+
+
+def motion_scan(
+    flow: NDArray[np.float32],
+    confidence: Confidence,
+    *,
+    sample_rate_hz: float,
+    band_hz: tuple[float, float],
+    exclude_hz: Sequence[float] = (),
+    levels: int | None = None,
+    search_hz: tuple[float, float] | None = None,
+) -> MotionScan:
+    """The scan statistic of a window of flow (see the module's description).
+
+    Parameters
+    ----------
+    flow : ndarray of float32, shape (N, h, w, 2)
+        Flow maps, grid pixels per sample.
+    confidence : Confidence
+        Of the window's mean grey frame on the same grid.
+    sample_rate_hz : float
+        Rate of the flow maps.
+    band_hz : (low, high)
+        Frequencies scanned: the calibration's surrogates.
+    exclude_hz : sequence of float
+        Frequencies known to be artefacts (a codec's keyframe comb, lighting flicker): left out of the fit.
+    levels : int, optional
+        Pyramid levels pooled; default :func:`pyramid_levels` of the grid's width.
+    search_hz : (low, high), optional
+        Frequencies searched for objects, within ``band_hz`` (default: all of it): a narrow band the user
+        asked for is searched, and calibrated on the whole band the window shows (the per-clip
+        probability allows for the searched frequencies only).
+
+    Returns
+    -------
+    MotionScan
+
+    Raises
+    ------
+    ValueError
+        When the band holds fewer than 8 of the window's frequencies, or the grids differ. (A picture
+        without texture anywhere gives a statistic of 0 everywhere: nothing stands out.)
+    """
+    n, h, w = flow.shape[:3]
+    if (h, w) != confidence.shape:
+        raise ValueError(f"motion_scan: flow grid {(h, w)} is not the confidence's {confidence.shape}")
+    freqs = np.fft.rfftfreq(n, d=1.0 / sample_rate_hz)
+    inside = np.flatnonzero((freqs >= band_hz[0]) & (freqs <= band_hz[1]) & (freqs > 0))
+    if inside.size < 8:
+        raise ValueError(
+            f"motion_scan: the band [{band_hz[0]:.3g}, {band_hz[1]:.3g}] Hz holds {inside.size} of the "
+            "window's frequencies; analyse more frames or widen the band"
+        )
+    levels_list = _pooled_levels(flow, confidence, bins=inside, levels=levels or pyramid_levels(w))
+    return _finish(
+        levels_list,
+        frequencies_hz=np.asarray(freqs[inside], np.float64),
+        grid_shape=(h, w),
+        sample_rate_hz=sample_rate_hz,
+        exclude_hz=exclude_hz,
+        search_hz=search_hz or band_hz,
+    )
+
+
+def constrained_spectra(spectra: NDArray[np.complex64], confidence: Confidence) -> NDArray[np.float32]:
+    """Spectra of the constrained flow z = J^(1/2) u from the flow's own.
+
+    J is the same in every frame, so z's spectra are J^(1/2) times the flow's.
+
+    Parameters
+    ----------
+    spectra : ndarray of complex64, shape (B, h, w, 2)
+        The flow's spectra (u and v) at B frequencies.
+    confidence : Confidence
+
+    Returns
+    -------
+    ndarray of float32, shape (B, h, w, 4)
+        Real and imaginary parts of z's x component, then of its y component.
+    """
+    a, b, c = tensor_sqrt(confidence)
+    u, v = spectra[..., 0], spectra[..., 1]
+    # complex arithmetic on the two planes (real and imaginary parts together) is several times faster
+    # than on interleaved real views
+    return np.stack([a * u + b * v, b * u + c * v], axis=-1).view(np.float32)
+
+
+def _halve(values: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Means over 2 x 2 blocks (area averaging) of (h, w) or (h, w, c)."""
+    h, w = values.shape[:2]
+    return np.asarray(cv2.resize(values, (w // 2, h // 2), interpolation=cv2.INTER_AREA), np.float32)
+
+
+#: Blocks sampled over the whole picture (textured or not) per level for the noise's spectral colour.
+_COLOUR_SAMPLE = 1024
+
+
+def _level_positions(
+    weight: NDArray[np.float32], levels: int
+) -> list[tuple[tuple[int, int], NDArray[np.intp], NDArray[np.intp]]]:
+    """Each level's grid, the blocks that count there (textured, away from the picture's border), and a
+    sample of all its blocks away from the border (for the noise colour: an object may be most of the
+    textured blocks, never most of the picture)."""
+    out: list[tuple[tuple[int, int], NDArray[np.intp], NDArray[np.intp]]] = []
+    wt = weight
+    for level in range(levels):
+        if level:
+            if min(wt.shape) < 12:
+                break
+            wt = _halve(wt)
+        interior = np.zeros(wt.shape, bool)
+        edge = 2 if level == 0 else 1
+        interior[edge:-edge, edge:-edge] = True
+        counted = np.flatnonzero((interior & (wt >= MIN_BLOCK_WEIGHT / (1 << level))).ravel())
+        every = np.flatnonzero(interior.ravel())
+        sample = every[:: max(1, every.size // _COLOUR_SAMPLE)]
+        out.append(((int(wt.shape[0]), int(wt.shape[1])), counted, sample))
+    return out
+
+
+def _pooled_levels(
+    flow: NDArray[np.float32], confidence: Confidence, *, bins: NDArray[np.intp], levels: int
+) -> list[_Level]:
+    """The raw power of every counted block of every level at the given bins, a block of frequencies at a
+    time (z's spectra, then 2 x 2 block means level after level), with the blocks' own levels and the
+    noise colour."""
+    from scipy import fft
+
+    n, h, w = flow.shape[:3]
+    from scipy.signal.windows import tukey
+
+    taper = tukey(n, TAPER_ALPHA).astype(np.float32)
+    spectra = fft.rfft(flow.reshape(n, -1) * taper[:, None], axis=0, workers=2)
+    grids = _level_positions(confidence.weight, levels)
+    raw = [np.empty((len(bins), pos.size), np.float32) for _, pos, _ in grids]
+    sampled = [np.empty((len(bins), smp.size), np.float32) for _, _, smp in grids]
+    for k in range(0, len(bins), _CHUNK):
+        chunk = np.ascontiguousarray(spectra[bins[k : k + _CHUNK]]).reshape(-1, h, w, 2)
+        z = constrained_spectra(chunk, confidence)
+        for level, (shape, positions, sample) in enumerate(grids):
+            if level:
+                z = np.stack([_halve(c) for c in z])
+            flat = z.reshape(len(z), shape[0] * shape[1], 4)
+            counted, everywhere = flat[:, positions], flat[:, sample]
+            raw[level][k : k + len(z)] = np.einsum("bpc,bpc->bp", counted, counted)
+            sampled[level][k : k + len(z)] = np.einsum("bpc,bpc->bp", everywhere, everywhere)
+    return [
+        _summarised(level, shape, positions, r, colour_of(s))
+        for level, ((shape, positions, _), r, s) in enumerate(zip(grids, raw, sampled, strict=True))
+    ]
+
+
+def _own_levels(raw: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Each block's own level: the :data:`BLOCK_LEVEL_PERCENTILE` percentile of its power over the band
+    (robust to its own peak). ``raw`` is (B, P)."""
+    bins = raw.shape[0]
+    by_block = np.ascontiguousarray(raw.T)  # percentiles along a contiguous axis
+    q = max(0, min(bins - 1, round(BLOCK_LEVEL_PERCENTILE / 100 * (bins - 1))))
+    return np.asarray(np.partition(by_block, q, axis=1)[:, q] + np.float32(1e-30), np.float32)
+
+
+def colour_of(raw: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The noise's spectral colour (B,): the median block's power over its own level at each frequency,
+    smoothed over frequency by a running median (the noise's colour is broad; a motion, even one that
+    fills the picture, and a codec's comb are narrow lines, which it keeps out)."""
+    bins = raw.shape[0]
+    if raw.shape[1] == 0:
+        return np.ones(bins, np.float32)
+    median = np.median(raw / _own_levels(raw)[None, :], axis=1)
+    smooth = noise_floor(median, width=COLOUR_WIDTH_BINS)
+    return np.asarray(smooth + 1e-30, np.float32)
+
+
+def _summarised(
+    level: int,
+    shape: tuple[int, int],
+    positions: NDArray[np.intp],
+    raw: NDArray[np.float32],
+    colour: NDArray[np.float32],
+) -> _Level:
+    """A level with its counted blocks' own levels and the noise colour."""
+    if positions.size == 0:
+        return _Level(level, shape, positions, raw, np.ones(0, np.float32), colour)
+    return _Level(level, shape, positions, raw, _own_levels(raw), colour)
+
+
+def _finish(
+    levels: list[_Level],
+    *,
+    frequencies_hz: NDArray[np.float64],
+    grid_shape: tuple[int, int],
+    sample_rate_hz: float,
+    exclude_hz: Sequence[float] = (),
+    calibration: Calibration | None = None,
+    search_hz: tuple[float, float] = (0.0, math.inf),
+) -> MotionScan:
+    """T per frequency over every counted block of every level (and per tile of the picture), and its
+    calibration (fitted, unless given)."""
+    bins = len(frequencies_hz)
+    searched = int(((frequencies_hz >= search_hz[0]) & (frequencies_hz <= search_hz[1])).sum())
+    statistic = np.zeros(bins)
+    tiles = np.zeros((TILES * TILES, bins))
+    best_level = np.zeros(bins, np.int64)
+    best_position = np.zeros(bins, np.int64)
+    h, w = grid_shape
+    for lv in levels:
+        if not lv.positions.size:
+            continue
+        centres = _centres(lv, grid_shape)
+        cy, cx = np.divmod(centres, w)
+        tile_of = (cy * TILES // h) * TILES + cx * TILES // w
+        for k in range(0, bins, _CHUNK):
+            power = lv.power(slice(k, k + _CHUNK))
+            j = np.argmax(power, axis=1)
+            peak = power[np.arange(len(j)), j]
+            better = peak > statistic[k : k + _CHUNK]
+            idx = np.flatnonzero(better) + k
+            statistic[idx] = peak[better]
+            best_level[idx] = lv.level
+            best_position[idx] = centres[j[better]]
+            for t in np.unique(tile_of):
+                tiles[t, k : k + len(power)] = np.maximum(
+                    tiles[t, k : k + len(power)], power[:, tile_of == t].max(axis=1)
+                )
+    if not statistic.any():
+        # No part of the picture has texture enough to show motion: nothing can stand out.
+        calibration = Calibration(location=0.0, scale=1.0, bins_fitted=0, bins_searched=searched)
+    if calibration is None:
+        calibration = fit_calibration(
+            statistic, frequencies_hz=frequencies_hz, exclude_hz=exclude_hz, tiles=tiles[tiles.any(axis=1)]
+        )
+        calibration = replace(calibration, bins_searched=searched)
+    return MotionScan(
+        frequencies_hz=frequencies_hz,
+        statistic=statistic,
+        contrast=line_contrast(statistic),
+        z=calibration.z(statistic),
+        calibration=calibration,
+        best_level=best_level,
+        best_position=best_position,
+        grid_shape=grid_shape,
+        sample_rate_hz=sample_rate_hz,
+        _levels=levels,
+        search_hz=search_hz,
+    )
+
+
+def line_contrast(statistic: NDArray[np.float64]) -> NDArray[np.float64]:
+    """How far T stands above its neighbours in frequency: T over the median of the frequencies 2 to
+    :data:`CONTRAST_WIDTH_BINS` bins away on either side (fewer at the band's edges; the peak's own bin and
+    its neighbours are left out, so that a line does not lift its own floor). An object is a narrow-band
+    line; a strongly moving object's broadband flow errors, or a codec's broad noise, lift whole stretches
+    of frequencies at once and stand out of nothing."""
+    t = np.asarray(statistic, np.float64)
+    log_t = np.log(np.maximum(t, 1e-30))
+    bins = len(t)
+    reach = CONTRAST_WIDTH_BINS
+    floor = np.empty(bins)
+    for k in range(bins):
+        around = np.concatenate([log_t[max(0, k - reach) : max(0, k - 1)], log_t[k + 2 : k + reach + 1]])
+        floor[k] = np.median(around) if around.size else log_t[k]
+    return np.asarray(np.exp(log_t - floor), np.float64)
+
+
+def _centres(lv: _Level, grid_shape: tuple[int, int]) -> NDArray[np.int64]:
+    """Flattened grid index of the centre of each counted block of a level."""
+    h, w = grid_shape
+    by, bx = np.divmod(lv.positions, lv.shape[1])
+    cy = np.minimum(((by + 0.5) * h / lv.shape[0]).astype(np.int64), h - 1)
+    cx = np.minimum(((bx + 0.5) * w / lv.shape[1]).astype(np.int64), w - 1)
+    return np.asarray(cy * w + cx, np.int64)
+
+
+def _kept_bins(frequencies_hz: NDArray[np.float64], exclude_hz: Sequence[float]) -> NDArray[np.bool_]:
+    """The bins the fit may use: those away from the known artefacts (all, when they would be too few)."""
+    bins = len(frequencies_hz)
+    bin_hz = float(frequencies_hz[1] - frequencies_hz[0]) if bins > 1 else 1.0
+    keep = np.ones(bins, bool)
+    for f in exclude_hz:
+        keep &= np.abs(frequencies_hz - f) > ARTEFACT_BINS * bin_hz
+    return keep if keep.sum() >= max(8, bins // 4) else np.ones(bins, bool)
+
+
+def fit_calibration(
+    statistic: NDArray[np.float64],
+    *,
+    frequencies_hz: NDArray[np.float64],
+    exclude_hz: Sequence[float] = (),
+    rounds: int = 3,
+    tiles: NDArray[np.float64] | None = None,
+) -> Calibration:
+    """Fit the Gumbel law of log T over the band's frequencies (the clip's own surrogates).
+
+    log T first loses its slow course over the band (:func:`_trend`). The location and scale come from
+    the quantiles of what is left: the interquartile range (1.5725 scales of a Gumbel law), or the 10 %
+    to 50 % range (1.2007 scales) when that says less (an object lifting many frequencies lifts the upper
+    quartile, never the lower). Left out of the fit: frequencies near ``exclude_hz``; in each of
+    ``rounds`` rounds those standing :data:`FIT_OUTLIER_Z` above the last fit, with two neighbours each
+    side (a peak's skirt); below :data:`MIN_SURROGATES` frequencies fitted, the law allows for its own
+    uncertainty. On Gumbel noise independent from bin to bin the per-clip rate so stated is optimistic
+    (the trimmed fit narrows its own tail: at a stated 10⁻³, about 10⁻² are measured on 29 to 125 bins);
+    the rate measured on still footage (``bench/null_corpus.py``) is what holds it to account. And,
+    given ``tiles`` (the statistic of each of K tiles of the picture, (K, B)), the tiles where something
+    stands out at any frequency, while at least two (or an eighth) remain: a strong object's broad skirt
+    lifts the picture's T over many frequencies, but only in its own tiles. T is then the largest of the
+    other tiles', and its law's location moves up by ``scale * log(K / K_other)`` (the law of the largest
+    of K).
+
+    Parameters
+    ----------
+    statistic : ndarray of float64, shape (B,)
+    frequencies_hz : ndarray of float64, shape (B,)
+    exclude_hz : sequence of float
+    rounds : int
+    tiles : ndarray of float64, shape (K, B), optional
+
+    Returns
+    -------
+    Calibration
+    """
+    keep = _kept_bins(frequencies_hz, exclude_hz)
+    series, shift = np.asarray(statistic, np.float64), 0.0
+    if tiles is not None and len(tiles) >= 4:
+        quiet = _quiet_tiles(tiles, keep)
+        if len(tiles) > quiet.sum() >= max(2, len(tiles) // 8):
+            series, shift = tiles[quiet].max(axis=0), math.log(len(tiles) / quiet.sum())
+    log_t = np.log(np.maximum(series, 1e-30))
+    trend = _trend(log_t, keep)
+    location, scale, use = _fit_law(log_t if trend is None else log_t - trend, keep, rounds)
+    if trend is not None and len(log_t) < 2 * TREND_WIDTH_BINS and use.sum() < MIN_TREND_SURROGATES:
+        # Too few surrogates left to tell a parabola's course from the noise's own spread.
+        trend = None
+        location, scale, use = _fit_law(log_t, keep, rounds)
+    fitted = max(int(use.sum()), 1)
+    if fitted < MIN_SURROGATES:
+        # A law fitted on few surrogates (a short window) is itself uncertain (its median to about 1.25
+        # scales / sqrt(n), its quartiles' spread to about a relative 1 / sqrt(n)): take the upper end of
+        # both.
+        location += 1.25 * scale / math.sqrt(fitted)
+        scale *= 1 + 1 / math.sqrt(fitted)
+    return Calibration(
+        location=location + scale * shift,
+        scale=scale,
+        bins_fitted=int(use.sum()),
+        bins_searched=len(frequencies_hz),
+        trend=trend,
+    )
+
+
+def _fit_law(
+    log_t: NDArray[np.float64], keep: NDArray[np.bool_], rounds: int
+) -> tuple[float, float, NDArray[np.bool_]]:
+    """The Gumbel law's location and scale from the quantiles of ``log_t`` (see :func:`fit_calibration`),
+    and the frequencies fitted."""
+    use = keep.copy()
+    least = max(8, int(keep.sum()) // 4)
+    location, scale = 0.0, 1.0
+    for _ in range(rounds):
+        q10, q25, q50, q75 = np.percentile(log_t[use], [10, 25, 50, 75])
+        # The interquartile range, unless the lower half says less (an object lifting many frequencies
+        # lifts the upper quartile, never the lower): a Gumbel law's 10 % to 50 % quantiles span 1.2007
+        # scales, its quartiles 1.5725.
+        scale = max(min(float(q75 - q25) / 1.5725, float(q50 - q10) / 1.2007), MIN_SCALE)
+        location = float(q50) + scale * math.log(math.log(2))  # a Gumbel law's median: location + 0.37 scale
+        high = (log_t - location) / scale > FIT_OUTLIER_Z
+        skirt = np.convolve(high.astype(np.float64), np.ones(5), mode="same") > 0
+        nxt = keep & ~skirt
+        if nxt.sum() < least:
+            break
+        use = nxt
+    return location, scale, use
+
+
+def _trend(log_t: NDArray[np.float64], keep: NDArray[np.bool_]) -> NDArray[np.float64] | None:
+    """log T's slow course over the band, centred on 0: a running median over :data:`TREND_WIDTH_BINS`
+    (or a third of the band); on a band of :data:`MIN_TREND_BINS` to twice that width, a parabola fitted
+    robustly (what stands out above it left out, in rounds): a running median as wide as half the band
+    would follow the noise itself and understate its spread, where three parameters hardly do. None on a
+    narrower band."""
+    bins = len(log_t)
+    if bins >= 2 * TREND_WIDTH_BINS:
+        slow = np.asarray(noise_floor(log_t, width=max(TREND_WIDTH_BINS, bins // 3)), np.float64)
+        return slow - float(np.median(slow))
+    if bins < MIN_TREND_BINS:
+        return None
+    x = np.linspace(-1.0, 1.0, bins)
+    # First through the lower half of the band's values (what an object lifts is its upper half), then
+    # through every frequency that does not stand out above that.
+    use = keep & (log_t <= np.median(log_t[keep]))
+    coef = np.polyfit(x[use], log_t[use], 2)
+    for _ in range(3):
+        residual = log_t - np.polyval(coef, x)
+        centre = float(np.median(residual[use]))
+        spread = 1.4826 * float(np.median(np.abs(residual[use] - centre))) + 1e-9
+        nxt = keep & (residual <= centre + FIT_OUTLIER_Z * spread)
+        if nxt.sum() < MIN_TREND_BINS // 2:
+            break
+        use = nxt
+        coef = np.polyfit(x[use], log_t[use], 2)
+    fitted = np.asarray(np.polyval(coef, x), np.float64)
+    return fitted - float(np.median(fitted))
+
+
+def _quiet_tiles(tiles: NDArray[np.float64], keep: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The tiles where nothing stands out: at no frequency does a tile rise above the median tile there
+    by more than :data:`FIT_OUTLIER_Z` + log(B) robust units (interquartile ranges over 1.5725) of how
+    tiles differ (the largest of B such differences stands about log(B) above their median)."""
+    log_t = np.log(np.maximum(tiles[:, keep], 1e-30))
+    above = log_t - np.median(log_t, axis=0)[None, :]
+    q25, q50, q75 = np.percentile(above, [25, 50, 75])
+    spread = max(float(q75 - q25) / 1.5725, 1e-3)
+    z = (above - q50) / spread
+    return np.asarray(z.max(axis=1) <= FIT_OUTLIER_Z + math.log(max(log_t.shape[1], 1)), bool)
+
+
+__all__ = [
+    "LEVELS",
+    "MAX_FALSE_ALARM",
+    "Calibration",
+    "MotionScan",
+    "constrained_spectra",
+    "fit_calibration",
+    "motion_scan",
+    "pyramid_levels",
+]
