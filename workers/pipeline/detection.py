@@ -305,7 +305,9 @@ def find_candidates(
     found = _candidates(scan, significant_bins(scan), band_hz=band_hz, max_objects=max_objects)
     if len(found.found) >= min(asserted, max_objects):
         return found
-    return _candidates(scan, significant_bins(scan, limit=1.0), band_hz=band_hz, max_objects=asserted)
+    return _candidates(
+        scan, significant_bins(scan, limit=1.0), band_hz=band_hz, max_objects=min(asserted, max_objects)
+    )
 
 
 def _candidates(

@@ -21,7 +21,7 @@ from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.detection import Candidates, find_candidates
 from workers.pipeline.errors import AnalysisError
 from workers.pipeline.look import Look, frame_noise
-from workers.pipeline.significance import MAX_FALSE_ALARM, MotionScan, motion_scan
+from workers.pipeline.significance import MAX_FALSE_ALARM, MIN_BINS, MotionScan, motion_scan
 from workers.pipeline.spectra import PixelSpectra, pixel_spectra
 from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.window import default_band
@@ -103,12 +103,12 @@ def _front(
     default_lo, default_hi = default_band(sample_rate_hz, len(flow))
     scanned = (min(band_hz[0], default_lo), max(band_hz[1], default_hi))
     window_hz = np.fft.rfftfreq(len(flow), d=1.0 / sample_rate_hz)[1:]
-    if np.count_nonzero((window_hz >= scanned[0]) & (window_hz <= scanned[1])) < MIN_SCANNED_BINS:
+    if np.count_nonzero((window_hz >= scanned[0]) & (window_hz <= scanned[1])) < MIN_BINS:
         # A short window (a live stream that stopped early): every frequency it holds calibrates.
-        if len(window_hz) < MIN_SCANNED_BINS:
+        if len(window_hz) < MIN_BINS:
             raise AnalysisError(
                 f"the window of {len(flow)} flow maps is too short to tell motion from noise (it holds "
-                f"{len(window_hz)} frequencies, the detection needs {MIN_SCANNED_BINS}); analyse more frames"
+                f"{len(window_hz)} frequencies, the detection needs {MIN_BINS}); analyse more frames"
             )
         scanned = (float(window_hz[0]), float(window_hz[-1]))
     scan = motion_scan(flow, confidence, sample_rate_hz=sample_rate_hz, band_hz=scanned, search_hz=band_hz)
@@ -135,11 +135,6 @@ def still_flow_level(
     if still.sum() < STILL_SHARE * max(int(textured.sum()), 1):
         return None
     return flow_level(flow, still)
-
-
-#: The detection statistic is calibrated on at least this many of the window's frequencies
-#: (:func:`workers.pipeline.significance.motion_scan`).
-MIN_SCANNED_BINS = 8
 
 
 #: The flow noise's level is measured where at least this share of the textured picture is still.

@@ -402,7 +402,7 @@ def _bridged(
     moving: NDArray[np.bool_],
     cfg: SegmentationConfig,
     *,
-    core: NDArray[np.bool_] | None = None,
+    core: NDArray[np.bool_],
 ) -> NDArray[np.bool_]:
     """The pixels of ``moving`` (above the noise at the object's frequency, mostly its own) in the gaps of
     ``region`` no wider than the edge neighbourhood; and for a long, thin region (a string, a wire, a
@@ -411,12 +411,12 @@ def _bridged(
     background, move far less in the flow than the rest (the relative and edge tests drop them) and
     still lie inside the object; a closing fills gaps and dents only, and growth along a thin object's
     length does not widen it: it starts from the region's ``core`` (its pixels moving at least as
-    strongly as its median one, default all of it), not from the fringe that flow spreads around it."""
+    strongly as its median one), not from the fringe that flow spreads around it."""
     side = 2 * cfg.edge_radius_px + 1
     closed = cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((side, side), np.uint8)) > 0
     along = _length_kernel(region, min_px=side)
     if along is not None:
-        closed |= cv2.dilate((region if core is None else core).astype(np.uint8), along) > 0
+        closed |= cv2.dilate(core.astype(np.uint8), along) > 0
     return np.asarray(closed & moving & ~region, bool)
 
 

@@ -60,6 +60,8 @@ MIN_SCALE = 0.1
 #: Below this many frequencies fitted, the calibration allows for its own uncertainty (see
 #: :func:`fit_calibration`).
 MIN_SURROGATES = 48
+#: The statistic is calibrated on at least this many of the window's frequencies.
+MIN_BINS = 8
 #: Frequencies standing this many standardised units above the fit are left out of the next fit.
 FIT_OUTLIER_Z = 3.0
 #: Frequencies within this many bins of a known artefact frequency are left out of the fit.
@@ -378,15 +380,15 @@ def motion_scan(
     Raises
     ------
     ValueError
-        When the band holds fewer than 8 of the window's frequencies, or the grids differ. (A picture
-        without texture anywhere gives a statistic of 0 everywhere: nothing stands out.)
+        When the band holds fewer than :data:`MIN_BINS` of the window's frequencies, or the grids differ.
+        (A picture without texture anywhere gives a statistic of 0 everywhere: nothing stands out.)
     """
     n, h, w = flow.shape[:3]
     if (h, w) != confidence.shape:
         raise ValueError(f"motion_scan: flow grid {(h, w)} is not the confidence's {confidence.shape}")
     freqs = np.fft.rfftfreq(n, d=1.0 / sample_rate_hz)
     inside = np.flatnonzero((freqs >= band_hz[0]) & (freqs <= band_hz[1]) & (freqs > 0))
-    if inside.size < 8:
+    if inside.size < MIN_BINS:
         raise ValueError(
             f"motion_scan: the band [{band_hz[0]:.3g}, {band_hz[1]:.3g}] Hz holds {inside.size} of the "
             "window's frequencies; analyse more frames or widen the band"
@@ -756,6 +758,7 @@ def _quiet_tiles(tiles: NDArray[np.float64], keep: NDArray[np.bool_]) -> NDArray
 __all__ = [
     "LEVELS",
     "MAX_FALSE_ALARM",
+    "MIN_BINS",
     "Calibration",
     "MotionScan",
     "constrained_spectra",

@@ -181,3 +181,4 @@ def test_an_object_the_user_says_was_excited_is_a_candidate_however_weak_its_lin
     assert len(asserted) == 1
     assert asserted[0].peak.frequency_hz == pytest.approx(9.0, abs=scan.bin_hz)
     assert asserted[0].false_alarm > MAX_FALSE_ALARM
+    assert len(find_candidates(scan, band_hz=BAND, max_objects=1, asserted=3).found) <= 1
