@@ -1,7 +1,8 @@
 """The field peer's run, as a user of pyidi 1.4 would make it (run by ``bench/peer.py`` with a Python that
 has pyidi: the ``bench`` extra, never a runtime dependency): the clip's frames decoded once into an array
 (grey), Lucas-Kanade on a grid of points over the clip's hand-placed region of interest, and the frequency
-read from the tracked motion's spectrum. Prints one JSON line: seconds, the frequency and the points."""
+read from the spectrum of the points it tracked (those on flat background have no solution). Prints one
+JSON line: seconds, the frequency, the points and how many were tracked."""
 
 from __future__ import annotations
 
@@ -46,7 +47,9 @@ def main() -> None:
     idi.set_points(points)
     idi.configure(roi_size=(9, 9), verbose=0, show_pbar=False)
     displacements = idi.get_displacements()
-    motion = np.diff(displacements[:, :, 1], axis=1)  # x velocity per point (the slow drift's power left out)
+    # points on flat background have no solution (NaN): a user keeps the points that were tracked
+    tracked = np.isfinite(displacements).all(axis=(1, 2))
+    motion = np.diff(displacements[tracked, :, 1], axis=1)  # x velocity per point (the slow drift left out)
     motion -= motion.mean(axis=1, keepdims=True)
     spectra = np.abs(np.fft.rfft(motion * np.hanning(motion.shape[1]), n=8 * motion.shape[1], axis=1)) ** 2
     freqs = np.fft.rfftfreq(8 * motion.shape[1], 1 / fps)
@@ -59,6 +62,7 @@ def main() -> None:
                 "decode_s": decoded,
                 "frequency_hz": f,
                 "points": len(points),
+                "tracked": int(tracked.sum()),
             }
         )
     )

@@ -26,16 +26,19 @@ FORKS = ROOT.parent / "shared" / "data" / "real" / "tuning-forks"
 
 
 def _run(command: list[str]) -> tuple[float, float, str]:
-    """Wall seconds, peak resident MiB and standard output of ``command`` in a child process."""
-    started = time.perf_counter()
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _, status, usage = os.wait4(process.pid, 0)
-    seconds = time.perf_counter() - started
-    out = process.stdout.read() if process.stdout else ""
-    err = process.stderr.read() if process.stderr else ""
+    """Wall seconds, peak resident MiB and standard output of ``command`` in a child process (its output
+    goes to files: a pipe nobody reads while the child runs fills up and stops it)."""
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        started = time.perf_counter()
+        process = subprocess.Popen(command, stdout=out, stderr=err, text=True)
+        _, status, usage = os.wait4(process.pid, 0)
+        seconds = time.perf_counter() - started
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
     if os.waitstatus_to_exitcode(status) != 0:
-        raise SystemExit(f"peer.py: {command[0]} failed: {err.strip().splitlines()[-1:]}")
-    return seconds, usage.ru_maxrss / 1024, out
+        raise SystemExit(f"peer.py: {command[0]} failed: {stderr.strip().splitlines()[-1:]}")
+    return seconds, usage.ru_maxrss / 1024, stdout
 
 
 def main() -> None:

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.artefacts import artefact_verdict, block_coverage, camera_intermodulation
 from workers.pipeline.clipio.types import ClipInfo, ClipReader
-from workers.pipeline.confidence import Confidence, constrained_flow, flow_confidence
+from workers.pipeline.confidence import Confidence, flow_confidence, tensor_sqrt
 from workers.pipeline.detection import (
     MIN_PERIODS,
     Candidate,
@@ -280,7 +280,7 @@ def _window_spectra(
             )
         )
     spectra = pixel_spectra(np.asarray(flow, np.float32), fps=plan.fps)
-    constrained = pixel_spectra(constrained_flow(flow, confidence), fps=plan.fps)
+    constrained = pixel_spectra(np.asarray(flow, np.float32), fps=plan.fps, mix=tensor_sqrt(confidence))
     summed = spectra.power.sum(axis=1, dtype=np.float64)
     return _Spectra(spectra, constrained, summed, background_spectrum(spectra), confidence)
 

@@ -465,7 +465,7 @@ def frame_pattern_period(level: NDArray[np.floating] | None) -> int | None:
     The pattern is a one-way analysis of variance of the level by phase modulo m: significant at
     :data:`PATTERN_P` and differing by :data:`PATTERN_RATIO` between its phases.
     """
-    from scipy.stats import f as f_law
+    from scipy.special import fdtrc  # the F law's survival function (scipy.stats's import costs 0.6 s)
 
     if level is None:
         return None
@@ -480,7 +480,7 @@ def frame_pattern_period(level: NDArray[np.floating] | None) -> int | None:
         between = float(((means - folded.mean()) ** 2).sum()) * (usable // m) / (m - 1)
         if within <= 0 or means.min() <= 0:
             continue
-        p = float(f_law.sf(between / within, m - 1, usable - m))
+        p = float(fdtrc(m - 1, usable - m, between / within))
         if p <= PATTERN_P and float(means.max()) >= PATTERN_RATIO * float(means.min()):
             return m
     return None

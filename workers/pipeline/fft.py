@@ -67,6 +67,7 @@ class RfftPlans:
         nfft: int,
         pairs: int = 2,
         summary: BandSummary | None = None,
+        mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None = None,
     ) -> NDArray[np.float32]:
         """Mean-removed power spectra of every column, summed over groups of ``pairs`` adjacent columns.
 
@@ -82,6 +83,10 @@ class RfftPlans:
             Also write each spectrum's median, maximum and the maximum's position over the summary's
             bins into its arrays, taken per block while the block's spectra lie contiguous in cache (a
             separate pass would first transpose all of them).
+        mix : (a, b, c), each ndarray of float32, shape (P,), optional
+            With ``pairs`` 2: each pair (x, y) of columns is first turned into (a x + b y, b x + c y) by
+            its own symmetric matrix, block by block (the transform of a mixed copy of ``data`` without
+            the copy).
 
         Returns
         -------
@@ -92,7 +97,11 @@ class RfftPlans:
             raise ValueError(f"{cols} columns do not split into groups of {pairs}")
         n_freq = nfft // 2 + 1
         out = np.empty((n_freq, cols // pairs), np.float32)
+        if mix is not None and pairs != 2:
+            raise ValueError("mix applies to pairs of columns")
         if _fftw() is None:  # pragma: no cover
+            if mix is not None:
+                data = _mixed(data, *mix)
             centred = data - data.mean(axis=0)
             spec = np.abs(np.fft.rfft(centred, n=nfft, axis=0)) ** 2
             summed: NDArray[np.float32] = spec.reshape(n_freq, -1, pairs).sum(axis=2).astype(np.float32)
@@ -107,7 +116,11 @@ class RfftPlans:
             plan, buf = workers[worker]
             for c in starts[worker :: len(workers)]:
                 w = min(block, cols - c)
-                buf[:w, :n] = data[:, c : c + w].T
+                if mix is None:
+                    buf[:w, :n] = data[:, c : c + w].T
+                else:
+                    pixels = slice(c // 2, (c + w) // 2)
+                    buf[:w, :n] = _mixed(data[:, c : c + w], *(m[pixels] for m in mix)).T
                 buf[:w, n:] = 0.0
                 buf[:w, :n] -= buf[:w, :n].mean(axis=1, keepdims=True)
                 spec = plan()
@@ -125,6 +138,17 @@ class RfftPlans:
             with ThreadPoolExecutor(max_workers=len(workers), thread_name_prefix="fft") as pool:
                 list(pool.map(run, range(len(workers))))
         return out
+
+
+def _mixed(
+    data: NDArray[np.float32], a: NDArray[np.float32], b: NDArray[np.float32], c: NDArray[np.float32]
+) -> NDArray[np.float32]:
+    """Interleaved pairs (x, y) of ``data``'s columns turned into (a x + b y, b x + c y)."""
+    x, y = data[:, 0::2], data[:, 1::2]
+    out = np.empty(data.shape, np.float32)
+    out[:, 0::2] = a * x + b * y
+    out[:, 1::2] = b * x + c * y
+    return out
 
 
 @functools.lru_cache(maxsize=4)

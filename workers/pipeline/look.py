@@ -2,7 +2,7 @@
 
 :func:`look_at` reads the window's frames once. Each is turned grey and area-averaged onto a grid about
 :data:`LOOK_WIDTH_PX` pixels wide (an integer factor: exact and cheap), and coarse optical flow (DIS at its
-fastest, on the grid's finest level) is computed between consecutive frames on a worker thread while the
+fastest, on the grid's finest level) is computed between consecutive frames on worker threads while the
 next frames decode. Averaging a frame down averages its sensor and codec noise with it, so a thin edge
 moving a fifth of a pixel stands out on this grid (its motion is a twentieth of a grid pixel, but coherent
 over the window). Kept, besides the coarse flow:
@@ -23,6 +23,7 @@ it found.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections import deque
 from collections.abc import Iterator
@@ -46,6 +47,8 @@ from workers.pipeline.model import Progress
 LOOK_WIDTH_PX = 160
 #: The window's frames are kept for the second pass when grey frames and half-resolution depth fit this.
 KEEP_FRAMES_MIB = 192.0
+#: Threads computing the coarse flow while the main thread decodes (consecutive pairs are independent).
+FLOW_THREADS = 2
 
 _T = TypeVar("_T")
 
@@ -261,21 +264,23 @@ def look_at(
         depth_shape=depth_shape if keep and info.has_depth else None,
     )
     source = _Frames(reader, start, stop, depth_shape)
-    dis = _coarse_dis()
+    own = threading.local()  # a DIS instance per flow thread (one instance is not safe to share)
 
     def flow(prev: NDArray[np.uint8], nxt: NDArray[np.uint8], i: int) -> int:
-        state.flow[i] = dis.calc(prev, nxt, None)
+        if not hasattr(own, "dis"):
+            own.dis = _coarse_dis()
+        state.flow[i] = own.dis.calc(prev, nxt, None)
         return i
 
     pending: deque[Future[int]] = deque()
     previous: NDArray[np.uint8] | None = None
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="look") as pool:
+    with ThreadPoolExecutor(max_workers=FLOW_THREADS, thread_name_prefix="look") as pool:
         try:
             for i, (gray, depth, stamp) in enumerate(source):
                 small = state.add(i, gray, depth, stamp)
                 if previous is not None:
                     pending.append(pool.submit(flow, previous, small, i - 1))
-                    if len(pending) >= 3:
+                    if len(pending) >= 2 * FLOW_THREADS + 1:
                         state.flowed(pending.popleft().result())
                 previous = small
                 if progress is not None and i % 16 == 0:

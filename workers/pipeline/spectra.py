@@ -134,6 +134,7 @@ def pixel_spectra(
     fps: float,
     plans: RfftPlans | None = None,
     band_hz: tuple[float, float] | None = None,
+    mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None = None,
 ) -> PixelSpectra:
     """Per-pixel power spectra of signed flow, mean removed.
 
@@ -148,6 +149,10 @@ def pixel_spectra(
     band_hz : (float, float), optional
         The analysis band: each pixel's median power in it (:meth:`PixelSpectra.band_median`) is then
         computed along with the transforms, at a fraction of the cost of a later pass.
+    mix : (a, b, c), each ndarray of float32, shape (h, w), optional
+        Spectra of each pixel's flow (u, v) turned into (a u + b v, b u + c v) first, as the transforms
+        go (for instance J^(1/2) u, :func:`workers.pipeline.confidence.tensor_sqrt`): no mixed copy of
+        the flow is made.
 
     Returns
     -------
@@ -160,7 +165,11 @@ def pixel_spectra(
     summary = None
     if band_hz is not None:
         summary = BandSummary.empty(median_bins(freqs, band_hz), flat.shape[1] // 2)
-    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, summary=summary)
+    per_pixel = None
+    if mix is not None:
+        a, b, c = (np.asarray(m, np.float32).ravel() for m in mix)
+        per_pixel = (a, b, c)
+    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, summary=summary, mix=per_pixel)
     spectra = PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
     if band_hz is not None and summary is not None:
         spectra.__dict__.setdefault("_summaries", {})[band_hz] = summary

@@ -87,11 +87,14 @@ def object_motion(
     if len(idx) > max_pixels:
         idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
     n = flow.shape[0]
-    sub = flow.reshape(n, -1, 2)[:, idx, :].astype(np.float64)  # (N, P, 2)
-    mat = sub.reshape(n, -1)
-    mat = mat - mat.mean(axis=0)
+    sub = flow.reshape(n, -1, 2)[:, idx, :].astype(np.float32)  # (N, P, 2)
+    mat = sub.reshape(n, -1) - sub.reshape(n, -1).mean(axis=0, dtype=np.float64).astype(np.float32)
     weight = None if confidence is None else confidence.weight
-    counts = np.ones(mat.shape[1]) if weight is None else np.repeat(np.sqrt(weight.ravel()[idx]), 2)
+    counts = (
+        np.ones(mat.shape[1], np.float32)
+        if weight is None
+        else np.repeat(np.sqrt(weight.ravel()[idx]), 2).astype(np.float32)
+    )
     mean_course: NDArray[np.float64] | None = None
     if frequency_hz is not None and sample_rate_hz is not None:
         nu = frequency_hz / sample_rate_hz
@@ -104,9 +107,10 @@ def object_motion(
             mean_course = None
     else:
         weighted = mat * counts
-        _evals, evecs = np.linalg.eigh(weighted @ weighted.T)
+        _evals, evecs = np.linalg.eigh((weighted @ weighted.T).astype(np.float64))
         u1 = evecs[:, -1]
-    loads = (mat.T @ u1).reshape(-1, 2)  # (P, 2): per-pixel amplitude vector for unit time course
+    # (P, 2): per-pixel amplitude vector for unit time course
+    loads = (mat.T @ u1.astype(np.float32)).astype(np.float64).reshape(-1, 2)
     cov = loads.T @ loads
     _, axes = np.linalg.eigh(cov)
     axis = axes[:, -1]
@@ -149,7 +153,7 @@ def _tensors(confidence: Confidence, idx: NDArray[np.intp]) -> NDArray[np.float6
 
 
 def _mean_course(
-    flow: NDArray[np.float64], tensors: NDArray[np.float64], cycles_per_sample: float
+    flow: NDArray[np.float32], tensors: NDArray[np.float64], cycles_per_sample: float
 ) -> NDArray[np.float64] | None:
     """The time course (N,) of the pixels' common motion along the direction in which it moves most near
     a frequency, in the flow's units: a rigid object's motion, whose pixels move together while their
@@ -163,7 +167,8 @@ def _mean_course(
     total = tensors.sum(axis=0)
     if np.linalg.det(total) <= 1e-12 * max(float(np.trace(total)) ** 2, 1e-30):
         return None
-    mean = np.einsum("npc,pdc->nd", flow, tensors) @ np.linalg.inv(total).T  # (N, 2)
+    summed = np.einsum("npc,pdc->nd", flow, tensors.astype(flow.dtype), dtype=np.float64)
+    mean = summed @ np.linalg.inv(total).T  # (N, 2)
     mean = mean - mean.mean(axis=0)
     n = len(mean)
     lines_at = np.arange(n // 2 + 1) / n
@@ -188,12 +193,13 @@ def _band_component(
     if near.size == 0:
         near = np.array([int(np.argmin(np.abs(lines_at - cycles_per_sample)))])
     t = np.arange(n)
-    basis = np.exp(-2j * np.pi * np.outer(lines_at[near], t))  # (K, N)
-    spectra = basis @ mat  # (K, C)
+    phase = 2 * np.pi * np.outer(lines_at[near], t)  # (K, N)
+    # two real products: a complex one would first copy the whole of mat as complex numbers
+    spectra = np.cos(phase).astype(mat.dtype) @ mat - 1j * (np.sin(phase).astype(mat.dtype) @ mat)
     _, _, vh = np.linalg.svd(spectra, full_matrices=False)
     pattern = vh[0].conj()
     pattern = pattern * np.exp(-0.5j * np.angle(np.sum(pattern * pattern)))  # most nearly real
-    course = np.asarray(mat @ pattern.real, np.float64)
+    course = np.asarray(mat @ pattern.real.astype(mat.dtype), np.float64)
     norm = float(np.linalg.norm(course))
     return course / norm if norm > 0 else course
 

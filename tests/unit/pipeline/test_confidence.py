@@ -80,3 +80,17 @@ def test_grids_must_match():
     conf = flow_confidence(_texture(), frame_noise=1.0)
     with pytest.raises(ValueError, match="grid"):
         constrained_flow(np.zeros((3, 10, 10, 2), np.float32), conf)
+
+
+def test_spectra_of_the_constrained_flow_need_no_copy_of_it():
+    """``pixel_spectra(..., mix=tensor_sqrt(conf))`` transforms J^(1/2) u block by block: the same spectra
+    as those of ``constrained_flow``'s copy, a window's worth of memory less."""
+    from workers.pipeline.spectra import pixel_spectra
+
+    conf = flow_confidence(_texture(37, 41), frame_noise=1.0)
+    flow = np.random.default_rng(3).standard_normal((300, 37, 41, 2)).astype(np.float32)
+    copied = pixel_spectra(constrained_flow(flow, conf), fps=100.0).power
+    mixed = pixel_spectra(flow, fps=100.0, mix=tensor_sqrt(conf)).power
+    np.testing.assert_allclose(mixed, copied, rtol=1e-5, atol=1e-6 * float(copied.max()))
+    whole = constrained_flow(flow, conf)
+    np.testing.assert_array_equal(constrained_flow(flow[7], conf), whole[7])  # one map as in a window
