@@ -20,7 +20,7 @@ from workers.pipeline.camera import CameraRing
 from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.detection import Candidates, find_candidates
 from workers.pipeline.errors import AnalysisError
-from workers.pipeline.look import Look, frame_noise
+from workers.pipeline.look import LOOK_WIDTH_PX, Look, frame_noise
 from workers.pipeline.significance import MAX_FALSE_ALARM, MIN_BINS, MotionScan, motion_scan
 from workers.pipeline.spectra import PixelSpectra, pixel_spectra
 from workers.pipeline.stream import FrameBuffers
@@ -212,7 +212,8 @@ def front_of_buffers(
     """
     from workers.pipeline.fft import fast_length
 
-    n, h, w = buffers.flow.shape[:3]
+    flow, factor = _on_look_grid(buffers.flow)
+    n, h, w = flow.shape[:3]
     if buffers.gray is not None:
         step = max(1, len(buffers.gray) // 32)
         mean_full = buffers.gray[::step].astype(np.float32).mean(axis=0)
@@ -228,14 +229,14 @@ def front_of_buffers(
         nfft=nfft,
         brightness=buffers.brightness,
         frame_change=buffers.frame_change,
-        border_px=buffers.border_px,
+        border_px=None if buffers.border_px is None else buffers.border_px / np.float32(factor),
         camera_removed=buffers.camera_removed,
         ring_pixels=ring.pixels,
         ring_textured=ring.textured,
     )
     change = buffers.frame_change if buffers.frame_change is not None else np.zeros((0, 1, 1), np.float32)
     return _front(
-        buffers.flow,
+        flow,
         mean,
         evidence,
         ring,
@@ -246,6 +247,23 @@ def front_of_buffers(
         frame_noise_levels=frame_noise(change),
         asserted=asserted,
     )
+
+
+def _on_look_grid(flow: NDArray[np.float32]) -> tuple[NDArray[np.float32], int]:
+    """``flow`` area-averaged by the integer factor that brings its grid to about
+    :data:`~workers.pipeline.look.LOOK_WIDTH_PX` wide (in that grid's pixels), and the factor: the
+    first pass's grid, where a codec's and a sensor's noise average down and the scan costs a factor
+    squared less (a live stream's final analysis scanned its 320 px flow grid: 1 s of its latency)."""
+    n, h, w = flow.shape[:3]
+    factor = max(1, w // LOOK_WIDTH_PX)
+    if factor == 1:
+        return flow, 1
+    hh, ww = h // factor, w // factor
+    out = np.empty((n, hh, ww, 2), np.float32)
+    for i in range(n):
+        cv2.resize(flow[i, : hh * factor, : ww * factor], (ww, hh), dst=out[i], interpolation=cv2.INTER_AREA)
+    out /= np.float32(factor)
+    return out, factor
 
 
 def coarse_region(front: Front, mask_frame: NDArray[np.bool_]) -> NDArray[np.bool_]:

@@ -4,6 +4,7 @@ from kept frames and from frames read again."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -120,3 +121,34 @@ def test_the_second_pass_reads_kept_frames_as_it_reads_the_clip():
     np.testing.assert_allclose(kept.depth, again.depth, equal_nan=True)
     # the object (centre x 200, y 120) moves: the flow of the box sees it
     assert float(np.abs(kept.flow[..., 0]).max()) > 0.3
+
+
+def test_a_whole_frame_flow_is_scanned_on_the_looks_grid():
+    """A live stream's flow grid (here 320 wide) is area-averaged onto the look's (160 wide) before the
+    scan, in that grid's pixels: the scan costs a quarter, and an object moving there is found there."""
+    from workers.pipeline.front import front_of_buffers
+    from workers.pipeline.stream import FrameBuffers
+
+    rng = np.random.default_rng(5)
+    n, h, w = 96, 120, 320
+    flow = rng.normal(0, 0.05, (n, h, w, 2)).astype(np.float32)
+    flow[:, 40:70, 100:150, 0] += (0.4 * np.sin(2 * np.pi * 6.0 * np.arange(n) / 30.0))[:, None, None]
+    texture = cv2.GaussianBlur(rng.uniform(40, 200, (2 * h, 2 * w)).astype(np.float32), (0, 0), 1.5)
+    rgb = np.repeat(texture.astype(np.uint8)[..., None], 3, axis=2)
+    buffers = FrameBuffers(
+        flow=flow,
+        depth=None,
+        gray=None,
+        first_rgb=rgb,
+        count=n,
+        times_s=np.arange(n + 1) / 30.0,
+        camera_px=np.zeros((n, 2), np.float32),
+        start_s=0.0,
+    )
+    front = front_of_buffers(buffers, sample_rate_hz=30.0, band_hz=(0.7, 14.7), max_objects=4)
+    assert front.scan.grid_shape == (60, 160)
+    assert front.grid_factor == pytest.approx(4.0)
+    assert [round(c.peak.frequency_hz) for c in front.candidates.found] == [6]
+    ys, xs = np.nonzero(front.candidates.found[0].region)
+    assert 20 <= ys.mean() <= 35  # the patch, on the halved grid
+    assert 50 <= xs.mean() <= 75
