@@ -531,7 +531,7 @@ def listed_on_a_phone(live: h.LiveService, page_clip: tuple[Path, dict[str, Any]
     return {"job": job.id, "stream_job": stream_job.id, "stream_name": stream_clip.filename}
 
 
-@pytest.mark.parametrize("width", [360, 400])
+@pytest.mark.parametrize("width", [360, 390, 400])
 def test_the_page_fits_a_phone_with_long_names_listed(
     browser: Any, live: h.LiveService, listed_on_a_phone: dict[str, str], artifacts_dir: Path, width: int
 ) -> None:
