@@ -124,7 +124,9 @@ def _alive(pid: int) -> bool:
 def test_five_stops_after_a_live_stream_leave_no_process(tmp_path: Path) -> None:
     """Item 6: a SIGTERM to ``eigenscope serve`` after a live stream left a stream worker running (the
     watcher respawned it while stopping). Five times: start, stream, SIGTERM serve alone or its whole
-    process group, and every process it had is gone once it has exited."""
+    process group; no stream worker is started once the stop has begun (the log names each one that
+    was: a respawned one is not among the processes seen before the stop), and every process it had, or
+    started since, is gone once it has exited."""
     import os
     import signal
 
@@ -132,6 +134,7 @@ def test_five_stops_after_a_live_stream_leave_no_process(tmp_path: Path) -> None
 
     scene = scene_frames(frames=20)
     left_after: list[list[int]] = []
+    respawned: list[list[int]] = []
     for attempt in range(5):
         service = h.start_embedded(tmp_path / f"run{attempt}", **SETTINGS)
         ws = None
@@ -150,6 +153,10 @@ def test_five_stops_after_a_live_stream_leave_no_process(tmp_path: Path) -> None
             else:
                 os.killpg(serve.pid, signal.SIGTERM)  # all of them at once, as systemd or a Ctrl-C does
             serve.popen.wait(timeout=60)
+            log = serve.log_path.read_text()
+            started = {int(pid) for pid in re.findall(r"stream worker (\d+) ready", log)}
+            respawned.append(sorted(started - set(family)))
+            family = [*family, *respawned[-1]]
             deadline = time.monotonic() + 5  # the orphans' exit statuses land
             while any(_alive(p) for p in family) and time.monotonic() < deadline:
                 time.sleep(0.05)
@@ -159,6 +166,7 @@ def test_five_stops_after_a_live_stream_leave_no_process(tmp_path: Path) -> None
                 ws.close()
             service.stop()
     print(f"\nFAULT five stops after a live stream: processes left {[len(x) for x in left_after]}")
+    assert respawned == [[]] * 5, f"stream workers started while stopping: {respawned}"
     assert left_after == [[]] * 5, [[h.cmdline(p) or p for p in left] for left in left_after]
 
 
