@@ -166,32 +166,12 @@ def constrained_flow(
     if flow.shape[-3:-1] != conf.shape:
         raise ValueError(f"constrained_flow: flow grid {flow.shape[-3:-1]} is not the tensor's {conf.shape}")
     a, b, c = tensor_sqrt(conf)
-    result = out if out is not None else np.empty(flow.shape, np.float32)
-    if flow.ndim == 3:
-        _constrain(flow, a, b, c, result)
-        return result
-    for start in range(0, len(flow), _FRAMES_AT_ONCE):
-        end = start + _FRAMES_AT_ONCE
-        _constrain(flow[start:end], a, b, c, result[start:end])
-    return result
-
-
-#: Flow maps constrained at a time: a few maps' temporaries stay in cache (a whole window's would be
-#: several arrays the size of the window, written and read again: ten times slower at 1000 frames).
-_FRAMES_AT_ONCE = 8
-
-
-def _constrain(
-    flow: NDArray[np.float32],
-    a: NDArray[np.float32],
-    b: NDArray[np.float32],
-    c: NDArray[np.float32],
-    out: NDArray[np.float32],
-) -> None:
     u, v = flow[..., 0], flow[..., 1]
+    result = out if out is not None else np.empty(flow.shape, np.float32)
     zx = a * u + b * v
-    out[..., 1] = b * u + c * v
-    out[..., 0] = zx
+    result[..., 1] = b * u + c * v
+    result[..., 0] = zx
+    return result
 
 
 __all__ = [

@@ -95,7 +95,7 @@ TAPER_ALPHA = 0.5
 _CHUNK = 64
 #: Flow columns (pixel components) tapered and transformed at a time: a block stays in cache, and only
 #: the band's bins of its spectra are kept.
-_COLUMNS = 16384
+_COLUMNS = 4096
 
 
 @dataclass(frozen=True)
@@ -435,12 +435,6 @@ def constrained_spectra(spectra: NDArray[np.complex64], confidence: Confidence) 
     # complex arithmetic on the two planes (real and imaginary parts together) is several times faster
     # than on interleaved real views
     return np.stack([a * u + b * v, b * u + c * v], axis=-1).view(np.float32)
-
-
-def _halve(values: NDArray[np.float32]) -> NDArray[np.float32]:
-    """Means over 2 x 2 blocks (area averaging) of (h, w) or (h, w, c)."""
-    h, w = values.shape[:2]
-    return np.asarray(cv2.resize(values, (w // 2, h // 2), interpolation=cv2.INTER_AREA), np.float32)
 
 
 #: Blocks sampled over the whole picture (textured or not) per level for the noise's spectral colour.

@@ -88,7 +88,8 @@ def object_motion(
         idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
     n = flow.shape[0]
     sub = flow.reshape(n, -1, 2)[:, idx, :].astype(np.float32)  # (N, P, 2)
-    mat = sub.reshape(n, -1) - sub.reshape(n, -1).mean(axis=0, dtype=np.float64).astype(np.float32)
+    columns = sub.reshape(n, -1)
+    mat = columns - columns.mean(axis=0, dtype=np.float64).astype(np.float32)
     weight = None if confidence is None else confidence.weight
     counts = (
         np.ones(mat.shape[1], np.float32)
