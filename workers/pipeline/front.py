@@ -88,17 +88,34 @@ class Front:
 def _front(
     flow: NDArray[np.float32],
     mean_gray: NDArray[np.float32],
-    evidence: WindowEvidence,
     ring: CameraRing,
+    picture: tuple[NDArray[np.float32] | None, NDArray[np.float32] | None, NDArray[np.float32] | None, bool],
     *,
     sample_rate_hz: float,
     band_hz: tuple[float, float],
     max_objects: int,
     grid_factor: float,
-    frame_noise_levels: float,
     asserted: int = 0,
 ) -> Front:
-    confidence = flow_confidence(mean_gray, frame_noise=frame_noise_levels)
+    """The findings from the whole picture's ``flow`` on a grid, its mean grey frame and border ring, and
+    its ``picture`` series (block brightness, its change, the border's motion in that grid's pixels, and
+    whether the camera's motion was removed): the artefact evidence and the scan."""
+    from workers.pipeline.fft import fast_length
+
+    brightness, frame_change, border_px, camera_removed = picture
+    nfft = fast_length(len(flow))
+    evidence = WindowEvidence(
+        frequencies_hz=np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz).astype(np.float64),
+        nfft=nfft,
+        brightness=brightness,
+        frame_change=frame_change,
+        border_px=border_px,
+        camera_removed=camera_removed,
+        ring_pixels=ring.pixels,
+        ring_textured=ring.textured,
+    )
+    change = frame_change if frame_change is not None else np.zeros((0, 1, 1), np.float32)
+    confidence = flow_confidence(mean_gray, frame_noise=frame_noise(change))
     # The band the user narrowed is searched; the whole band the window shows calibrates the statistic.
     default_lo, default_hi = default_band(sample_rate_hz, len(flow))
     scanned = (min(band_hz[0], default_lo), max(band_hz[1], default_hi))
@@ -162,29 +179,15 @@ def front_of_look(
         How many objects the user's excitations name (see
         :func:`~workers.pipeline.detection.find_candidates`).
     """
-    from workers.pipeline.fft import fast_length
-
-    nfft = fast_length(look.count)
-    evidence = WindowEvidence(
-        frequencies_hz=np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz).astype(np.float64),
-        nfft=nfft,
-        brightness=look.brightness,
-        frame_change=look.frame_change,
-        border_px=look.border_px,
-        camera_removed=look.camera_removed,
-        ring_pixels=look.ring.pixels,
-        ring_textured=look.ring.textured,
-    )
     return _front(
         look.flow,
         look.mean_gray,
-        evidence,
         look.ring,
+        (look.brightness, look.frame_change, look.border_px, look.camera_removed),
         sample_rate_hz=sample_rate_hz,
         band_hz=band_hz,
         max_objects=max_objects,
         grid_factor=look.input_px_per_grid_px,
-        frame_noise_levels=frame_noise(look.frame_change),
         asserted=asserted,
     )
 
@@ -210,10 +213,8 @@ def front_of_buffers(
         How many objects the user's excitations name (see
         :func:`~workers.pipeline.detection.find_candidates`).
     """
-    from workers.pipeline.fft import fast_length
-
     flow, factor = _on_look_grid(buffers.flow)
-    n, h, w = flow.shape[:3]
+    h, w = flow.shape[1:3]
     if buffers.gray is not None:
         step = max(1, len(buffers.gray) // 32)
         mean_full = buffers.gray[::step].astype(np.float32).mean(axis=0)
@@ -223,28 +224,16 @@ def front_of_buffers(
         mean = np.asarray(cv2.resize(mean, (w, h), interpolation=cv2.INTER_AREA), np.float32)
     ring = CameraRing((h, w))
     ring.set_texture(np.clip(mean, 0, 255).astype(np.uint8))
-    nfft = fast_length(n)
-    evidence = WindowEvidence(
-        frequencies_hz=np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz).astype(np.float64),
-        nfft=nfft,
-        brightness=buffers.brightness,
-        frame_change=buffers.frame_change,
-        border_px=None if buffers.border_px is None else buffers.border_px / np.float32(factor),
-        camera_removed=buffers.camera_removed,
-        ring_pixels=ring.pixels,
-        ring_textured=ring.textured,
-    )
-    change = buffers.frame_change if buffers.frame_change is not None else np.zeros((0, 1, 1), np.float32)
+    border = None if buffers.border_px is None else buffers.border_px / np.float32(factor)
     return _front(
         flow,
         mean,
-        evidence,
         ring,
+        (buffers.brightness, buffers.frame_change, border, buffers.camera_removed),
         sample_rate_hz=sample_rate_hz,
         band_hz=band_hz,
         max_objects=max_objects,
         grid_factor=buffers.first_rgb.shape[1] / w,
-        frame_noise_levels=frame_noise(change),
         asserted=asserted,
     )
 
