@@ -15,7 +15,6 @@ alpha.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import tempfile
 import time
@@ -30,42 +29,19 @@ import numpy as np  # noqa: E402
 
 from workers.pipeline.analysis import AnalysisConfig, analyze  # noqa: E402
 from workers.pipeline.clipio import ClipOverrides, open_clip  # noqa: E402
-from workers.pipeline.clipio.types import ClosingReader, Frame  # noqa: E402
 from workers.pipeline.detection import significant_bins  # noqa: E402
 from workers.pipeline.front import front_of_look  # noqa: E402
 from workers.pipeline.look import look_at  # noqa: E402
 from workers.pipeline.significance import MAX_FALSE_ALARM  # noqa: E402
-from workers.pipeline.synth_corpus import encode, still_corpus  # noqa: E402
+from workers.pipeline.synth_corpus import (  # noqa: E402
+    REAL_STILL_CROPS,
+    ColumnCrop,
+    encode,
+    still_corpus,
+)
 from workers.pipeline.window import analysis_band, plan_analysis  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data" / "real" / "tuning-forks"
-REAL_CROPS = [
-    (32, 1000, 430, 640),
-    (32, 1000, 0, 240),
-    (64, 250, 430, 640),
-    (64, 250, 0, 240),
-    (128, 500, 430, 640),
-]
-
-
-class Crop(ClosingReader):
-    """Columns ``[x0, x1)`` of another reader's frames, without depth."""
-
-    def __init__(self, inner, x0: int, x1: int) -> None:
-        self._inner, self._x0, self._x1 = inner, x0, x1
-        self._info = dataclasses.replace(inner.info, width=x1 - x0, has_depth=False)
-
-    @property
-    def info(self):
-        return self._info
-
-    def frames(self, start=0, stop=None):
-        for frame in self._inner.frames(start, stop):
-            rgb = np.ascontiguousarray(frame.rgb[:, self._x0 : self._x1])
-            yield Frame(index=frame.index, rgb=rgb, depth_m=None, timestamp_s=frame.timestamp_s)
-
-    def close(self) -> None:
-        self._inner.close()
 
 
 def smallest_false_alarm(reader) -> float:
@@ -93,11 +69,13 @@ def clips(folder: Path, *, real: bool):
             )
         yield still.name, (lambda p=path: open_clip(p))
     if real and SHARED.is_dir():
-        for f, fps, x0, x1 in REAL_CROPS:
+        for f, fps, x0, x1 in REAL_STILL_CROPS:
             path = SHARED / f"tuning_hz{f}_fps{fps}_50-1_640x420.mp4"
             yield (
                 f"real {f} Hz fork clip at {fps} fps, columns {x0}-{x1}",
-                lambda p=path, r=fps, a=x0, b=x1: Crop(open_clip(p, overrides=ClipOverrides(fps=r)), a, b),
+                lambda p=path, r=fps, a=x0, b=x1: ColumnCrop(
+                    open_clip(p, overrides=ClipOverrides(fps=r)), a, b
+                ),
             )
 
 

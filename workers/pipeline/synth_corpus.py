@@ -14,7 +14,9 @@ gives a :class:`~workers.pipeline.synth.Scene` with its ground truth:
 - :func:`fork_and_motor`: a struck fork ringing down beside a motor's steady vibration at a higher
   frequency (an object in a narrowed band);
 - :func:`spring_near_comb`: a spring whose frequency lies near a multiple of the keyframe rate;
-- :func:`still`: nothing vibrates (textured or flat, with sensor noise): the null corpus.
+- :func:`still`: nothing vibrates (textured or flat, with sensor noise): the null corpus;
+- :data:`REAL_STILL_CROPS` and :class:`ColumnCrop`: still parts of the shared real clips (the flat
+  background beside the forks), the null corpus's real part.
 
 Used by the accuracy tier (tests/unit/pipeline/test_real_world_classes.py, test_codecs.py, test_null.py)
 and by ``bench/null_corpus.py``.
@@ -22,12 +24,16 @@ and by ``bench/null_corpus.py``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
+from workers.pipeline.clipio.types import ClipInfo, ClipReader, ClosingReader, Frame
 from workers.pipeline.clipio.writers import write_compressed
 from workers.pipeline.synth import Scene, SceneObject, render
 
@@ -214,8 +220,42 @@ def still(
     )
 
 
+#: Still parts of the shared fork clips (``../shared/data/real/tuning-forks``): (fork Hz, fps, x0, x1),
+#: columns ``[x0, x1)`` of the flat background beside the forks, holding the camera's sensor and codec
+#: noise but nothing that vibrates.
+REAL_STILL_CROPS = [
+    (32, 1000, 430, 640),
+    (32, 1000, 0, 240),
+    (64, 250, 430, 640),
+    (64, 250, 0, 240),
+    (128, 500, 430, 640),
+]
+
+
+class ColumnCrop(ClosingReader):
+    """Columns ``[x0, x1)`` of another reader's frames, without depth (a still part of a real clip)."""
+
+    def __init__(self, inner: ClipReader, x0: int, x1: int) -> None:
+        self._inner, self._x0, self._x1 = inner, x0, x1
+        self._info = dataclasses.replace(inner.info, width=x1 - x0, has_depth=False)
+
+    @property
+    def info(self) -> ClipInfo:
+        return self._info
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        for frame in self._inner.frames(start, stop):
+            rgb = np.ascontiguousarray(frame.rgb[:, self._x0 : self._x1])
+            yield Frame(index=frame.index, rgb=rgb, depth_m=None, timestamp_s=frame.timestamp_s)
+
+    def close(self) -> None:
+        self._inner.close()
+
+
 __all__ = [
     "CAMERA_CODECS",
+    "REAL_STILL_CROPS",
+    "ColumnCrop",
     "StillScene",
     "drumhead",
     "encode",

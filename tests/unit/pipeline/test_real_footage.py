@@ -4,16 +4,14 @@ clips drift; 128 Hz at 250 fps is above the Nyquist rate."""
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
-import numpy as np
 import pytest
 
 from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import AnalysisConfig, analyze
 from workers.pipeline.clipio import ClipOverrides, open_clip
-from workers.pipeline.clipio.types import ClosingReader, Frame
+from workers.pipeline.synth_corpus import REAL_STILL_CROPS, ColumnCrop
 
 #: Whole analyses of real footage: the accuracy tier (``./run test --tier accuracy``).
 pytestmark = pytest.mark.accuracy
@@ -166,45 +164,18 @@ def test_a_band_narrowed_around_a_known_frequency_still_finds_it(frequency, fps,
     assert all(low <= f <= high for f in reported), reported
 
 
-class _Crop(ClosingReader):
-    """Columns ``[x0, x1)`` of another reader's frames, without depth (a still part of a real clip)."""
-
-    def __init__(self, inner, x0: int, x1: int) -> None:
-        self._inner, self._x0, self._x1 = inner, x0, x1
-        self._info = dataclasses.replace(inner.info, width=x1 - x0, has_depth=False)
-
-    @property
-    def info(self):
-        return self._info
-
-    def frames(self, start=0, stop=None):
-        for frame in self._inner.frames(start, stop):
-            rgb = np.ascontiguousarray(frame.rgb[:, self._x0 : self._x1])
-            yield Frame(index=frame.index, rgb=rgb, depth_m=None, timestamp_s=frame.timestamp_s)
-
-    def close(self) -> None:
-        self._inner.close()
-
-
-NULL_CROPS = [
-    (32, 1000, 430, 640),
-    (32, 1000, 0, 240),
-    (64, 250, 430, 640),
-    (64, 250, 0, 240),
-    (128, 500, 430, 640),
-]
-
-
 @pytest.mark.slow
 @pytest.mark.realdata
 @pytest.mark.parametrize(
-    ("frequency", "fps", "x0", "x1"), NULL_CROPS, ids=[f"{f}Hz-{r}fps-x{a}-{b}" for f, r, a, b in NULL_CROPS]
+    ("frequency", "fps", "x0", "x1"),
+    REAL_STILL_CROPS,
+    ids=[f"{f}Hz-{r}fps-x{a}-{b}" for f, r, a, b in REAL_STILL_CROPS],
 )
 def test_still_parts_of_real_footage_have_no_object(frequency, fps, x0, x1, shared_dir):
     """The null corpus's real part (issue 25): the flat background beside the forks, cut out of the shared
     clips, holds the camera's sensor noise and its codec's (keyframes, frame types), but nothing that
     vibrates; nothing is reported."""
-    with _Crop(
+    with ColumnCrop(
         open_clip(_clip(shared_dir, frequency, fps), overrides=ClipOverrides(fps=fps)), x0, x1
     ) as reader:
         result = analyze(reader)
