@@ -8,12 +8,19 @@ broker, the queue and the serializer by construction.
 Reliability settings: late acks, reject on worker lost, prefetch 1, soft and hard time limits, a Redis
 visibility timeout above the hard limit, no result backend (the job row in the SQL store is the state).
 Without ``EIGENSCOPE_REDIS_URL`` the broker is kombu's filesystem transport in ``DATA_DIR/broker``,
-polled every ``broker_polling_interval_s`` seconds.
+polled every ``broker_polling_interval_s`` seconds, with one change (:class:`EmbeddedTransport`): a message
+file appears in the queue folder only once it is written whole.
 """
 
 from __future__ import annotations
 
+import os
+import uuid
+from time import monotonic
 from typing import Any
+
+from kombu.transport import filesystem
+from kombu.utils.json import dumps
 
 from service.settings import Settings
 
@@ -22,6 +29,32 @@ TASK_RUN_JOB = "eigenscope.run_job"
 
 #: Name of the Celery app on both sides.
 APP_NAME = "eigenscope"
+
+
+class _EmbeddedChannel(filesystem.Channel):  # type: ignore[misc]
+    """kombu's filesystem channel whose messages are written beside the queue and renamed into it.
+
+    kombu's own ``_put`` creates ``<queue>.msg`` and then writes it; a consumer polling in between moves
+    the empty file away, fails to decode it and the message is lost (the job stays queued for ever). A
+    rename is atomic: the consumer sees no file or a whole one.
+    """
+
+    def _put(self, queue: str, payload: Any, **kwargs: Any) -> None:
+        name = f"{round(monotonic() * 1000)}_{uuid.uuid4()}.{queue}.msg"
+        final = os.path.join(self.data_folder_out, name)
+        partial = os.path.join(self.data_folder_out, f"partial-{name}.part")  # matches no ``*.<queue>.msg``
+        try:
+            with open(partial, "wb") as fh:
+                fh.write(dumps(payload).encode())
+            os.replace(partial, final)
+        except OSError as exc:
+            raise filesystem.ChannelError(f"Cannot add file {final!r} to directory") from exc
+
+
+class EmbeddedTransport(filesystem.Transport):  # type: ignore[misc]
+    """The embedded broker's transport (``broker_transport``): kombu's filesystem one, whole messages only."""
+
+    Channel = _EmbeddedChannel
 
 
 def ensure_broker_folders(settings: Settings) -> None:
@@ -57,6 +90,7 @@ def celery_config(settings: Settings) -> dict[str, Any]:
     embedded = settings.embedded
     return {
         "broker_url": broker_url,
+        "broker_transport": None if settings.redis_url else f"{__name__}:EmbeddedTransport",
         "broker_transport_options": transport_options,
         "broker_connection_retry_on_startup": True,
         "broker_connection_timeout": 5,

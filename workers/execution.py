@@ -109,6 +109,7 @@ class _Report:
     started: float = 0.0
     failure: str | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
+    told: bool = False
 
     def claimed(self, job: JobRecord) -> None:
         self.job, self.started = job, time.monotonic()
@@ -118,6 +119,11 @@ class _Report:
             self.observer.started(job, queue_wait_s=wait)
 
     def done(self, outcome: Outcome) -> Outcome:
+        """Log and count how the delivery ended, once. Called before the job's final state is stored (so
+        whoever sees the job end sees it counted), and again, doing nothing, when the delivery returns."""
+        if self.told:
+            return outcome
+        self.told = True
         if self.job is not None:
             took = time.monotonic() - self.started
             why = f" ({self.failure})" if self.failure else ""
@@ -342,6 +348,7 @@ def _execute(
 
     def fail(p: dict[str, Any]) -> Outcome:
         report.failure = str(p.get("code") or p.get("type", "")).rsplit("/", 1)[-1]
+        report.done(Outcome("failed"))
         store.fail_job(job_id, owner, p)
         return Outcome("failed")
 
@@ -379,6 +386,7 @@ def _execute(
                     raise JobAbortedError(job_id)
                 output_bytes = tree_bytes(workdir)
                 storage.publish_job_outputs(job_id, workdir)
+                report.done(Outcome("succeeded"))
                 if not store.complete_job(
                     job_id, owner, result.model_dump(mode="json"), output_bytes=output_bytes
                 ):

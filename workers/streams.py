@@ -222,6 +222,8 @@ class Session:
     _estimated_at: float | None = None  # capture time (the last frame's timestamp) of the last estimate
     _end_reason: str | None = None
     _timings: dict[str, float] = field(default_factory=dict)
+    _claimed_at: float = 0.0
+    _counted: bool = False  # the job has been counted in the worker metrics (once)
     _has_depth: bool = False
     #: What this stream's frames may take of its key's storage quota.
     _room_bytes: int = 0
@@ -283,7 +285,7 @@ class Session:
         if self.metrics is not None and claim.job is not None:
             wait = max(time.time() - claim.job.enqueued_at, 0.0) if claim.job.enqueued_at else 0.0
             self.metrics.claimed(claim.job, queue_wait_s=wait)
-        claimed_at, outcome, failure = time.monotonic(), "aborted", None
+        self._claimed_at, outcome, failure = time.monotonic(), "aborted", None
         workdir: Path | None = None
         beat = threading.Thread(target=self._heartbeat, name=f"stream-{self.stream_id}-beat", daemon=True)
         beat.start()
@@ -307,6 +309,7 @@ class Session:
             self._discard_clip()
         except _FailedError as exc:
             outcome, failure = "failed", str(exc.problem.get("code") or "analysis-failed")
+            self._count(outcome, failure)
             self.store.fail_job(record.job_id, owner, exc.problem)
             self.store.update_stream(self.stream_id, status="failed", error=exc.problem)
             self.send({"type": "error", "fatal": True, "frame": None, "problem": exc.problem})
@@ -314,15 +317,14 @@ class Session:
         except Exception as exc:
             problem = _crash_problem(self.stream_id, exc, self.settings)
             outcome, failure = "failed", str(problem["code"])
+            self._count(outcome, failure)
             self.store.fail_job(record.job_id, owner, problem)
             self.store.update_stream(self.stream_id, status="failed", error=problem)
             self.send({"type": "error", "fatal": True, "frame": None, "problem": problem})
             self._discard_clip()
         finally:
             self._over.set()
-            if self.metrics is not None:
-                took = time.monotonic() - claimed_at
-                self.metrics.ended(outcome=outcome, duration_s=took, failure=failure, timings_s=self._timings)
+            self._count(outcome, failure)
             beat.join()
             if self._live is not None:
                 self._live.close()
@@ -330,6 +332,15 @@ class Session:
                 shutil.rmtree(workdir, ignore_errors=True)
             if not self.attached:  # nobody will read the rest: remove everything now
                 self.transport.cleanup(self.stream_id)
+
+    def _count(self, outcome: str, failure: str | None) -> None:
+        """Count the stream's job in the worker metrics, once: before its final state is stored, so whoever
+        sees the job end sees it counted (the ``finally`` counts an aborted one)."""
+        if self.metrics is None or self._counted:
+            return
+        self._counted = True
+        took = time.monotonic() - self._claimed_at
+        self.metrics.ended(outcome=outcome, duration_s=took, failure=failure, timings_s=self._timings)
 
     def _discard_clip(self) -> None:
         if self._clip is not None:
@@ -724,6 +735,7 @@ class Session:
         draw_all(analysis, workdir)
         write_result_json(workdir, result)
         self.storage.publish_job_outputs(job_id, workdir)
+        self._count("succeeded", None)
         if not self.store.complete_job(
             job_id, owner, doc, output_bytes=tree_bytes(self.storage.job_dir(job_id))
         ):
