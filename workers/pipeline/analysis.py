@@ -70,7 +70,7 @@ from workers.pipeline.segmentation import (
     exclude_background_surfaces,
     segment,
 )
-from workers.pipeline.spectra import PixelSpectra, background_spectrum, pixel_spectra
+from workers.pipeline.spectra import PixelSpectra, background_spectrum, plain_and_mixed_spectra
 from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.survey import Survey
 from workers.pipeline.tracking import CoarseView
@@ -279,8 +279,9 @@ def _window_spectra(
                 "info",
             )
         )
-    spectra = pixel_spectra(np.asarray(flow, np.float32), fps=plan.fps)
-    constrained = pixel_spectra(np.asarray(flow, np.float32), fps=plan.fps, mix=tensor_sqrt(confidence))
+    spectra, constrained = plain_and_mixed_spectra(
+        np.asarray(flow, np.float32), fps=plan.fps, mix=tensor_sqrt(confidence)
+    )
     summed = spectra.power.sum(axis=1, dtype=np.float64)
     return _Spectra(spectra, constrained, summed, background_spectrum(spectra), confidence)
 

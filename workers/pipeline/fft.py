@@ -5,6 +5,7 @@ library's import.
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -28,6 +29,10 @@ def _fftw() -> Any:
 def warm_up() -> None:
     """Import what the spectra need, so a thread can do it while frames are still being decoded."""
     _fftw()
+
+
+#: A symmetric 2x2 matrix per pixel, (a, b, c) = [[a, b], [b, c]], each of shape (P,).
+Mix = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]
 
 
 class RfftPlans:
@@ -67,7 +72,7 @@ class RfftPlans:
         nfft: int,
         pairs: int = 2,
         summary: BandSummary | None = None,
-        mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None = None,
+        mix: Mix | None = None,
     ) -> NDArray[np.float32]:
         """Mean-removed power spectra of every column, summed over groups of ``pairs`` adjacent columns.
 
@@ -92,22 +97,35 @@ class RfftPlans:
         -------
         ndarray of float32, shape (nfft // 2 + 1, C // pairs)
         """
+        return self.powers(data, nfft=nfft, pairs=pairs, summary=summary, mixes=(mix,))[0]
+
+    def powers(
+        self,
+        data: NDArray[np.float32],
+        *,
+        nfft: int,
+        pairs: int = 2,
+        summary: BandSummary | None = None,
+        mixes: Sequence[Mix | None] = (None,),
+    ) -> list[NDArray[np.float32]]:
+        """:meth:`power` once per entry of ``mixes`` from one transform of ``data``: a pair's mixed
+        spectra are the same mix of its columns' spectra (the transform is linear), so the plain and the
+        constrained spectra of a window cost one transform. ``summary`` is of the first."""
         n, cols = data.shape
         if cols % pairs:
             raise ValueError(f"{cols} columns do not split into groups of {pairs}")
-        n_freq = nfft // 2 + 1
-        out = np.empty((n_freq, cols // pairs), np.float32)
-        if mix is not None and pairs != 2:
+        if any(m is not None for m in mixes) and pairs != 2:
             raise ValueError("mix applies to pairs of columns")
+        n_freq = nfft // 2 + 1
+        outs = [np.empty((n_freq, cols // pairs), np.float32) for _ in mixes]
         if _fftw() is None:  # pragma: no cover
-            if mix is not None:
-                data = _mixed(data, *mix)
             centred = data - data.mean(axis=0)
-            spec = np.abs(np.fft.rfft(centred, n=nfft, axis=0)) ** 2
-            summed: NDArray[np.float32] = spec.reshape(n_freq, -1, pairs).sum(axis=2).astype(np.float32)
+            full = np.fft.rfft(centred, n=nfft, axis=0).T
+            for out, mix in zip(outs, mixes, strict=True):
+                out[:] = _pair_power(full, pairs, mix).T
             if summary is not None:
-                summary.fill(np.ascontiguousarray(summed[summary.bins].T), 0)
-            return summed
+                summary.fill(np.ascontiguousarray(outs[0][summary.bins].T), 0)
+            return outs
         block = self.block - self.block % pairs
         starts = list(range(0, cols, block))
         workers = self._workers(nfft)
@@ -116,19 +134,17 @@ class RfftPlans:
             plan, buf = workers[worker]
             for c in starts[worker :: len(workers)]:
                 w = min(block, cols - c)
-                if mix is None:
-                    buf[:w, :n] = data[:, c : c + w].T
-                else:
-                    pixels = slice(c // 2, (c + w) // 2)
-                    buf[:w, :n] = _mixed(data[:, c : c + w], *(m[pixels] for m in mix)).T
+                buf[:w, :n] = data[:, c : c + w].T
                 buf[:w, n:] = 0.0
                 buf[:w, :n] -= buf[:w, :n].mean(axis=1, keepdims=True)
-                spec = plan()
-                pw = spec.real[:w] ** 2 + spec.imag[:w] ** 2
-                per_pixel = pw.reshape(w // pairs, pairs, n_freq).sum(axis=1)
-                out[:, c // pairs : (c + w) // pairs] = per_pixel.T
-                if summary is not None:
-                    summary.fill(np.ascontiguousarray(per_pixel[:, summary.bins]), c // pairs)
+                spec = plan()[:w]
+                pixels = slice(c // pairs, (c + w) // pairs)
+                for j, (out, mix) in enumerate(zip(outs, mixes, strict=True)):
+                    part = None if mix is None else (mix[0][pixels], mix[1][pixels], mix[2][pixels])
+                    per_pixel = _pair_power(spec, pairs, part)
+                    out[:, pixels] = per_pixel.T
+                    if j == 0 and summary is not None:
+                        summary.fill(np.ascontiguousarray(per_pixel[:, summary.bins]), c // pairs)
 
         if len(workers) == 1 or len(starts) == 1:
             run(0)
@@ -137,18 +153,19 @@ class RfftPlans:
 
             with ThreadPoolExecutor(max_workers=len(workers), thread_name_prefix="fft") as pool:
                 list(pool.map(run, range(len(workers))))
-        return out
+        return outs
 
 
-def _mixed(
-    data: NDArray[np.float32], a: NDArray[np.float32], b: NDArray[np.float32], c: NDArray[np.float32]
-) -> NDArray[np.float32]:
-    """Interleaved pairs (x, y) of ``data``'s columns turned into (a x + b y, b x + c y)."""
-    x, y = data[:, 0::2], data[:, 1::2]
-    out = np.empty(data.shape, np.float32)
-    out[:, 0::2] = a * x + b * y
-    out[:, 1::2] = b * x + c * y
-    return out
+def _pair_power(spec: NDArray[np.complexfloating[Any, Any]], pairs: int, mix: Mix | None) -> NDArray[np.float32]:
+    """Power per group of ``pairs`` rows of ``spec`` (C, F), summed: (C // pairs, F); with ``mix``, each
+    pair (X, Y) of spectra turned into (a X + b Y, b X + c Y) first."""
+    if mix is None:
+        pw = spec.real**2 + spec.imag**2
+        return np.asarray(pw.reshape(-1, pairs, spec.shape[1]).sum(axis=1), np.float32)
+    a, b, c = (np.asarray(m, np.float32)[:, None] for m in mix)
+    x, y = spec[0::2], spec[1::2]
+    first, second = a * x + b * y, b * x + c * y
+    return np.asarray(first.real**2 + first.imag**2 + second.real**2 + second.imag**2, np.float32)
 
 
 @functools.lru_cache(maxsize=4)

@@ -165,15 +165,55 @@ def pixel_spectra(
     summary = None
     if band_hz is not None:
         summary = BandSummary.empty(median_bins(freqs, band_hz), flat.shape[1] // 2)
-    per_pixel = None
-    if mix is not None:
-        a, b, c = (np.asarray(m, np.float32).ravel() for m in mix)
-        per_pixel = (a, b, c)
-    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, summary=summary, mix=per_pixel)
+    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, summary=summary, mix=_flat(mix))
     spectra = PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
     if band_hz is not None and summary is not None:
         spectra.__dict__.setdefault("_summaries", {})[band_hz] = summary
     return spectra
+
+
+def plain_and_mixed_spectra(
+    flow: NDArray[np.float32],
+    *,
+    fps: float,
+    mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]],
+    plans: RfftPlans | None = None,
+) -> tuple[PixelSpectra, PixelSpectra]:
+    """``pixel_spectra(flow)`` and ``pixel_spectra(flow, mix=mix)`` from one transform of the flow (the
+    mixed spectra are the same mix of each pixel's u and v spectra).
+
+    Parameters
+    ----------
+    flow : ndarray of float32, shape (N, h, w, 2)
+    fps : float
+    mix : (a, b, c), each ndarray of float32, shape (h, w)
+    plans : RfftPlans, optional
+
+    Returns
+    -------
+    (PixelSpectra, PixelSpectra)
+        Plain, then mixed.
+    """
+    n = flow.shape[0]
+    nfft = fast_length(n)
+    freqs = np.fft.rfftfreq(nfft, d=1.0 / fps).astype(np.float64)
+    plain, mixed = (plans or shared_plans()).powers(
+        flow.reshape(n, -1), nfft=nfft, pairs=2, mixes=(None, _flat(mix))
+    )
+    return (
+        PixelSpectra(frequencies_hz=freqs, power=plain, fps=fps, n=nfft),
+        PixelSpectra(frequencies_hz=freqs, power=mixed, fps=fps, n=nfft),
+    )
+
+
+def _flat(
+    mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None,
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None:
+    """A per-pixel mix of maps (h, w) as flat float32 arrays (P,)."""
+    if mix is None:
+        return None
+    a, b, c = (np.asarray(m, np.float32).ravel() for m in mix)
+    return a, b, c
 
 
 def background_spectrum(spectra: PixelSpectra, *, percentile: float = 20.0) -> NDArray[np.float64]:
@@ -224,5 +264,6 @@ __all__ = [
     "median_bins",
     "median_rows",
     "pixel_spectra",
+    "plain_and_mixed_spectra",
     "whitened_spectrum",
 ]

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -87,9 +88,9 @@ def object_motion(
     if len(idx) > max_pixels:
         idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
     n = flow.shape[0]
-    sub = flow.reshape(n, -1, 2)[:, idx, :].astype(np.float32)  # (N, P, 2)
-    columns = sub.reshape(n, -1)
-    mat = columns - columns.mean(axis=0, dtype=np.float64).astype(np.float32)
+    # (N, 2P): the pixels' u and v, each column's mean removed (one copy of the masked flow)
+    mat = np.asarray(flow.reshape(n, -1, 2)[:, idx, :], np.float32).reshape(n, -1)
+    mat -= mat.mean(axis=0, dtype=np.float64).astype(np.float32)
     weight = None if confidence is None else confidence.weight
     counts = (
         np.ones(mat.shape[1], np.float32)
@@ -101,7 +102,8 @@ def object_motion(
         nu = frequency_hz / sample_rate_hz
         u1 = _band_component(mat * counts, nu)
         if confidence is not None:
-            mean_course = _mean_course(sub, _tensors(confidence, idx), nu)
+            # the course's own mean is removed, so the columns' means make no difference to it
+            mean_course = _mean_course(mat.reshape(n, -1, 2), _tensors(confidence, idx), nu)
         if mean_course is not None and line_snr(mean_course, nu) > line_snr(u1, nu):
             u1 = mean_course / float(np.linalg.norm(mean_course))
         else:
@@ -168,10 +170,12 @@ def _mean_course(
     total = tensors.sum(axis=0)
     if np.linalg.det(total) <= 1e-12 * max(float(np.trace(total)) ** 2, 1e-30):
         return None
-    summed = np.einsum("npc,pdc->nd", flow, tensors.astype(flow.dtype), dtype=np.float64)
+    n, p = flow.shape[:2]
+    # sum_p J_p u_p as one matrix product: (N, 2P) @ (2P, 2), the rows of J_p^T stacked per pixel
+    stacked = np.ascontiguousarray(tensors.transpose(0, 2, 1).reshape(2 * p, 2), dtype=flow.dtype)
+    summed = (flow.reshape(n, 2 * p) @ stacked).astype(np.float64)
     mean = summed @ np.linalg.inv(total).T  # (N, 2)
     mean = mean - mean.mean(axis=0)
-    n = len(mean)
     lines_at = np.arange(n // 2 + 1) / n
     near = np.flatnonzero(np.abs(lines_at - cycles_per_sample) <= 1.0 / n)
     if near.size == 0:
@@ -183,7 +187,7 @@ def _mean_course(
 
 
 def _band_component(
-    mat: NDArray[np.float64], cycles_per_sample: float, *, lines: float = 2.0
+    mat: NDArray[np.floating[Any]], cycles_per_sample: float, *, lines: float = 2.0
 ) -> NDArray[np.float64]:
     """The unit time course (N,) of the spatial pattern that explains most of ``mat``'s (N, C) motion
     within ``lines`` lines of a frequency: the leading right singular vector of the columns' spectra
