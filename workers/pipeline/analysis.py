@@ -191,6 +191,9 @@ def _analyze_default(
     if not front.candidates.found:
         return _still(look_buffers(look), plan, info, front, config=config, watch=watch)
     roi = plan_roi(look, front.candidates.regions, frame_shape=(info.height, info.width), samples=look.count)
+    front = front.keeping_flow_of(roi)
+    # the front keeps the box's flow; the rest is not read again (an empty array, not a view that keeps it)
+    look.flow = np.empty((look.count, 0, look.flow.shape[2], 2), np.float32)
     buffers = stream_roi(
         look if look.kept is not None else source,
         roi,
@@ -408,7 +411,7 @@ def _measure(
 def _coarse_view(front: Front, regions: _Regions, label: int) -> CoarseView:
     """Object ``label`` on the first pass's grid: where its candidate moved there and where its mask lies."""
     region = regions.candidates[label - 1].region | coarse_region(front, regions.labels_full == label)
-    return CoarseView(front.flow, region, front.scan_confidence, front.grid_factor)
+    return front.coarse_view(region)
 
 
 def _to_rest(objects: list[ObjectMeasurement], labels: NDArray[np.uint16]) -> None:

@@ -156,7 +156,9 @@ class RfftPlans:
         return outs
 
 
-def _pair_power(spec: NDArray[np.complexfloating[Any, Any]], pairs: int, mix: Mix | None) -> NDArray[np.float32]:
+def _pair_power(
+    spec: NDArray[np.complexfloating[Any, Any]], pairs: int, mix: Mix | None
+) -> NDArray[np.float32]:
     """Power per group of ``pairs`` rows of ``spec`` (C, F), summed: (C // pairs, F); with ``mix``, each
     pair (X, Y) of spectra turned into (a X + b Y, b X + c Y) first."""
     if mix is None:

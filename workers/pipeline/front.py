@@ -9,7 +9,8 @@ its flow as frames arrive). Either way one :class:`Front` goes to
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -21,9 +22,11 @@ from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.detection import Candidates, find_candidates
 from workers.pipeline.errors import AnalysisError
 from workers.pipeline.look import LOOK_WIDTH_PX, Look, frame_noise
+from workers.pipeline.roi import Roi
 from workers.pipeline.significance import MAX_FALSE_ALARM, MIN_BINS, MotionScan, motion_scan
 from workers.pipeline.spectra import PixelSpectra, pixel_spectra
 from workers.pipeline.stream import FrameBuffers
+from workers.pipeline.tracking import CoarseView
 from workers.pipeline.window import default_band
 
 
@@ -46,9 +49,12 @@ class Front:
         Input pixels per pixel of that grid.
     scan_confidence : Confidence
         Of that grid.
-    flow : ndarray of float32, shape (N, h, w, 2)
-        The whole picture's flow on that grid (area-averaging lowers a codec's noise: a thin object moving
-        a fraction of a pixel may stand out more clearly here than at full resolution).
+    flow : ndarray of float32, shape (N, h', w', 2)
+        The picture's flow on that grid (area-averaging lowers a codec's noise: a thin object moving a
+        fraction of a pixel may stand out more clearly here than at full resolution): of the whole
+        picture, or of the box :meth:`keeping_flow_of` kept.
+    flow_origin : (row, column)
+        Where ``flow``'s first pixel lies on the grid.
     """
 
     band_hz: tuple[float, float]
@@ -60,6 +66,34 @@ class Front:
     grid_factor: float
     scan_confidence: Confidence
     flow: NDArray[np.float32]
+    flow_origin: tuple[int, int] = (0, 0)
+
+    def keeping_flow_of(self, roi: Roi) -> Front:
+        """This front with its flow kept over ``roi``'s box only (rounded out to the grid): once the region
+        that moves is chosen, the rest of the picture's flow is never read again (a 1000-frame window's
+        coarse flow is 128 MiB at 640 x 420), and every object measured lies in the box."""
+        if roi.whole_frame:
+            return self
+        f = self.grid_factor
+        h, w = self.flow.shape[1:3]
+        y0, x0 = int(roi.y // f), int(roi.x // f)
+        y1 = min(h, math.ceil((roi.y + roi.height) / f))
+        x1 = min(w, math.ceil((roi.x + roi.width) / f))
+        kept = np.array(self.flow[:, y0:y1, x0:x1])  # a copy: the whole picture's flow can be let go
+        return replace(self, flow=kept, flow_origin=(y0, x0))
+
+    def coarse_view(self, region: NDArray[np.bool_]) -> CoarseView:
+        """An object on this grid (``region``, a mask of the whole grid) for
+        :func:`~workers.pipeline.tracking.track_object`: the kept flow, the region and the confidence
+        over the kept box."""
+        y0, x0 = self.flow_origin
+        h, w = self.flow.shape[1:3]
+        rows, cols = slice(y0, y0 + h), slice(x0, x0 + w)
+        c = self.scan_confidence
+        box = Confidence(
+            c.jxx[rows, cols], c.jxy[rows, cols], c.jyy[rows, cols], c.weight[rows, cols], c.noise_energy
+        )
+        return CoarseView(self.flow, region[rows, cols], box, self.grid_factor)
 
     def band_powers(
         self, frequency_hz: float, width_bins: float, region: NDArray[np.bool_]

@@ -152,3 +152,33 @@ def test_a_whole_frame_flow_is_scanned_on_the_looks_grid():
     ys, xs = np.nonzero(front.candidates.found[0].region)
     assert 20 <= ys.mean() <= 35  # the patch, on the halved grid
     assert 50 <= xs.mean() <= 75
+
+
+def test_the_front_keeps_only_the_boxs_coarse_flow_and_measures_the_object_the_same():
+    """Once the box is chosen, the front keeps the coarse flow over it alone (a copy: the whole picture's
+    flow can be freed), and an object's motion on that grid is what it was on the whole grid."""
+    from workers.pipeline.front import front_of_look
+    from workers.pipeline.tracking import object_motion
+
+    scene = _scene()
+    with SceneReader(scene) as reader:
+        look = look_at(reader, 0, scene.frames)
+    front = front_of_look(look, sample_rate_hz=30.0, band_hz=(1.0, 14.0), max_objects=4)
+    assert front.candidates.found
+    roi = plan_roi(look, front.candidates.regions, frame_shape=(240, 320), samples=look.count)
+    kept = front.keeping_flow_of(roi)
+    f = front.grid_factor
+    y0, x0 = kept.flow_origin
+    assert (y0, x0) == (roi.y // f, roi.x // f)
+    assert kept.flow.base is None and kept.flow.shape[1] < front.flow.shape[1]
+    assert kept.flow.shape[1] * f >= roi.height and kept.flow.shape[2] * f >= roi.width
+    region = front.candidates.regions[0]
+    whole, boxed = front.coarse_view(region), kept.coarse_view(region)
+    assert boxed.region.sum() == region.sum()  # the object lies in the box
+    motions = [
+        object_motion(v.flow, v.region, frequency_hz=4.0, sample_rate_hz=30.0, confidence=v.confidence)
+        for v in (whole, boxed)
+    ]
+    np.testing.assert_allclose(motions[1].velocity_px, motions[0].velocity_px, rtol=1e-5, atol=1e-7)
+    whole_frame = Roi(0, 0, 320, 240, (240, 320), (240, 320))
+    assert front.keeping_flow_of(whole_frame) is front
