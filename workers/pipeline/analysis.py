@@ -14,6 +14,7 @@ the resolution it needs), :mod:`~workers.pipeline.segmentation` (which pixels),
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -70,7 +71,7 @@ from workers.pipeline.segmentation import (
     exclude_background_surfaces,
     segment,
 )
-from workers.pipeline.spectra import PixelSpectra, background_spectrum, plain_and_mixed_spectra
+from workers.pipeline.spectra import PixelSpectra, background_spectrum, pixel_spectra
 from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.survey import Survey
 from workers.pipeline.tracking import CoarseView
@@ -239,15 +240,24 @@ def look_buffers(look: Look) -> FrameBuffers:
 
 @dataclass(frozen=True)
 class _Spectra:
-    """The window's per-pixel spectra on its grid: of the flow weighed by its confidence (a flat pixel's
-    flow is silenced), and of the constrained flow (what the image shows of each pixel's motion: along an
-    edge only its normal component); their sum over the pixels and the background's."""
+    """The window's per-pixel spectra on its grid, their sum over the pixels and the background's; and,
+    when asked for, the spectra of the constrained flow (what the image shows of each pixel's motion: along
+    an edge only its normal component), taken from ``flow``."""
 
     pixels: PixelSpectra
-    constrained: PixelSpectra
     summed: NDArray[np.float64]
     noise: NDArray[np.float64]
     confidence: Confidence
+    flow: NDArray[np.float32] | None = None
+
+    @functools.cached_property
+    def constrained(self) -> PixelSpectra:
+        """Spectra of J^(1/2) u: computed on first use, since only a candidate that the plain spectra do not
+        segment needs them (a thin, plain object moving a fraction of a pixel); the plain spectra without
+        a window's flow."""
+        if self.flow is None:
+            return self.pixels
+        return pixel_spectra(self.flow, fps=self.pixels.fps, mix=tensor_sqrt(self.confidence))
 
 
 def window_confidence(buffers: FrameBuffers) -> Confidence:
@@ -282,11 +292,10 @@ def _window_spectra(
                 "info",
             )
         )
-    spectra, constrained = plain_and_mixed_spectra(
-        np.asarray(flow, np.float32), fps=plan.fps, mix=tensor_sqrt(confidence)
-    )
+    flow = np.asarray(flow, np.float32)
+    spectra = pixel_spectra(flow, fps=plan.fps)
     summed = spectra.power.sum(axis=1, dtype=np.float64)
-    return _Spectra(spectra, constrained, summed, background_spectrum(spectra), confidence)
+    return _Spectra(spectra, summed, background_spectrum(spectra), confidence, flow)
 
 
 @dataclass(frozen=True)
@@ -384,14 +393,12 @@ def _measure(
 ) -> tuple[list[ObjectMeasurement], dict[int, Excitation]]:
     """Measure every segmented region."""
     by_label = assign_excitations(list(excitations), regions.labels_full, len(regions.seg.peaks))
-    crop_shape = (box.height, box.width)
     objects = [
         measure_object(
             label=label,
             peak=peak,
             mask=regions.labels_grid == label,
             full_mask=regions.labels_full == label,
-            crop_shape=crop_shape,
             buffers=buffers,
             fps=plan.fps,
             pixel_scale=box.pixel_scale,
@@ -713,9 +720,7 @@ def _still(
     quality.extend(survey_notes(plan, []))
     summed = front.spectra.power.sum(axis=1, dtype=np.float64)
     box = Roi.whole((info.height, info.width), front.scan.grid_shape)
-    spectra = _Spectra(
-        front.spectra, front.spectra, summed, background_spectrum(front.spectra), front.scan_confidence
-    )
+    spectra = _Spectra(front.spectra, summed, background_spectrum(front.spectra), front.scan_confidence)
     labels = np.zeros((info.height, info.width), np.uint16)
     return _analysis([], labels, spectra, front, buffers, plan, info, config, box, quality, watch, [])
 

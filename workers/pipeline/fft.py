@@ -5,7 +5,6 @@ library's import.
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -89,43 +88,27 @@ class RfftPlans:
             bins into its arrays, taken per block while the block's spectra lie contiguous in cache (a
             separate pass would first transpose all of them).
         mix : (a, b, c), each ndarray of float32, shape (P,), optional
-            With ``pairs`` 2: each pair (x, y) of columns is first turned into (a x + b y, b x + c y) by
-            its own symmetric matrix, block by block (the transform of a mixed copy of ``data`` without
-            the copy).
+            With ``pairs`` 2: each pair of columns' spectra (X, Y) is turned into (a X + b Y, b X + c Y) by
+            its own symmetric matrix before its power is taken (the spectra of the mixed columns, the
+            transform being linear, without a mixed copy of ``data``).
 
         Returns
         -------
         ndarray of float32, shape (nfft // 2 + 1, C // pairs)
         """
-        return self.powers(data, nfft=nfft, pairs=pairs, summary=summary, mixes=(mix,))[0]
-
-    def powers(
-        self,
-        data: NDArray[np.float32],
-        *,
-        nfft: int,
-        pairs: int = 2,
-        summary: BandSummary | None = None,
-        mixes: Sequence[Mix | None] = (None,),
-    ) -> list[NDArray[np.float32]]:
-        """:meth:`power` once per entry of ``mixes`` from one transform of ``data``: a pair's mixed
-        spectra are the same mix of its columns' spectra (the transform is linear), so the plain and the
-        constrained spectra of a window cost one transform. ``summary`` is of the first."""
         n, cols = data.shape
         if cols % pairs:
             raise ValueError(f"{cols} columns do not split into groups of {pairs}")
-        if any(m is not None for m in mixes) and pairs != 2:
+        if mix is not None and pairs != 2:
             raise ValueError("mix applies to pairs of columns")
         n_freq = nfft // 2 + 1
-        outs = [np.empty((n_freq, cols // pairs), np.float32) for _ in mixes]
+        out = np.empty((n_freq, cols // pairs), np.float32)
         if _fftw() is None:  # pragma: no cover
             centred = data - data.mean(axis=0)
-            full = np.fft.rfft(centred, n=nfft, axis=0).T
-            for out, mix in zip(outs, mixes, strict=True):
-                out[:] = _pair_power(full, pairs, mix).T
+            out[:] = _pair_power(np.fft.rfft(centred, n=nfft, axis=0).T, pairs, mix).T
             if summary is not None:
-                summary.fill(np.ascontiguousarray(outs[0][summary.bins].T), 0)
-            return outs
+                summary.fill(np.ascontiguousarray(out[summary.bins].T), 0)
+            return out
         block = self.block - self.block % pairs
         starts = list(range(0, cols, block))
         workers = self._workers(nfft)
@@ -137,14 +120,12 @@ class RfftPlans:
                 buf[:w, :n] = data[:, c : c + w].T
                 buf[:w, n:] = 0.0
                 buf[:w, :n] -= buf[:w, :n].mean(axis=1, keepdims=True)
-                spec = plan()[:w]
                 pixels = slice(c // pairs, (c + w) // pairs)
-                for j, (out, mix) in enumerate(zip(outs, mixes, strict=True)):
-                    part = None if mix is None else (mix[0][pixels], mix[1][pixels], mix[2][pixels])
-                    per_pixel = _pair_power(spec, pairs, part)
-                    out[:, pixels] = per_pixel.T
-                    if j == 0 and summary is not None:
-                        summary.fill(np.ascontiguousarray(per_pixel[:, summary.bins]), c // pairs)
+                part = None if mix is None else (mix[0][pixels], mix[1][pixels], mix[2][pixels])
+                per_pixel = _pair_power(plan()[:w], pairs, part)
+                out[:, pixels] = per_pixel.T
+                if summary is not None:
+                    summary.fill(np.ascontiguousarray(per_pixel[:, summary.bins]), c // pairs)
 
         if len(workers) == 1 or len(starts) == 1:
             run(0)
@@ -153,7 +134,7 @@ class RfftPlans:
 
             with ThreadPoolExecutor(max_workers=len(workers), thread_name_prefix="fft") as pool:
                 list(pool.map(run, range(len(workers))))
-        return outs
+        return out
 
 
 def _pair_power(

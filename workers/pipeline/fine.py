@@ -37,6 +37,10 @@ from workers.pipeline.stream import FrameBuffers
 ROI_BUDGET_PX = 320 * 240
 #: Most memory the second pass's flow maps may take, MiB (the window's length bounds its grid).
 ROI_BUDGET_MIB = 192.0
+#: Most memory the second pass's grey frames may take at input resolution, MiB; beyond it they are kept
+#: on the box's flow grid, where registration then works (they grow with the window: 146 MiB of a 1000-frame
+#: window of a 366 x 420 box).
+GRAY_BUDGET_MIB = 64.0
 #: Background kept around the moving regions: this many input pixels at least ...
 MIN_MARGIN_PX = 24
 #: ... and this fraction of the square root of the regions' area (a large object gets a wide margin).
@@ -111,21 +115,32 @@ class _Window:
     def __post_init__(self) -> None:
         h, w = self.roi.grid_shape
         self.flow = np.empty((self.n, h, w, 2), np.float32)
-        self.gray = np.empty((self.n + 1, self.roi.height, self.roi.width), np.uint8)
+        whole = (self.n + 1) * self.roi.height * self.roi.width <= GRAY_BUDGET_MIB * 2**20
+        self.gray = np.empty(
+            (self.n + 1, *((self.roi.height, self.roi.width) if whole else (h, w))), np.uint8
+        )
         self.depth = np.full((self.n + 1, h, w), np.nan, np.float32) if self.has_depth else None
         self.frames = 0
 
+    @property
+    def gray_pixel_scale(self) -> float:
+        """Input pixels per pixel of the kept grey frames."""
+        return self.roi.width / self.gray.shape[2]
+
     def add(self, i: int, gray: NDArray[np.uint8], depth: NDArray[np.float32] | None) -> NDArray[np.uint8]:
-        """Frame ``i``: its grey crop kept, its depth on the grid; returns the grey frame on the grid."""
+        """Frame ``i``: its grey crop kept (at input resolution or on the grid), its depth on the grid;
+        returns the grey frame on the grid."""
         crop = self.roi.crop(gray)
-        self.gray[i] = crop
         if self.depth is not None and depth is not None:
             self.depth[i] = _depth_on(depth, self.roi)
         self.frames = i + 1
         h, w = self.roi.grid_shape
         if crop.shape == (h, w):
+            self.gray[i] = crop
             return np.asarray(self.gray[i], np.uint8)
-        return np.asarray(cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
+        small = np.asarray(cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
+        self.gray[i] = small if self.gray.shape[1:] == (h, w) else crop
+        return small
 
 
 def _depth_on(depth: NDArray[np.float32], roi: Roi) -> NDArray[np.float32]:
@@ -256,10 +271,12 @@ def _buffers(window: _Window, count: int, *, look: Look, decode_s: float) -> Fra
         camera_still_fraction=look.camera_still_fraction,
         announced=look.announced,
         roi=roi,
+        gray_pixel_scale=window.gray_pixel_scale,
     )
 
 
 __all__ = [
+    "GRAY_BUDGET_MIB",
     "MARGIN_FRACTION",
     "MIN_MARGIN_PX",
     "ROI_BUDGET_MIB",

@@ -66,7 +66,6 @@ def measure_object(
     excitation: Excitation | None,
     excluded: list[str],
     band_hz: tuple[float, float] | None = None,
-    crop_shape: tuple[int, int] | None = None,
     confidence: Confidence | None = None,
     coarse: CoarseView | None = None,
 ) -> ObjectMeasurement:
@@ -96,9 +95,6 @@ def measure_object(
         Notes on pixels removed from its mask.
     band_hz : (low, high), optional
         The analysed band (the fitted frequency stays inside it).
-    crop_shape : (Hc, Wc), optional
-        Size of the box of the frame the buffers' grid and grey frames cover (the whole frame when
-        None).
     confidence : Confidence, optional
         Of the grid's flow (:mod:`workers.pipeline.confidence`).
     coarse : CoarseView, optional
@@ -111,7 +107,6 @@ def measure_object(
     track = track_object(
         buffers,
         mask,
-        full_shape=crop_shape or full_mask.shape,
         fps=fps,
         pixel_scale=pixel_scale,
         frequency_guess_hz=peak.frequency_hz,

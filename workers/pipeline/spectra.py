@@ -172,40 +172,6 @@ def pixel_spectra(
     return spectra
 
 
-def plain_and_mixed_spectra(
-    flow: NDArray[np.float32],
-    *,
-    fps: float,
-    mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]],
-    plans: RfftPlans | None = None,
-) -> tuple[PixelSpectra, PixelSpectra]:
-    """``pixel_spectra(flow)`` and ``pixel_spectra(flow, mix=mix)`` from one transform of the flow (the
-    mixed spectra are the same mix of each pixel's u and v spectra).
-
-    Parameters
-    ----------
-    flow : ndarray of float32, shape (N, h, w, 2)
-    fps : float
-    mix : (a, b, c), each ndarray of float32, shape (h, w)
-    plans : RfftPlans, optional
-
-    Returns
-    -------
-    (PixelSpectra, PixelSpectra)
-        Plain, then mixed.
-    """
-    n = flow.shape[0]
-    nfft = fast_length(n)
-    freqs = np.fft.rfftfreq(nfft, d=1.0 / fps).astype(np.float64)
-    plain, mixed = (plans or shared_plans()).powers(
-        flow.reshape(n, -1), nfft=nfft, pairs=2, mixes=(None, _flat(mix))
-    )
-    return (
-        PixelSpectra(frequencies_hz=freqs, power=plain, fps=fps, n=nfft),
-        PixelSpectra(frequencies_hz=freqs, power=mixed, fps=fps, n=nfft),
-    )
-
-
 def _flat(
     mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None:
@@ -264,6 +230,5 @@ __all__ = [
     "median_bins",
     "median_rows",
     "pixel_spectra",
-    "plain_and_mixed_spectra",
     "whitened_spectrum",
 ]

@@ -34,8 +34,9 @@ class FrameBuffers:
         the paper's recipe.
     depth : ndarray of float32, shape (N + 1, h, w), or None
         Depth on the grid, metres, NaN invalid.
-    gray : ndarray of uint8, shape (N + 1, H, W), or None
-        Grey frames at input resolution, for registration.
+    gray : ndarray of uint8, shape (N + 1, H', W'), or None
+        Grey frames of the box, for registration: at input resolution, or on a coarser grid when they
+        would not fit a memory budget (``gray_pixel_scale``).
     first_rgb : ndarray of uint8, shape (H, W, 3)
     count : int
         Flow maps N.
@@ -61,7 +62,9 @@ class FrameBuffers:
     announced : int
         Flow maps the reader announced; more than ``count`` when the clip ended early.
     roi : Roi or None
-        The box of the frame the flow grid covers (None: the whole frame, ``gray`` at input resolution).
+        The box of the frame the flow grid covers (None: the whole frame).
+    gray_pixel_scale : float
+        Input pixels per pixel of ``gray`` (1: input resolution).
     """
 
     flow: NDArray[np.float32]
@@ -80,6 +83,7 @@ class FrameBuffers:
     camera_still_fraction: float = 0.0
     announced: int = 0
     roi: Roi | None = None
+    gray_pixel_scale: float = 1.0
 
     def box(self, frame_shape: tuple[int, int]) -> Roi:
         """The box the flow grid covers (the whole frame when ``roi`` is None)."""

@@ -100,7 +100,7 @@ def object_motion(
     mean_course: NDArray[np.float64] | None = None
     if frequency_hz is not None and sample_rate_hz is not None:
         nu = frequency_hz / sample_rate_hz
-        u1 = _band_component(mat * counts, nu)
+        u1 = _band_component(mat, nu, weights=counts)
         if confidence is not None:
             # the course's own mean is removed, so the columns' means make no difference to it
             mean_course = _mean_course(mat.reshape(n, -1, 2), _tensors(confidence, idx), nu)
@@ -187,11 +187,16 @@ def _mean_course(
 
 
 def _band_component(
-    mat: NDArray[np.floating[Any]], cycles_per_sample: float, *, lines: float = 2.0
+    mat: NDArray[np.floating[Any]],
+    cycles_per_sample: float,
+    *,
+    lines: float = 2.0,
+    weights: NDArray[np.float32] | None = None,
 ) -> NDArray[np.float64]:
     """The unit time course (N,) of the spatial pattern that explains most of ``mat``'s (N, C) motion
     within ``lines`` lines of a frequency: the leading right singular vector of the columns' spectra
-    there, its phase turned to make it as real as possible."""
+    there, its phase turned to make it as real as possible. With ``weights`` (C,), of ``mat`` with each
+    column scaled by its weight (applied to the spectra and the pattern: no weighted copy of ``mat``)."""
     n = mat.shape[0]
     lines_at = np.arange(n // 2 + 1) / n
     near = np.flatnonzero(np.abs(lines_at - cycles_per_sample) <= lines / n)
@@ -201,10 +206,13 @@ def _band_component(
     phase = 2 * np.pi * np.outer(lines_at[near], t)  # (K, N)
     # two real products: a complex one would first copy the whole of mat as complex numbers
     spectra = np.cos(phase).astype(mat.dtype) @ mat - 1j * (np.sin(phase).astype(mat.dtype) @ mat)
+    if weights is not None:
+        spectra *= weights[None, :]
     _, _, vh = np.linalg.svd(spectra, full_matrices=False)
     pattern = vh[0].conj()
     pattern = pattern * np.exp(-0.5j * np.angle(np.sum(pattern * pattern)))  # most nearly real
-    course = np.asarray(mat @ pattern.real.astype(mat.dtype), np.float64)
+    real = pattern.real if weights is None else pattern.real * weights
+    course = np.asarray(mat @ real.astype(mat.dtype), np.float64)
     norm = float(np.linalg.norm(course))
     return course / norm if norm > 0 else course
 
@@ -429,7 +437,6 @@ def track_object(
     buffers: FrameBuffers,
     mask: NDArray[np.bool_],
     *,
-    full_shape: tuple[int, int],
     fps: float,
     pixel_scale: float,
     frequency_guess_hz: float,
@@ -450,8 +457,6 @@ def track_object(
         The window's flow, grey frames and camera motion.
     mask : ndarray of bool, shape (h, w)
         The object's spectral mask on the flow grid.
-    full_shape : (H, W)
-        Input frame size.
     fps : float
         Rate of the flow samples, Hz.
     pixel_scale : float
@@ -514,13 +519,15 @@ def track_object(
         position = np.concatenate([[0.0], np.cumsum(velocity)])
         initial = (position - position[ref])[:, None] * np.asarray(axis)[None, :]
         reach = float(np.abs(position - position[ref]).max()) / pixel_scale
-        outline = silhouette(buffers.flow[ref], mask, axis_px=axis, shape=full_shape, reach_px=reach)
+        gray_shape = (int(buffers.gray.shape[1]), int(buffers.gray.shape[2]))
+        outline = silhouette(buffers.flow[ref], mask, axis_px=axis, shape=gray_shape, reach_px=reach)
         camera = np.concatenate([[[0.0, 0.0]], np.cumsum(buffers.camera_px, axis=0)]) * pixel_scale
         camera -= camera[ref]
+        scale = buffers.gray_pixel_scale  # input pixels per pixel of the grey frames
         disp2d, failed = register_translation(
-            buffers.gray, outline, ref_index=ref, initial_px=initial + camera
+            buffers.gray, outline, ref_index=ref, initial_px=(initial + camera) / scale
         )
-        disp2d = disp2d - camera  # the object's motion relative to the camera
+        disp2d = disp2d * scale - camera  # the object's motion relative to the camera, input pixels
         if failed <= 0.1:
             centred = disp2d - disp2d.mean(axis=0)
             _, vecs = np.linalg.eigh(centred.T @ centred)

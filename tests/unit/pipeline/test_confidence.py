@@ -94,24 +94,3 @@ def test_spectra_of_the_constrained_flow_need_no_copy_of_it():
     np.testing.assert_allclose(mixed, copied, rtol=1e-5, atol=1e-6 * float(copied.max()))
     whole = constrained_flow(flow, conf)
     np.testing.assert_array_equal(constrained_flow(flow[7], conf), whole[7])  # one map as in a window
-
-
-def test_plain_and_constrained_spectra_come_from_one_transform():
-    """``plain_and_mixed_spectra`` gives what two ``pixel_spectra`` calls give (plain, then mixed by J^½),
-    each within float32 rounding, over more pixels than one block of the transform."""
-    from workers.pipeline.fft import RfftPlans
-    from workers.pipeline.spectra import pixel_spectra, plain_and_mixed_spectra
-
-    conf = flow_confidence(_texture(40, 60), frame_noise=1.0)
-    rng = np.random.default_rng(5)
-    flow = rng.standard_normal((250, 40, 60, 2)).astype(np.float32)
-    flow[:, 10:20, 20:40, 0] += np.sin(np.arange(250) * 0.7)[:, None, None].astype(np.float32)
-    plans = RfftPlans(threads=2, block=512)  # 2400 pixels: several blocks, both workers
-    plain, mixed = plain_and_mixed_spectra(flow, fps=100.0, mix=tensor_sqrt(conf), plans=plans)
-    alone = pixel_spectra(flow, fps=100.0, plans=plans)
-    constrained = pixel_spectra(constrained_flow(flow, conf), fps=100.0, plans=plans)
-    np.testing.assert_array_equal(plain.frequencies_hz, alone.frequencies_hz)
-    np.testing.assert_allclose(plain.power, alone.power, rtol=1e-5, atol=1e-6 * float(alone.power.max()))
-    scale = float(constrained.power.max())
-    np.testing.assert_allclose(mixed.power, constrained.power, rtol=1e-4, atol=1e-6 * scale)
-    assert not np.allclose(mixed.power, plain.power, rtol=0.1)  # the mix matters on this texture
