@@ -268,9 +268,13 @@ def window_confidence(buffers: FrameBuffers) -> Confidence:
         gray = cv2.cvtColor(buffers.first_rgb, cv2.COLOR_RGB2GRAY)
         box = buffers.box(gray.shape)
         return flow_confidence(box.on_grid(gray).astype(np.float32))
-    frames = buffers.gray[:: max(1, len(buffers.gray) // 32)].astype(np.float32)
-    if frames.shape[1:] != (h, w):
-        frames = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
+    sampled = buffers.gray[:: max(1, len(buffers.gray) // 32)]
+    if sampled.shape[1:] == (h, w):
+        frames = sampled.astype(np.float32)
+    else:  # frame by frame: no float copy of 32 frames at input resolution (0.1 s at 640 x 480)
+        frames = np.stack(
+            [cv2.resize(f.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) for f in sampled]
+        )
     change = np.abs(np.diff(frames, axis=0))
     return flow_confidence(frames.mean(axis=0), frame_noise=frame_noise(change[:, None, :, :]))
 
