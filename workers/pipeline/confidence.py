@@ -21,10 +21,14 @@ object moves.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+#: An array of either kind :func:`mixed_pair` turns: real (flow) or complex (spectra).
+_Pair = NDArray[np.floating[Any]] | NDArray[np.complexfloating[Any, Any]]
 
 #: Grey levels from which a pixel counts as clipped (saturated white or crushed black).
 CLIPPED_LEVELS = (2, 253)
@@ -146,6 +150,14 @@ def tensor_sqrt(
     )
 
 
+def mixed_pair(x: _Pair, y: _Pair, a: _Pair, b: _Pair, c: _Pair) -> tuple[_Pair, _Pair]:
+    """``(a x + b y, b x + c y)``: each pixel's pair (x, y), its flow (u, v) or their spectra, turned by
+    its own symmetric matrix [[a, b], [b, c]] (J^(1/2), :func:`tensor_sqrt`), broadcast elementwise. The
+    one place the constrained flow's formula is written (for flow maps, spectra of a window's blocks, and
+    per-pixel spectra inside the FFT's blocks)."""
+    return a * x + b * y, b * x + c * y
+
+
 def constrained_flow(
     flow: NDArray[np.float32], conf: Confidence, *, out: NDArray[np.float32] | None = None
 ) -> NDArray[np.float32]:
@@ -165,12 +177,10 @@ def constrained_flow(
     """
     if flow.shape[-3:-1] != conf.shape:
         raise ValueError(f"constrained_flow: flow grid {flow.shape[-3:-1]} is not the tensor's {conf.shape}")
-    a, b, c = tensor_sqrt(conf)
-    u, v = flow[..., 0], flow[..., 1]
+    zx, zy = mixed_pair(flow[..., 0], flow[..., 1], *tensor_sqrt(conf))
     result = out if out is not None else np.empty(flow.shape, np.float32)
-    zx = a * u + b * v
-    result[..., 1] = b * u + c * v
-    result[..., 0] = zx
+    result[..., 0] = zx  # both computed first: ``out`` may be ``flow`` itself
+    result[..., 1] = zy
     return result
 
 
@@ -178,6 +188,7 @@ __all__ = [
     "Confidence",
     "constrained_flow",
     "flow_confidence",
+    "mixed_pair",
     "structure_tensor",
     "tensor_sqrt",
 ]

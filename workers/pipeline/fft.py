@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from workers.pipeline.confidence import mixed_pair
+
 if TYPE_CHECKING:
     from workers.pipeline.spectra import BandSummary
 
@@ -146,8 +148,7 @@ def _pair_power(
         pw = spec.real**2 + spec.imag**2
         return np.asarray(pw.reshape(-1, pairs, spec.shape[1]).sum(axis=1), np.float32)
     a, b, c = (np.asarray(m, np.float32)[:, None] for m in mix)
-    x, y = spec[0::2], spec[1::2]
-    first, second = a * x + b * y, b * x + c * y
+    first, second = mixed_pair(spec[0::2], spec[1::2], a, b, c)
     return np.asarray(first.real**2 + first.imag**2 + second.real**2 + second.imag**2, np.float32)
 
 

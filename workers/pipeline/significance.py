@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.confidence import Confidence, tensor_sqrt
+from workers.pipeline.confidence import Confidence, mixed_pair, tensor_sqrt
 from workers.pipeline.peaks import noise_floor
 
 #: An object is reported when the probability that noise alone gives a peak as high, anywhere in the
@@ -430,11 +430,10 @@ def constrained_spectra(spectra: NDArray[np.complex64], confidence: Confidence) 
     ndarray of float32, shape (B, h, w, 4)
         Real and imaginary parts of z's x component, then of its y component.
     """
-    a, b, c = tensor_sqrt(confidence)
-    u, v = spectra[..., 0], spectra[..., 1]
     # complex arithmetic on the two planes (real and imaginary parts together) is several times faster
     # than on interleaved real views
-    return np.stack([a * u + b * v, b * u + c * v], axis=-1).view(np.float32)
+    zx, zy = mixed_pair(spectra[..., 0], spectra[..., 1], *tensor_sqrt(confidence))
+    return np.stack([zx, zy], axis=-1).view(np.float32)
 
 
 #: Blocks sampled over the whole picture (textured or not) per level for the noise's spectral colour.
