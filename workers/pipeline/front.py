@@ -250,11 +250,11 @@ def front_of_buffers(
     flow, factor = _on_look_grid(buffers.flow)
     h, w = flow.shape[1:3]
     if buffers.gray is not None:
-        step = max(1, len(buffers.gray) // 32)
+        sampled = buffers.gray[:: max(1, len(buffers.gray) // 32)]
         mean_full = np.zeros(buffers.gray.shape[1:], np.float32)
-        for frame in buffers.gray[::step]:  # summed in place: no float copy of the frames
+        for frame in sampled:  # summed in place: no float copy of the frames
             cv2.accumulate(frame, mean_full)
-        mean_full /= np.float32(len(buffers.gray[::step]))
+        mean_full /= np.float32(len(sampled))
         mean = np.asarray(cv2.resize(mean_full, (w, h), interpolation=cv2.INTER_AREA), np.float32)
     else:
         mean = cv2.cvtColor(buffers.first_rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)

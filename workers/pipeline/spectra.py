@@ -165,21 +165,15 @@ def pixel_spectra(
     summary = None
     if band_hz is not None:
         summary = BandSummary.empty(median_bins(freqs, band_hz), flat.shape[1] // 2)
-    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, summary=summary, mix=_flat(mix))
+    per_pixel = None
+    if mix is not None:
+        a, b, c = (np.asarray(m, np.float32).ravel() for m in mix)
+        per_pixel = (a, b, c)
+    power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, summary=summary, mix=per_pixel)
     spectra = PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
     if band_hz is not None and summary is not None:
         spectra.__dict__.setdefault("_summaries", {})[band_hz] = summary
     return spectra
-
-
-def _flat(
-    mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None,
-) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None:
-    """A per-pixel mix of maps (h, w) as flat float32 arrays (P,)."""
-    if mix is None:
-        return None
-    a, b, c = (np.asarray(m, np.float32).ravel() for m in mix)
-    return a, b, c
 
 
 def background_spectrum(spectra: PixelSpectra, *, percentile: float = 20.0) -> NDArray[np.float64]:
