@@ -37,6 +37,7 @@ Evidence = Literal[
     "illumination_flicker",
     "codec_keyframes",
     "harmonic",
+    "same_pixels",
     "incoherent",
     "not_significant",
     "uncertain",
@@ -140,9 +141,10 @@ class RejectedPeakResult(BaseModel):
     frequency_hz: float
     evidence: Evidence = Field(
         description="`camera_motion`, `illumination_flicker`, `codec_keyframes`, `harmonic` (of an object "
-        "reported, possibly folded back below the Nyquist rate), `not_significant` (noise alone gives a "
-        "peak as high too often), `uncertain` (frequency uncertainty a quarter of itself or more) or "
-        "`out_of_band`."
+        "reported, possibly folded back below the Nyquist rate), `same_pixels` (another motion of a "
+        "reported object's pixels, not its harmonic: a higher mode), `incoherent`, `not_significant` "
+        "(noise alone gives a peak as high too often), `uncertain` (frequency uncertainty a quarter of "
+        "itself or more) or `out_of_band`."
     )
     reason: str = Field(description="What was seen, in a sentence.")
     figures: dict[str, float] = Field(

@@ -29,6 +29,7 @@ from workers.pipeline.confidence import Confidence, flow_confidence, tensor_sqrt
 from workers.pipeline.detection import (
     MIN_PERIODS,
     Candidate,
+    Footing,
     clip_regime,
     drop_objects,
     folded_verdicts,
@@ -586,6 +587,14 @@ def analyze_window(
     )
 
 
+def _footing(front: Front, regions: _Regions, label: int) -> Footing:
+    """Where object ``label``'s line was found and where its mask lies, on the scan's grid."""
+    h, w = front.scan.grid_shape
+    mask = (regions.labels_full == label).astype(np.float32)
+    held = np.asarray(cv2.resize(mask, (w, h), interpolation=cv2.INTER_AREA), np.float32)
+    return Footing(found=regions.candidates[label - 1].region, held=held)
+
+
 def _judge(
     objects: list[ObjectMeasurement],
     regions: _Regions,
@@ -603,6 +612,7 @@ def _judge(
         band_hz=front.band_hz,
         fps=plan.fps,
         bin_hz=front.scan.bin_hz,
+        footings=[_footing(front, regions, o.id) for o in objects],
     )
     verdicts |= folded_verdicts(objects, plan.survey, sample_rate_hz=plan.fps, frame_step=plan.step)
     # Artefact evidence is asked of what stands out of the noise only (what does not is just that).

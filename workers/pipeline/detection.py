@@ -28,10 +28,11 @@ the main one.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -45,6 +46,12 @@ if TYPE_CHECKING:
 
 #: The evidence that a peak is an artefact of the camera or the light (rather than no object).
 ARTEFACT_EVIDENCE = ("camera_motion", "illumination_flicker", "codec_keyframes")
+#: A line is a second motion of a stronger object when that object's mask holds at least this share of
+#: where the picture moves at it, and more of it than the line's own region does.
+HELD_SHARE = 0.3
+#: An object's own statistic is the scan's over the blocks within this many grid pixels of its region
+#: (the fine grid's mask and the scan's grid need not line up to the pixel; an edge's flow lies beside it).
+OWN_MARGIN_PX = 2
 #: An object is a coherent oscillation: one damped oscillation explains at least this share of its
 #: region's motion near its frequency (its fit's ``concentration``; 0.93-1.0 for the objects of the test
 #: scenes and real clips, under 0.5 for narrow-band random motion) ...
@@ -132,6 +139,27 @@ class Candidates:
     @property
     def regions(self) -> list[NDArray[np.bool_]]:
         return [c.region for c in self.found]
+
+
+@dataclass(frozen=True)
+class Footing:
+    """Where an object's line was found and where the object was measured, on the scan's grid.
+
+    Attributes
+    ----------
+    found : ndarray of bool, shape (h, w)
+        Where the picture moves at its frequency (its candidate's region).
+    held : ndarray of float32, shape (h, w)
+        The share of each grid pixel's input pixels that the object's mask holds.
+    """
+
+    found: NDArray[np.bool_]
+    held: NDArray[np.float32]
+
+    def held_where_found(self, other: Footing | None = None) -> float:
+        """The share of this object's found region that its mask (or ``other``'s) holds."""
+        held = (other or self).held
+        return float(held[self.found].mean()) if self.found.any() else 0.0
 
 
 def significant_bins(scan: MotionScan, *, limit: float = MAX_FALSE_ALARM) -> list[int]:
@@ -497,22 +525,50 @@ def _as_harmonic(cand: Candidate, kept: list[Candidate], scan: MotionScan) -> bo
     return False
 
 
-def significance_verdict(obj: ObjectMeasurement, scan: MotionScan) -> RejectedPeak | None:
+def significance_verdict(
+    obj: ObjectMeasurement, scan: MotionScan, *, region: NDArray[np.bool_] | None = None
+) -> RejectedPeak | None:
     """Why a measured object is not significant, or None: its false-alarm probability per clip (set on
-    the object) exceeds :data:`~workers.pipeline.significance.MAX_FALSE_ALARM`."""
+    the object) exceeds :data:`~workers.pipeline.significance.MAX_FALSE_ALARM`.
+
+    Given ``region`` (the object's pixels on the scan's grid), the statistic is the scan's over the
+    blocks that overlap the region grown by :data:`OWN_MARGIN_PX` (:meth:`MotionScan.within`), judged by
+    the picture's law: what is measured must be where the line was found. A line found on one object's
+    pixels (a second mode of it, until modes are reported) whose own measurement landed on other pixels,
+    where nothing rings at it, is not reported as an object there."""
     f = obj.eigenfrequency_hz
-    z = scan.z_at(f)
+    z_picture = scan.z_at(f)
+    z = z_picture
+    if region is not None:
+        grown = cv2.dilate(region.astype(np.uint8), np.ones((2 * OWN_MARGIN_PX + 1,) * 2, np.uint8)) > 0
+        try:
+            z = min(z_picture, scan.within(grown).z_at(f))
+        except ValueError:  # no block with texture under the object: nothing there can show the line
+            z = -math.inf
     p = float(scan.calibration.p_clip(z))
     obj.false_alarm_probability = p
-    obj.detection_z = z
+    obj.detection_z = z if math.isfinite(z) else None
     if p <= MAX_FALSE_ALARM:
         return None
+    where = (
+        ""
+        if z >= z_picture
+        else (
+            f" on the object's own pixels (it stands out elsewhere in the picture, with probability "
+            f"{float(scan.calibration.p_clip(z_picture)):.2g}: the region measured is not where it moves)"
+        )
+    )
     return RejectedPeak(
         f,
-        f"{f:.4g} Hz does not stand out of the noise: a peak as high comes from noise alone with "
+        f"{f:.4g} Hz does not stand out of the noise{where}: a peak as high comes from noise alone with "
         f"probability {p:.2g} per clip (the bound is {MAX_FALSE_ALARM:g})",
         "not_significant",
-        figures={"false_alarm_probability": p, "z": z, "bound": MAX_FALSE_ALARM},
+        figures={
+            "false_alarm_probability": p,
+            "z": z if math.isfinite(z) else -1e9,
+            "picture_z": z_picture,
+            "bound": MAX_FALSE_ALARM,
+        },
     )
 
 
@@ -549,6 +605,30 @@ def oscillation_verdict(obj: ObjectMeasurement, *, band_hz: tuple[float, float])
     return None
 
 
+def held_verdict(
+    obj: ObjectMeasurement, footing: Footing, stronger: Sequence[tuple[ObjectMeasurement, Footing]]
+) -> RejectedPeak | None:
+    """Why a line is not an object of its own, or None: where the picture moves at it, a stronger object's
+    mask holds more of the pixels than its own does (at least :data:`HELD_SHARE` of them). The line is a
+    second motion of that object (not its harmonic, which :func:`_overtone` finds: another mode), and the
+    region measured for it lies elsewhere, where that motion is not."""
+    own = footing.held_where_found()
+    for base, other in stronger:
+        held = footing.held_where_found(other)
+        if held >= HELD_SHARE and held > own:
+            f = obj.eigenfrequency_hz
+            return RejectedPeak(
+                f,
+                f"{f:.4g} Hz moves on the pixels of object {base.id} ({base.eigenfrequency_hz:.4g} Hz), "
+                f"which holds {held * 100:.0f} % of them (the region measured for it {own * 100:.0f} %), "
+                "and is not its harmonic: another motion of that object (a higher mode), not an object of "
+                "its own",
+                "same_pixels",
+                figures={"object_id": float(base.id), "held_share": held, "own_share": own},
+            )
+    return None
+
+
 def judge_objects(
     objects: list[ObjectMeasurement],
     seg: Segmentation,
@@ -561,6 +641,7 @@ def judge_objects(
     shared_power: float = 0.25,
     max_order: int = 10,
     max_folded_order: int = 5,
+    footings: Sequence[Footing] | None = None,
 ) -> dict[int, RejectedPeak]:
     """The objects (by id) that are not reported, and why: :func:`oscillation_verdict`,
     :func:`significance_verdict` (every object's false-alarm probability is set), or an overtone of a
@@ -584,6 +665,10 @@ def judge_objects(
     harmonic_tolerance : float
         Relative tolerance of an overtone's frequency (or a bin and a half, whichever is wider).
     shared_power, max_order, max_folded_order : float, int, int
+    footings : sequence of Footing, optional
+        Where each object was found and measured on the scan's grid: its significance is judged on its
+        own pixels (:func:`significance_verdict`), and a line found on a stronger object's pixels is
+        that object's (:func:`held_verdict`).
 
     Returns
     -------
@@ -591,8 +676,12 @@ def judge_objects(
     """
     out: dict[int, RejectedPeak] = {}
     kept: list[ObjectMeasurement] = []
-    for obj in objects:
-        verdict = significance_verdict(obj, scan)
+    for i, obj in enumerate(objects):
+        footing = None if footings is None else footings[i]
+        verdict = significance_verdict(obj, scan, region=None if footing is None else footing.held > 0)
+        if footing is not None and footings is not None:
+            stronger = [(o, footings[objects.index(o)]) for o in kept]
+            verdict = held_verdict(obj, footing, stronger) or verdict
         verdict = oscillation_verdict(obj, band_hz=band_hz) or verdict
         if verdict is None:
             verdict = _overtone(
@@ -804,11 +893,13 @@ __all__ = [
     "SURVEY_PEAKS",
     "Candidate",
     "Candidates",
+    "Footing",
     "clip_regime",
     "drop_objects",
     "find_candidates",
     "folded_image",
     "folded_verdicts",
+    "held_verdict",
     "judge_objects",
     "oscillation_verdict",
     "regime_of",

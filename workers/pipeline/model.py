@@ -167,9 +167,10 @@ class RejectedPeak:
         What was seen, in a sentence.
     evidence : str
         ``camera_motion``, ``illumination_flicker``, ``codec_keyframes``, ``harmonic`` (of an object
-        already reported, possibly folded back below the Nyquist rate), ``not_significant`` (noise alone
-        gives as high a peak too often), ``uncertain`` (frequency uncertainty a quarter of the frequency
-        or more) or ``out_of_band``.
+        already reported, possibly folded back below the Nyquist rate), ``same_pixels`` (another motion of
+        a reported object's pixels, not its harmonic: a higher mode), ``incoherent``,
+        ``not_significant`` (noise alone gives as high a peak too often), ``uncertain`` (frequency
+        uncertainty a quarter of the frequency or more) or ``out_of_band``.
     figures : dict of str to float
         The numbers behind the verdict (the keyframe comb's period and the peak's distance from it, the
         false-alarm probability, ...), named with their units.

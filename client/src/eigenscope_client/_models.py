@@ -174,7 +174,7 @@ class ObjectResult(_Model):
 @dataclass(frozen=True)
 class RejectedPeak(_Model):
     """A spectral peak that is not an object, and the evidence why (``camera_motion``,
-    ``illumination_flicker``, ``codec_keyframes``, ``harmonic``, ``incoherent``, ...)."""
+    ``illumination_flicker``, ``codec_keyframes``, ``harmonic``, ``same_pixels``, ``incoherent``, ...)."""
 
     schema: ClassVar[str] = "RejectedPeak"
     frequency_hz: float

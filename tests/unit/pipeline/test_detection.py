@@ -12,7 +12,7 @@ import pytest
 
 from workers.pipeline.artefacts import WindowEvidence
 from workers.pipeline.camera import CameraRing
-from workers.pipeline.detection import oscillation_verdict, regime_of
+from workers.pipeline.detection import Footing, held_verdict, oscillation_verdict, regime_of
 from workers.pipeline.model import ObjectMeasurement
 from workers.pipeline.ringdown import Ringdown, fit_ringdown
 from workers.pipeline.tracking import follow_region, second_motion
@@ -50,6 +50,44 @@ def _object(**changes) -> ObjectMeasurement:
 
 
 BAND = (0.2, 14.7)
+
+
+def _footing(found: tuple[slice, slice], held: tuple[slice, slice], share: float = 1.0) -> Footing:
+    f = np.zeros((40, 60), bool)
+    f[found] = True
+    h = np.zeros((40, 60), np.float32)
+    h[held] = share
+    return Footing(found=f, held=h)
+
+
+def test_a_line_on_a_stronger_objects_pixels_is_that_objects_second_motion():
+    """Where the picture moves at 267 Hz, the fork's mask holds most of the pixels; the region measured
+    for the line lies elsewhere (a flat patch of wall): no object of its own, evidence ``same_pixels``."""
+    fork = _object(id=1, eigenfrequency_hz=32.0)
+    line = _object(id=2, eigenfrequency_hz=267.4)
+    on_fork = (slice(5, 35), slice(20, 30))
+    stronger = [(fork, _footing(on_fork, on_fork))]
+    verdict = held_verdict(line, _footing(on_fork, (slice(0, 5), slice(40, 50))), stronger)
+    assert verdict is not None
+    assert verdict.evidence == "same_pixels"
+    assert verdict.figures["object_id"] == 1
+    assert verdict.figures["held_share"] == pytest.approx(1.0)
+    assert verdict.figures["own_share"] == 0.0
+    # measured where it was found: an object of its own (a string beside another, a part of the fork
+    # ringing alone)
+    assert (
+        held_verdict(line, _footing(on_fork, on_fork, 0.6), [(fork, _footing(on_fork, on_fork, 0.4))]) is None
+    )
+    # found on pixels of its own, beside the fork
+    beside = (slice(5, 35), slice(35, 45))
+    assert held_verdict(line, _footing(beside, beside), stronger) is None
+    # the fork's mask holds a little of where it moves, less than a third: not the fork's motion
+    assert (
+        held_verdict(
+            line, _footing(on_fork, (slice(0, 5), slice(40, 50))), [(fork, _footing(on_fork, on_fork, 0.2))]
+        )
+        is None
+    )
 
 
 def test_a_clear_ring_down_is_an_object():
