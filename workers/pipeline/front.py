@@ -295,7 +295,9 @@ def _on_look_grid(flow: NDArray[np.float32]) -> tuple[NDArray[np.float32], int]:
 def coarse_region(front: Front, mask_frame: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """A mask of the whole frame on the front's grid (a pixel is in when any of its input pixels is)."""
     h, w = front.scan.grid_shape
-    small = cv2.resize(mask_frame.astype(np.uint8), (w, h), interpolation=cv2.INTER_AREA)
+    # as shares (a uint8 mask would be rounded: a grid pixel in only where most of its pixels are, and a
+    # thin object one or two input pixels wide nowhere)
+    small = cv2.resize(mask_frame.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
     return np.asarray(small > 0, bool)
 
 
