@@ -417,8 +417,9 @@ def second_motion(
     if near.size < 4:
         return 0.0
     t = np.arange(n)
-    basis = np.exp(-2j * np.pi * np.outer(bins[near] / fps, t))  # (K, N)
-    spectra = basis @ data  # (K, 2P)
+    phase = 2 * np.pi * np.outer(bins[near] / fps, t)  # (K, N)
+    # two real products: a complex one would first copy the flow as complex numbers
+    spectra = np.cos(phase) @ data - 1j * (np.sin(phase) @ data)  # (K, 2P)
     values = np.sort(np.linalg.eigvalsh(spectra @ spectra.conj().T).real)[::-1]
     if values[0] <= 0:
         return 0.0
