@@ -201,4 +201,5 @@ def test_a_second_motion_of_the_fork_is_not_a_stray_object(frequency, fps, share
     assert len(result.objects) == 1, reported
     assert result.objects[0].eigenfrequency_hz == pytest.approx(frequency, rel=0.005)
     same = [r for r in result.rejected_peaks if r.evidence == "same_pixels"]
-    assert same and all(r.figures["object_id"] == 1 for r in same), result.rejected_peaks
+    assert same, result.rejected_peaks
+    assert all(r.figures["object_id"] == 1 for r in same), same
