@@ -38,7 +38,7 @@ from workers.pipeline.detection import (
 )
 from workers.pipeline.fine import plan_roi, stream_roi
 from workers.pipeline.flow import needs_resampling, resample_uniform
-from workers.pipeline.front import Front, coarse_region, front_of_buffers, front_of_look
+from workers.pipeline.front import Front, coarse_region, coarse_share, front_of_buffers, front_of_look
 from workers.pipeline.light import BRIGHTNESS_BLOCKS
 from workers.pipeline.look import Look, frame_noise, look_at
 from workers.pipeline.measure import assign_excitations, bounding_box, measure_object
@@ -589,9 +589,7 @@ def analyze_window(
 
 def _footing(front: Front, regions: _Regions, label: int) -> Footing:
     """Where object ``label``'s line was found and where its mask lies, on the scan's grid."""
-    h, w = front.scan.grid_shape
-    mask = (regions.labels_full == label).astype(np.float32)
-    held = np.asarray(cv2.resize(mask, (w, h), interpolation=cv2.INTER_AREA), np.float32)
+    held = coarse_share(front, regions.labels_full == label)
     return Footing(found=regions.candidates[label - 1].region, held=held)
 
 

@@ -676,12 +676,12 @@ def judge_objects(
     """
     out: dict[int, RejectedPeak] = {}
     kept: list[ObjectMeasurement] = []
+    kept_footings: list[tuple[ObjectMeasurement, Footing]] = []
     for i, obj in enumerate(objects):
         footing = None if footings is None else footings[i]
         verdict = significance_verdict(obj, scan, region=None if footing is None else footing.held > 0)
-        if footing is not None and footings is not None:
-            stronger = [(o, footings[objects.index(o)]) for o in kept]
-            verdict = held_verdict(obj, footing, stronger) or verdict
+        if footing is not None:
+            verdict = held_verdict(obj, footing, kept_footings) or verdict
         verdict = oscillation_verdict(obj, band_hz=band_hz) or verdict
         if verdict is None:
             verdict = _overtone(
@@ -696,6 +696,8 @@ def judge_objects(
             )
         if verdict is None:
             kept.append(obj)
+            if footing is not None:
+                kept_footings.append((obj, footing))
         else:
             out[obj.id] = verdict
     return out

@@ -292,13 +292,18 @@ def _on_look_grid(flow: NDArray[np.float32]) -> tuple[NDArray[np.float32], int]:
     return out, factor
 
 
+def coarse_share(front: Front, mask_frame: NDArray[np.bool_]) -> NDArray[np.float32]:
+    """The share of each pixel of the front's grid that a mask of the whole frame holds (as floats: a
+    uint8 mask would be rounded, a grid pixel in only where most of its pixels are, and a thin object one
+    or two input pixels wide nowhere)."""
+    h, w = front.scan.grid_shape
+    small = cv2.resize(mask_frame.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    return np.asarray(small, np.float32)
+
+
 def coarse_region(front: Front, mask_frame: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """A mask of the whole frame on the front's grid (a pixel is in when any of its input pixels is)."""
-    h, w = front.scan.grid_shape
-    # as shares (a uint8 mask would be rounded: a grid pixel in only where most of its pixels are, and a
-    # thin object one or two input pixels wide nowhere)
-    small = cv2.resize(mask_frame.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
-    return np.asarray(small > 0, bool)
+    return np.asarray(coarse_share(front, mask_frame) > 0, bool)
 
 
-__all__ = ["Front", "coarse_region", "front_of_buffers", "front_of_look", "still_flow_level"]
+__all__ = ["Front", "coarse_region", "coarse_share", "front_of_buffers", "front_of_look", "still_flow_level"]

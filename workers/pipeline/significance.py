@@ -457,14 +457,17 @@ def _block_shapes(grid_shape: tuple[int, int], levels: int) -> list[tuple[int, i
     return shapes
 
 
-def _pool(values: NDArray[np.float32], block: tuple[int, int]) -> NDArray[np.float32]:
-    """Means over blocks of ``block`` grid pixels (area averaging) of (h, w) or (h, w, c)."""
+def _pool(
+    values: NDArray[np.float32], block: tuple[int, int], *, out: NDArray[np.float32] | None = None
+) -> NDArray[np.float32]:
+    """Means over blocks of ``block`` grid pixels (area averaging) of (h, w) or (h, w, c), into ``out``
+    when given (of the pooled shape)."""
     rows, cols = block
     if rows == cols == 1:
         return values
     h, w = values.shape[:2]
     size = (max(w // cols, 1), max(h // rows, 1))
-    return np.asarray(cv2.resize(values, size, interpolation=cv2.INTER_AREA), np.float32)
+    return np.asarray(cv2.resize(values, size, dst=out, interpolation=cv2.INTER_AREA), np.float32)
 
 
 def _level_positions(
@@ -516,7 +519,7 @@ def _pooled_levels(
             else:
                 pooled = np.empty((len(z), *shape, 4), np.float32)
                 for b in range(len(z)):
-                    cv2.resize(z[b], shape[::-1], dst=pooled[b], interpolation=cv2.INTER_AREA)
+                    _pool(z[b], block, out=pooled[b])
             flat = pooled.reshape(len(z), shape[0] * shape[1], 4)
             # every block's power, then the counted ones' (gathering powers moves a quarter of the bytes)
             power = np.einsum("bpc,bpc->bp", flat, flat)
