@@ -191,20 +191,26 @@ def _analyze_default(
     )
     watch.lap("spectrum")
     if not front.candidates.found:
+        if look.kept is not None:
+            look.kept.close()
         return _still(look_buffers(look), plan, info, front, config=config, watch=watch)
     roi = plan_roi(look, front.candidates.regions, frame_shape=(info.height, info.width), samples=look.count)
     front = front.keeping_flow_of(roi)
     # the front keeps the box's flow; the rest is not read again (an empty array, not a view that keeps it)
     look.flow = np.empty((look.count, 0, look.flow.shape[2], 2), np.float32)
-    buffers = stream_roi(
-        look if look.kept is not None else source,
-        roi,
-        start=first,
-        stop=last,
-        look=look,
-        flow_config=plan.flow,
-        progress=progress,
-    )
+    try:
+        buffers = stream_roi(
+            look if look.kept is not None else source,
+            roi,
+            start=first,
+            stop=last,
+            look=look,
+            flow_config=plan.flow,
+            progress=progress,
+        )
+    finally:
+        if look.kept is not None:
+            look.kept.close()  # the window's frames, kept in a temporary file
     watch.stream_lap(buffers.decode_s - look.decode_s)
     return analyze_window(
         buffers,

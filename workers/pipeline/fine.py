@@ -5,9 +5,9 @@ moves (:mod:`workers.pipeline.significance`). :func:`plan_roi` draws a box aroun
 margin of still background around them (the segmentation's noise reference), and chooses the box's flow
 grid: full resolution when the box is small (a thin bar, a string), coarser when it is large or the window
 long, within :data:`ROI_BUDGET_PX` grid pixels and :data:`ROI_BUDGET_MIB` of flow. :func:`stream_roi` then
-computes the flow of that box only, from the frames the first pass kept or read again, with its depth and
-its grey frames at input resolution (registration), into :class:`~workers.pipeline.stream.FrameBuffers`
-whose ``roi`` says where the box lies.
+computes the flow of that box only, from the frames the first pass kept (or read again when it could
+not), with its depth and its grey frames at input resolution (registration), into
+:class:`~workers.pipeline.stream.FrameBuffers` whose ``roi`` says where the box lies.
 """
 
 from __future__ import annotations
@@ -35,8 +35,10 @@ from workers.pipeline.stream import FrameBuffers
 
 #: Most grid pixels the second pass computes flow for (the cost of half-resolution flow over 640 x 480).
 ROI_BUDGET_PX = 320 * 240
-#: Most memory the second pass's flow maps may take, MiB (the window's length bounds its grid).
-ROI_BUDGET_MIB = 192.0
+#: Most memory the second pass's flow maps may take, MiB (the window's length bounds its grid: a 1000-frame
+#: window of a 366 x 420 box gets a grid of 12,600 pixels, finer than the look's 4 x 4 blocks; the peak
+#: memory of that analysis is then flat in the window's length).
+ROI_BUDGET_MIB = 96.0
 #: Most memory the second pass's grey frames may take at input resolution, MiB; beyond it they are kept
 #: on the box's flow grid, where registration then works (they grow with the window: 146 MiB of a 1000-frame
 #: window of a 366 x 420 box).
@@ -165,8 +167,8 @@ def _frames(
     if isinstance(source, Look):
         kept = source.kept
         assert kept is not None
-        for i in range(len(kept.gray)):
-            yield kept.gray[i], None if kept.depth is None else kept.depth[i]
+        for i in range(len(kept)):
+            yield kept.frame(i)
         return
     if source.info.has_depth:
         for frame in source.frames_with_depth_on(depth_shape, start, stop):
@@ -213,8 +215,9 @@ def stream_roi(
     """
     threading.Thread(target=spectrum_warm_up, name="spectrum-warm-up", daemon=True).start()
     n = look.count
-    has_depth = isinstance(source, Look) and source.kept is not None and source.kept.depth is not None
-    if not isinstance(source, Look):
+    if isinstance(source, Look):
+        has_depth = source.kept is not None and source.kept.depth_shape is not None
+    else:
         has_depth = source.info.has_depth
     window = _Window(roi, n, has_depth)
     depth_shape = ((roi.frame_shape[0] + 1) // 2, (roi.frame_shape[1] + 1) // 2)

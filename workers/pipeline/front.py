@@ -9,6 +9,7 @@ its flow as frames arrive). Either way one :class:`Front` goes to
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 
@@ -40,9 +41,7 @@ class Front:
     scan : MotionScan
     candidates : Candidates
     evidence : WindowEvidence
-        On ``spectra``'s grid.
-    spectra : PixelSpectra
-        Per-pixel spectra of the whole picture's flow on the scan's grid (camera and region powers).
+        On the scan's grid.
     ring : CameraRing
         The picture's border on that grid.
     grid_factor : float
@@ -55,18 +54,30 @@ class Front:
         picture, or of the box :meth:`keeping_flow_of` kept.
     flow_origin : (row, column)
         Where ``flow``'s first pixel lies on the grid.
+    ring_flow : ndarray of float32, shape (N, R, 2), or None
+        The flow of the ring's pixels (``ring.pixels``), kept with the box (None while ``flow`` is the
+        whole picture's).
     """
 
     band_hz: tuple[float, float]
     scan: MotionScan
     candidates: Candidates
     evidence: WindowEvidence
-    spectra: PixelSpectra
     ring: CameraRing
     grid_factor: float
     scan_confidence: Confidence
     flow: NDArray[np.float32]
     flow_origin: tuple[int, int] = (0, 0)
+    ring_flow: NDArray[np.float32] | None = None
+
+    @functools.cached_property
+    def spectra(self) -> PixelSpectra:
+        """Per-pixel spectra of the whole picture's flow on the scan's grid (what a still window's result
+        shows): computed on first use, and only before :meth:`keeping_flow_of` (a window with candidates
+        needs the powers of a few pixels only, :meth:`band_powers`)."""
+        if self.ring_flow is not None:
+            raise ValueError("Front.spectra: the whole picture's flow was let go (keeping_flow_of)")
+        return pixel_spectra(self.flow, fps=self.scan.sample_rate_hz)
 
     def keeping_flow_of(self, roi: Roi) -> Front:
         """This front with its flow kept over ``roi``'s box only (rounded out to the grid): once the region
@@ -80,7 +91,8 @@ class Front:
         y1 = min(h, math.ceil((roi.y + roi.height) / f))
         x1 = min(w, math.ceil((roi.x + roi.width) / f))
         kept = np.array(self.flow[:, y0:y1, x0:x1])  # a copy: the whole picture's flow can be let go
-        return replace(self, flow=kept, flow_origin=(y0, x0))
+        ring = self.flow.reshape(len(self.flow), -1, 2)[:, self.ring.pixels]
+        return replace(self, flow=kept, flow_origin=(y0, x0), ring_flow=ring)
 
     def coarse_view(self, region: NDArray[np.bool_]) -> CoarseView:
         """An object on this grid (``region``, a mask of the whole grid) for
@@ -99,13 +111,20 @@ class Front:
         self, frequency_hz: float, width_bins: float, region: NDArray[np.bool_]
     ) -> tuple[float, NDArray[np.float32]]:
         """The region's median band power at a peak, and the ring pixels' (the camera evidence's inputs),
-        on the scan's grid."""
-        freqs = self.spectra.frequencies_hz
-        sel = np.abs(freqs - frequency_hz) <= max(1.5, width_bins) * self.spectra.bin_hz
-        power = self.spectra.power[sel].sum(axis=0)
-        inside = region.ravel()
-        region_power = float(np.median(power[inside])) if inside.any() else 0.0
-        return region_power, np.asarray(power[self.ring.pixels], np.float32)
+        on the scan's grid (a region's pixels outside the kept flow's box do not count)."""
+        n = len(self.flow)
+        y0, x0 = self.flow_origin
+        h, w = self.flow.shape[1:3]
+        inside = region[y0 : y0 + h, x0 : x0 + w]
+        ring = self.ring_flow
+        if ring is None:
+            ring = self.flow.reshape(n, -1, 2)[:, self.ring.pixels]
+        own = np.take(self.flow.reshape(n, -1, 2), np.flatnonzero(inside.ravel()), axis=1)
+        series = np.concatenate([own, ring], axis=1)
+        power = _band_power(series, frequency_hz, max(1.5, width_bins), self.scan.sample_rate_hz)
+        count = int(inside.sum())
+        region_power = float(np.median(power[:count])) if count else 0.0
+        return region_power, np.asarray(power[count:], np.float32)
 
     def detection(self) -> dict[str, float]:
         """The calibration's figures for the result."""
@@ -117,6 +136,31 @@ class Front:
             "bins_searched": float(cal.bins_searched),
             "max_false_alarm": MAX_FALSE_ALARM,
         }
+
+
+def _band_power(
+    series: NDArray[np.float32], frequency_hz: float, half_width_bins: float, sample_rate_hz: float
+) -> NDArray[np.float64]:
+    """Each pixel's power (u and v summed) in the bins of its mean-removed spectrum (zero-padded to the
+    fast length, as :func:`~workers.pipeline.spectra.pixel_spectra` takes it) within ``half_width_bins``
+    of ``frequency_hz``, summed: (P,) from ``series`` (N, P, 2), by a direct transform at those bins only
+    (a few of the window's hundreds)."""
+    from workers.pipeline.fft import fast_length
+
+    n = len(series)
+    nfft = fast_length(n)
+    freqs = np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz)
+    bins = np.flatnonzero(np.abs(freqs - frequency_hz) <= half_width_bins * sample_rate_hz / nfft)
+    flat = series.reshape(n, -1)
+    if flat.shape[1] == 0 or bins.size == 0:
+        return np.zeros(flat.shape[1] // 2)
+    phase = 2 * np.pi * np.outer(np.arange(n), bins) / nfft
+    mean = flat.mean(axis=0, dtype=np.float64)
+    power = np.zeros(flat.shape[1])
+    for basis in (np.cos(phase), np.sin(phase)):
+        part = flat.T @ basis.astype(np.float32) - np.outer(mean, basis.sum(axis=0))
+        power += (part**2).sum(axis=1)
+    return np.asarray(power.reshape(-1, 2).sum(axis=1), np.float64)
 
 
 def _front(
@@ -166,8 +210,7 @@ def _front(
     candidates = find_candidates(scan, band_hz=band_hz, max_objects=max_objects, asserted=asserted)
     if evidence.flow_level is None:
         evidence.flow_level = still_flow_level(flow, confidence, candidates)
-    spectra = pixel_spectra(flow, fps=sample_rate_hz)
-    return Front(band_hz, scan, candidates, evidence, spectra, ring, grid_factor, confidence, flow)
+    return Front(band_hz, scan, candidates, evidence, ring, grid_factor, confidence, flow)
 
 
 def still_flow_level(

@@ -12,8 +12,10 @@ over the window). Kept, besides the coarse flow:
 - the motion of the picture's border in each map (the camera's own, removed when the border moves as a
   whole, :mod:`workers.pipeline.camera`);
 - the largest per-frame motion (how fine the second pass must be);
-- when they fit :data:`KEEP_FRAMES_MIB`, the window's grey frames at full resolution and its depth on a
-  half-resolution grid, so that the second pass (:mod:`workers.pipeline.fine`) reads no frame twice.
+- the window's grey frames at full resolution and its depth on a half-resolution grid, written as they
+  decode to a temporary file (:class:`KeptFrames`), so that the second pass (:mod:`workers.pipeline.fine`)
+  decodes no frame twice and the window's frames never sit in the process's memory (1000 frames of
+  640 x 420 are 269 MB; decoding them again cost a tenth of the analysis).
 
 The whole-picture statistics of :mod:`workers.pipeline.significance` and the artefact evidence of
 :mod:`workers.pipeline.detection` are computed from a :class:`Look`; the second pass measures the regions
@@ -23,6 +25,8 @@ it found.
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 import threading
 import time
 from collections import deque
@@ -45,8 +49,6 @@ from workers.pipeline.model import Progress
 
 #: Width of the coarse grid, pixels (an integer factor below the frame's width, never above it).
 LOOK_WIDTH_PX = 160
-#: The window's frames are kept for the second pass when grey frames and half-resolution depth fit this.
-KEEP_FRAMES_MIB = 192.0
 #: Threads computing the coarse flow while the main thread decodes (consecutive pairs are independent).
 FLOW_THREADS = 2
 
@@ -84,21 +86,71 @@ class CoarseGrid:
         return np.asarray(cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
 
 
-@dataclass(frozen=True)
 class KeptFrames:
-    """The window's frames kept for the second pass.
+    """The window's frames as the first pass decoded them, for the second pass: grey frames at input
+    resolution and depth on a half-resolution grid, appended to an unlinked temporary file (the system's
+    page cache holds them, not the process) and read back one at a time.
 
-    Attributes
+    Parameters
     ----------
-    gray : ndarray of uint8, shape (N + 1, H, W)
-    depth : ndarray of float32, shape (N + 1, hd, wd), or None
-        Metres, NaN invalid, on ``depth_shape``.
-    depth_shape : (hd, wd)
+    gray_shape : (H, W)
+    depth_shape : (hd, wd) or None
+        None when the clip has no depth.
+    directory : path-like, optional
+        Where the temporary file lies; default the system's temporary folder.
     """
 
-    gray: NDArray[np.uint8]
-    depth: NDArray[np.float32] | None
-    depth_shape: tuple[int, int]
+    def __init__(
+        self,
+        gray_shape: tuple[int, int],
+        depth_shape: tuple[int, int] | None,
+        *,
+        directory: str | None = None,
+    ) -> None:
+        self.gray_shape, self.depth_shape = gray_shape, depth_shape
+        self._gray_bytes = gray_shape[0] * gray_shape[1]
+        self._depth_bytes = 0 if depth_shape is None else depth_shape[0] * depth_shape[1] * 4
+        self._file = tempfile.TemporaryFile(dir=directory)  # noqa: SIM115 (closed by close())
+        self._count = 0
+
+    @property
+    def _stride(self) -> int:
+        return self._gray_bytes + self._depth_bytes
+
+    def __len__(self) -> int:
+        return self._count
+
+    def append(self, gray: NDArray[np.uint8], depth: NDArray[np.float32] | None) -> None:
+        """Write the next frame (``depth`` None on a frame without one: NaN is kept)."""
+        parts = [np.ascontiguousarray(gray, np.uint8).data]
+        if self.depth_shape is not None:
+            if depth is None:
+                depth = np.full(self.depth_shape, np.nan, np.float32)
+            parts.append(np.ascontiguousarray(depth, np.float32).data)
+        os.pwritev(self._file.fileno(), parts, self._count * self._stride)
+        self._count += 1
+
+    def frame(self, i: int) -> tuple[NDArray[np.uint8], NDArray[np.float32] | None]:
+        """Frame ``i``: grey (H, W) uint8 and depth (hd, wd) float32 metres or None."""
+        if not 0 <= i < self._count:
+            raise IndexError(f"frame {i} of {self._count} kept frames")
+        gray = np.empty(self.gray_shape, np.uint8)
+        parts = [gray.data.cast("B")]
+        depth = None
+        if self.depth_shape is not None:
+            depth = np.empty(self.depth_shape, np.float32)
+            parts.append(depth.data.cast("B"))
+        if os.preadv(self._file.fileno(), parts, i * self._stride) != self._stride:
+            raise OSError(f"the kept frame {i} could not be read back from its temporary file")
+        return gray, depth
+
+    def truncate(self, count: int) -> None:
+        """Keep the first ``count`` frames only."""
+        self._count = min(self._count, count)
+
+    def close(self) -> None:
+        """Remove the file (the frames are gone)."""
+        self._file.close()
 
 
 @dataclass
@@ -168,12 +220,6 @@ class Look:
         return float(self.grid.factor)
 
 
-def keeps_frames(frames: int, height: int, width: int, *, has_depth: bool) -> bool:
-    """Whether a window of ``frames`` frames is kept for the second pass (:data:`KEEP_FRAMES_MIB`)."""
-    per_frame = height * width + (((height + 1) // 2) * ((width + 1) // 2) * 4 if has_depth else 0)
-    return frames * per_frame <= KEEP_FRAMES_MIB * 2**20
-
-
 def _coarse_dis() -> cv2.DISOpticalFlow:
     dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
     dis.setFinestScale(0)  # the grid is already coarse: do not skip its finest level
@@ -226,7 +272,7 @@ def look_at(
     stop: int,
     *,
     progress: Progress | None = None,
-    keep: bool | None = None,
+    keep: bool = True,
     width_px: int = LOOK_WIDTH_PX,
 ) -> Look:
     """The first pass over frames ``[start, stop)`` (see the module's description).
@@ -237,8 +283,8 @@ def look_at(
     start, stop : int
         Frame range of the window (of ``reader``: a strided reader for a window analysed every k-th frame).
     progress : callable, optional
-    keep : bool, optional
-        Keep the frames for the second pass; default :func:`keeps_frames`.
+    keep : bool
+        Keep the frames for the second pass (:class:`KeptFrames`).
     width_px : int
         Width of the coarse grid (about).
 
@@ -254,8 +300,6 @@ def look_at(
     info = reader.info
     grid = CoarseGrid.for_frame(info.height, info.width, width_px=width_px)
     n = stop - start - 1
-    if keep is None:
-        keep = keeps_frames(n + 1, info.height, info.width, has_depth=info.has_depth)
     depth_shape = ((info.height + 1) // 2, info.width // 2 + info.width % 2)
     state = _LookState(
         grid,
@@ -323,9 +367,7 @@ class _LookState:
         self.frames = 0
         self.flows = 0
         self._previous: NDArray[np.uint8] | None = None
-        self.gray = None if full_shape is None else np.empty((n + 1, *full_shape), np.uint8)
-        self.depth_shape = depth_shape
-        self.depth = None if depth_shape is None else np.empty((n + 1, *depth_shape), np.float32)
+        self.kept = None if full_shape is None else KeptFrames(full_shape, depth_shape)
 
     def add(
         self, i: int, gray: NDArray[np.uint8], depth: NDArray[np.float32] | None, stamp: float
@@ -340,10 +382,12 @@ class _LookState:
             diff = cv2.absdiff(small, self._previous)
             self.change[i - 1] = cv2.resize(diff, blocks, interpolation=cv2.INTER_AREA)
         self._previous = small
-        if self.gray is not None:
-            self.gray[i] = gray
-        if self.depth is not None:
-            self.depth[i] = depth if depth is not None else np.nan
+        if self.kept is not None:
+            try:
+                self.kept.append(gray, depth)
+            except OSError:  # no room for the temporary file: the second pass reads the clip again
+                self.kept.close()
+                self.kept = None
         self.frames = i + 1
         return small
 
@@ -363,10 +407,8 @@ class _LookState:
         camera = border.copy() if removed else np.zeros_like(border)
         if removed:
             flow -= camera[:, None, None, :]
-        kept = None
-        if self.gray is not None:
-            depth = None if self.depth is None else self.depth[: count + 1]
-            kept = KeptFrames(self.gray[: count + 1], depth, self.depth_shape or (0, 0))
+        if self.kept is not None:
+            self.kept.truncate(count + 1)
         confidence = flow_confidence(mean, frame_noise=frame_noise(self.change[:count]))
         return Look(
             grid=self.grid,
@@ -387,7 +429,7 @@ class _LookState:
             ring=self.ring,
             max_step_px=_fastest(flow, confidence.weight >= 0.5) * self.grid.factor,
             decode_s=decode_s,
-            kept=kept,
+            kept=self.kept,
         )
 
 
@@ -419,11 +461,9 @@ def _fastest(flow: NDArray[np.float32], textured: NDArray[np.bool_]) -> float:
 
 
 __all__ = [
-    "KEEP_FRAMES_MIB",
     "LOOK_WIDTH_PX",
     "CoarseGrid",
     "KeptFrames",
     "Look",
-    "keeps_frames",
     "look_at",
 ]

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -93,6 +94,8 @@ REGION_SHARE = 0.02
 TAPER_ALPHA = 0.5
 #: Frequencies per block of work (bounds the working memory of one pass).
 _CHUNK = 64
+#: Threads pooling the scan's chunks of frequencies (one per core of the machine it was sized for).
+POOL_THREADS = 2
 #: Flow columns (pixel components) tapered and transformed at a time: a block stays in cache, and only
 #: the band's bins of its spectra are kept.
 _COLUMNS = 4096
@@ -510,7 +513,8 @@ def _pooled_levels(
     grids = _level_positions(confidence.weight, shapes)
     raw = [np.empty((len(bins), pos.size), np.float32) for _, pos, _ in grids]
     sampled = [np.empty((len(bins), smp.size), np.float32) for _, _, smp in grids]
-    for k in range(0, len(bins), _CHUNK):
+
+    def pool_chunk(k: int) -> None:
         chunk = spectra[k : k + _CHUNK].reshape(-1, h, w, 2)
         z = constrained_spectra(chunk, confidence)
         for level, (block, (shape, positions, sample)) in enumerate(zip(shapes, grids, strict=True)):
@@ -525,6 +529,10 @@ def _pooled_levels(
             power = np.einsum("bpc,bpc->bp", flat, flat)
             raw[level][k : k + len(z)] = power[:, positions]
             sampled[level][k : k + len(z)] = power[:, sample]
+
+    # chunks of frequencies are independent and write their own rows (numpy and OpenCV release the GIL)
+    with ThreadPoolExecutor(max_workers=POOL_THREADS, thread_name_prefix="scan") as pool:
+        list(pool.map(pool_chunk, range(0, len(bins), _CHUNK)))
     return [
         replace(_summarised(level, shape, positions, r, colour_of(s)), block=block)
         for level, (block, (shape, positions, _), r, s) in enumerate(

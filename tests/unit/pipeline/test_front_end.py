@@ -10,7 +10,7 @@ import pytest
 
 from workers.pipeline.fine import ROI_BUDGET_PX, grid_for, plan_roi, stream_roi
 from workers.pipeline.flow import FlowConfig
-from workers.pipeline.look import CoarseGrid, frame_noise, keeps_frames, look_at
+from workers.pipeline.look import CoarseGrid, KeptFrames, frame_noise, look_at
 from workers.pipeline.roi import Roi
 from workers.pipeline.synth import Scene, SceneObject, SceneReader
 
@@ -45,17 +45,46 @@ def test_the_look_keeps_a_short_window_and_says_where_it_moves():
     assert look.count == scene.frames - 1
     assert look.flow.shape == (scene.frames - 1, 120, 160, 2)
     assert look.kept is not None
-    assert look.kept.gray.shape == (scene.frames, 240, 320)
-    assert look.kept.depth is not None
-    assert look.kept.depth.shape == (scene.frames, 120, 160)
+    assert len(look.kept) == scene.frames
+    gray, depth = look.kept.frame(scene.frames - 1)
+    assert gray.shape == (240, 320)
+    assert depth is not None
+    assert depth.shape == (120, 160)
     assert not look.camera_removed
     assert look.times_s[1] == pytest.approx(1 / 30.0)
     assert 0.2 < look.max_step_px < 20.0
 
 
-def test_a_long_window_is_not_kept():
-    assert keeps_frames(256, 480, 640, has_depth=True)
-    assert not keeps_frames(1000, 420, 640, has_depth=False)
+def test_kept_frames_come_back_as_they_went_in_from_a_file_not_from_memory(tmp_path):
+    """The window's frames are written to a temporary file as the look decodes them (a long window's
+    frames would otherwise be most of the process's memory, or be decoded twice) and read back exactly;
+    a frame without depth comes back as NaN; the file is gone once closed."""
+    rng = np.random.default_rng(3)
+    grays = rng.integers(0, 256, (5, 42, 64), dtype=np.uint8)
+    depths = rng.uniform(0.3, 4.0, (5, 21, 32)).astype(np.float32)
+    kept = KeptFrames((42, 64), (21, 32), directory=str(tmp_path))
+    for i in range(5):
+        kept.append(grays[i], None if i == 3 else depths[i])
+    assert len(kept) == 5
+    for i in (4, 0, 3):
+        gray, depth = kept.frame(i)
+        np.testing.assert_array_equal(gray, grays[i])
+        assert depth is not None
+        if i == 3:
+            assert np.isnan(depth).all()
+        else:
+            np.testing.assert_array_equal(depth, depths[i])
+    kept.truncate(2)
+    with pytest.raises(IndexError, match="frame 2 of 2"):
+        kept.frame(2)
+    without_depth = KeptFrames((42, 64), None, directory=str(tmp_path))
+    without_depth.append(grays[1], None)
+    gray, depth = without_depth.frame(0)
+    np.testing.assert_array_equal(gray, grays[1])
+    assert depth is None
+    assert list(tmp_path.iterdir()) == []  # unlinked: nothing to clean up, even after a crash
+    kept.close()
+    without_depth.close()
 
 
 def test_one_frame_noise_is_at_least_the_rounding_of_grey_levels():
@@ -182,6 +211,19 @@ def test_the_front_keeps_only_the_boxs_coarse_flow_and_measures_the_object_the_s
         for v in (whole, boxed)
     ]
     np.testing.assert_allclose(motions[1].velocity_px, motions[0].velocity_px, rtol=1e-5, atol=1e-7)
+    # the camera's and the region's band powers need the ring's flow and the region's only
+    region_power, ring_power = front.band_powers(4.0, 1.0, region)
+    kept_power, kept_ring = kept.band_powers(4.0, 1.0, region)
+    assert region_power > 0
+    assert kept_power == pytest.approx(region_power, rel=1e-5)
+    np.testing.assert_allclose(kept_ring, ring_power, rtol=1e-5)
+    picture = front.spectra  # the whole picture's spectra (before the box only) give the same powers
+    sel = np.abs(picture.frequencies_hz - 4.0) <= 1.5 * picture.bin_hz
+    power = picture.power[sel].sum(axis=0)
+    assert region_power == pytest.approx(float(np.median(power[region.ravel()])), rel=1e-5)
+    np.testing.assert_allclose(ring_power, power[front.ring.pixels], rtol=1e-5)
+    with pytest.raises(ValueError, match="keeping_flow_of"):
+        _ = kept.spectra
     whole_frame = Roi(0, 0, 320, 240, (240, 320), (240, 320))
     assert front.keeping_flow_of(whole_frame) is front
 
@@ -232,3 +274,22 @@ def test_grey_frames_over_their_budget_are_kept_on_the_grid_and_registration_sti
         assert o.amplitude_source == "registration"
         assert o.eigenfrequency_hz == pytest.approx(truth["eigenfrequency_hz"], rel=0.01)
         assert o.stiffness_n_per_m == pytest.approx(truth["stiffness_n_per_m"], rel=0.02)
+
+
+def test_without_room_for_the_kept_frames_the_analysis_reads_the_clip_again(monkeypatch):
+    """A full disk while the look keeps the window's frames costs a second decode, not the analysis."""
+    import errno
+
+    from workers.pipeline.analysis import analyze
+
+    def full(self, gray, depth):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(KeptFrames, "append", full)
+    scene = _scene()
+    with SceneReader(scene) as reader:
+        look = look_at(reader, 0, scene.frames)
+        assert look.kept is None
+        result = analyze(reader)
+    assert result.objects
+    assert result.objects[0].eigenfrequency_hz == pytest.approx(4.0, rel=0.02)
