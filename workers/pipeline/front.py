@@ -120,11 +120,10 @@ class Front:
         if ring is None:
             ring = self.flow.reshape(n, -1, 2)[:, self.ring.pixels]
         own = np.take(self.flow.reshape(n, -1, 2), np.flatnonzero(inside.ravel()), axis=1)
-        series = np.concatenate([own, ring], axis=1)
-        power = _band_power(series, frequency_hz, max(1.5, width_bins), self.scan.sample_rate_hz)
-        count = int(inside.sum())
-        region_power = float(np.median(power[:count])) if count else 0.0
-        return region_power, np.asarray(power[count:], np.float32)
+        half_width, rate = max(1.5, width_bins), self.scan.sample_rate_hz
+        power = _band_power(own, frequency_hz, half_width, rate)
+        region_power = float(np.median(power)) if power.size else 0.0
+        return region_power, np.asarray(_band_power(ring, frequency_hz, half_width, rate), np.float32)
 
     def detection(self) -> dict[str, float]:
         """The calibration's figures for the result."""
