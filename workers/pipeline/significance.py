@@ -32,6 +32,7 @@ An object is reported when its false-alarm probability per clip is at most :data
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -96,6 +97,9 @@ TAPER_ALPHA = 0.5
 _CHUNK = 64
 #: Threads pooling the scan's chunks of frequencies (one per core of the machine it was sized for).
 POOL_THREADS = 2
+#: Most memory the scan's spectra take at once, MiB (the band of a 1000-frame window on the 160 x 105 grid
+#: is 126 MiB, one group; a 3000-frame window's 380 MiB is transformed in three).
+SPECTRA_BUDGET_MIB = 160.0
 #: Flow columns (pixel components) tapered and transformed at a time: a block stays in cache, and only
 #: the band's bins of its spectra are kept.
 _COLUMNS = 4096
@@ -499,24 +503,22 @@ def _pooled_levels(
 ) -> list[_Level]:
     """The raw power of every counted block of every shape at the given bins, a block of frequencies at
     a time (z's spectra, then their means over each block), with the blocks' own levels and the noise
-    colour."""
-    from scipy import fft
-
+    colour. The band's spectra are held :data:`SPECTRA_BUDGET_MIB` at a time: a longer window's band is
+    transformed in groups of frequencies, one pass of the FFT over the flow each."""
     n, h, w = flow.shape[:3]
     series = flow.reshape(n, -1)
     taper = tukey(n, TAPER_ALPHA)
-    spectra = np.empty((len(bins), series.shape[1]), np.complex64)  # the band's bins only
-    for c in range(0, series.shape[1], _COLUMNS):
-        tapered = _tapered(series[:, c : c + _COLUMNS], taper)
-        spectra[:, c : c + _COLUMNS] = fft.rfft(tapered, axis=0, workers=2)[bins]
     shapes = _block_shapes((h, w), levels)
     grids = _level_positions(confidence.weight, shapes)
     raw = [np.empty((len(bins), pos.size), np.float32) for _, pos, _ in grids]
     sampled = [np.empty((len(bins), smp.size), np.float32) for _, _, smp in grids]
+    per_bin = series.shape[1] * np.dtype(np.complex64).itemsize
+    group = max(_CHUNK, int(SPECTRA_BUDGET_MIB * 2**20 // per_bin) // _CHUNK * _CHUNK)
 
-    def pool_chunk(k: int) -> None:
+    def pool_chunk(spectra: NDArray[np.complex64], first: int, k: int) -> None:
         chunk = spectra[k : k + _CHUNK].reshape(-1, h, w, 2)
         z = constrained_spectra(chunk, confidence)
+        rows = slice(first + k, first + k + len(z))
         for level, (block, (shape, positions, sample)) in enumerate(zip(shapes, grids, strict=True)):
             if block == (1, 1):
                 pooled = z
@@ -527,18 +529,38 @@ def _pooled_levels(
             flat = pooled.reshape(len(z), shape[0] * shape[1], 4)
             # every block's power, then the counted ones' (gathering powers moves a quarter of the bytes)
             power = np.einsum("bpc,bpc->bp", flat, flat)
-            raw[level][k : k + len(z)] = power[:, positions]
-            sampled[level][k : k + len(z)] = power[:, sample]
+            raw[level][rows] = power[:, positions]
+            sampled[level][rows] = power[:, sample]
 
     # chunks of frequencies are independent and write their own rows (numpy and OpenCV release the GIL)
     with ThreadPoolExecutor(max_workers=POOL_THREADS, thread_name_prefix="scan") as pool:
-        list(pool.map(pool_chunk, range(0, len(bins), _CHUNK)))
+
+        def pool_group(first: int) -> None:  # the group's spectra are let go before the next one's
+            spectra = _band_spectra(series, taper, bins[first : first + group])
+            list(pool.map(functools.partial(pool_chunk, spectra, first), range(0, len(spectra), _CHUNK)))
+
+        for first in range(0, len(bins), group):
+            pool_group(first)
     return [
         replace(_summarised(level, shape, positions, r, colour_of(s)), block=block)
         for level, (block, (shape, positions, _), r, s) in enumerate(
             zip(shapes, grids, raw, sampled, strict=True)
         )
     ]
+
+
+def _band_spectra(
+    series: NDArray[np.float32], taper: NDArray[np.float32], bins: NDArray[np.intp]
+) -> NDArray[np.complex64]:
+    """The tapered ``series``' (N, C) spectra at ``bins``: (B, C), a block of columns at a time (a block
+    stays in cache, and only those bins of its spectra are kept)."""
+    from scipy import fft
+
+    spectra = np.empty((len(bins), series.shape[1]), np.complex64)
+    for c in range(0, series.shape[1], _COLUMNS):
+        tapered = _tapered(series[:, c : c + _COLUMNS], taper)
+        spectra[:, c : c + _COLUMNS] = fft.rfft(tapered, axis=0, workers=2)[bins]
+    return spectra
 
 
 def tukey(n: int, alpha: float) -> NDArray[np.float32]:

@@ -62,6 +62,22 @@ def test_noise_alone_is_rarely_significant_and_the_rate_is_not_above_the_stated_
         assert float(np.mean(best_arr <= alpha)) <= alpha + 0.1, (alpha, np.sort(best_arr)[:8])
 
 
+def test_a_long_windows_band_transformed_in_groups_gives_the_same_statistic(monkeypatch):
+    """A window whose band's spectra exceed SPECTRA_BUDGET_MIB is transformed in groups of frequencies
+    (memory flat in the window's length): the statistic is the one of a single pass, exactly."""
+    from workers.pipeline import significance
+
+    flow = _vibrate(_noise(7), 9.0, 0.04, (slice(20, 28), slice(30, 34)))
+    whole = _scan(flow, _picture(7))
+    per_bin_mib = H * W * 2 * 8 / 2**20
+    monkeypatch.setattr(significance, "_CHUNK", 8)
+    monkeypatch.setattr(significance, "SPECTRA_BUDGET_MIB", 20.5 * per_bin_mib)  # groups of 16 bins
+    assert len(whole.frequencies_hz) > 3 * 16
+    grouped = _scan(flow, _picture(7))
+    np.testing.assert_array_equal(grouped.statistic, whole.statistic)
+    np.testing.assert_array_equal(grouped.z, whole.z)
+
+
 def test_a_weak_small_vibration_is_found_where_and_at_what_it_moves():
     flow = _vibrate(_noise(7), 9.0, 0.04, (slice(20, 28), slice(30, 34)))  # below the noise per sample
     scan = _scan(flow, _picture(7))
