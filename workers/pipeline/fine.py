@@ -43,18 +43,29 @@ ROI_BUDGET_MIB = 96.0
 #: on the box's flow grid, where registration then works (they grow with the window: 146 MiB of a 1000-frame
 #: window of a 366 x 420 box).
 GRAY_BUDGET_MIB = 64.0
+#: A box whose fastest pixels move this many input pixels a frame or more (the look's ``max_step_px``) is
+#: measured in 2 x 2 blocks rather than a fraction of full resolution when it is over the budgets: the
+#: motion is a grid pixel a frame or more there too.
+HALVING_STEP_PX = 2.0
 #: Background kept around the moving regions: this many input pixels at least ...
 MIN_MARGIN_PX = 24
 #: ... and this fraction of the square root of the regions' area (a large object gets a wide margin).
 MARGIN_FRACTION = 0.5
 
 
-def grid_for(width: int, height: int, *, samples: int, budget_px: int = ROI_BUDGET_PX) -> tuple[int, int]:
+def grid_for(
+    width: int, height: int, *, samples: int, budget_px: int = ROI_BUDGET_PX, halve: bool = False
+) -> tuple[int, int]:
     """The flow grid (h, w) of a ``width`` x ``height`` box: full resolution within ``budget_px`` and
-    :data:`ROI_BUDGET_MIB` of flow for ``samples`` maps (float32 u and v), area-averaged below."""
+    :data:`ROI_BUDGET_MIB` of flow for ``samples`` maps (float32 u and v), area-averaged below by the
+    fraction they allow; with ``halve`` (a motion the half-resolution grid follows), in 2 x 2 blocks
+    wherever full resolution is beyond them and halving is within them (OpenCV's exact area average,
+    several times cheaper on every frame than a fractional one, and half the pixels)."""
     memory_px = ROI_BUDGET_MIB * 2**20 / (8 * max(samples, 1))
     allowed = max(64 * 48, min(budget_px, memory_px))
     scale = min(1.0, math.sqrt(allowed / max(width * height, 1)))
+    if halve and 0.5 <= scale < 1.0:
+        scale = 0.5
     return max(8, round(height * scale)), max(8, round(width * scale))
 
 
@@ -101,9 +112,12 @@ def plan_roi(
     width, height = x1 - x0, y1 - y0
     if width * height >= 0.6 * W * H:  # most of the frame: all of it (the border shows the camera)
         x0, y0, width, height = 0, 0, W, H
-    return Roi(
-        x0, y0, width, height, grid_for(width, height, samples=samples, budget_px=budget_px), frame_shape
-    )
+    halve = look.max_step_px >= HALVING_STEP_PX
+    grid = grid_for(width, height, samples=samples, budget_px=budget_px, halve=halve)
+    if halve and abs(2 * grid[1] - width) <= 1 and (x0, y0, width, height) != (0, 0, W, H):
+        width, height = width - width % 2, height - height % 2  # whole 2 x 2 blocks (a pixel less)
+        grid = (height // 2, width // 2)
+    return Roi(x0, y0, width, height, grid, frame_shape)
 
 
 @dataclass
@@ -280,6 +294,7 @@ def _buffers(window: _Window, count: int, *, look: Look, decode_s: float) -> Fra
 
 __all__ = [
     "GRAY_BUDGET_MIB",
+    "HALVING_STEP_PX",
     "MARGIN_FRACTION",
     "MIN_MARGIN_PX",
     "ROI_BUDGET_MIB",

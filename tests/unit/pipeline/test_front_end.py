@@ -115,6 +115,33 @@ def test_the_box_grid_is_full_resolution_when_small_and_within_budgets():
     assert long_h * long_w < 200 * 400  # memory bounds a long window's grid
 
 
+def test_a_box_over_budget_whose_motion_is_large_is_measured_in_whole_2x2_blocks():
+    """A box beyond the pixel budget is area-averaged by the fraction the budget allows; when its motion is
+    two input pixels a frame or more, in whole 2 x 2 blocks instead (exact and cheap), the box trimmed to
+    an even size."""
+    from dataclasses import replace as with_
+
+    scene = _scene()
+    with SceneReader(scene) as reader:
+        look = look_at(reader, 0, scene.frames)
+    region = np.zeros(look.grid.shape, bool)
+    region[40:81, 50:111] = True  # input x 100-222, y 80-162, with margins 24-50 px
+    budget = 20_000
+    slow = plan_roi(
+        with_(look, max_step_px=0.5), [region], frame_shape=(240, 320), samples=48, budget_px=budget
+    )
+    fast = plan_roi(
+        with_(look, max_step_px=3.0), [region], frame_shape=(240, 320), samples=48, budget_px=budget
+    )
+    assert (slow.x, slow.y) == (fast.x, fast.y)
+    assert slow.width * slow.height > budget  # over the budget: not at full resolution
+    assert slow.pixel_scale != pytest.approx(2.0, abs=0.05)  # the fraction the budget allows
+    assert fast.width % 2 == 0
+    assert fast.height % 2 == 0
+    assert fast.grid_shape == (fast.height // 2, fast.width // 2)
+    assert fast.pixel_scale == pytest.approx(2.0)
+
+
 def test_the_box_holds_the_regions_with_a_margin_and_falls_back_to_the_frame():
     scene = _scene()
     with SceneReader(scene) as reader:
