@@ -46,7 +46,7 @@ class ObjectMotion:
 
 
 def object_motion(
-    flow: NDArray[np.float32],
+    flow: NDArray[np.floating[Any]],
     mask: NDArray[np.bool_],
     *,
     pixel_scale: float = 1.0,
@@ -273,14 +273,14 @@ class CoarseView:
 
     Attributes
     ----------
-    flow : ndarray of float32, shape (N, h, w, 2)
+    flow : ndarray of float32 or float16, shape (N, h, w, 2)
     region : ndarray of bool, shape (h, w)
     confidence : Confidence
     pixel_scale : float
         Input pixels per pixel of this grid.
     """
 
-    flow: NDArray[np.float32]
+    flow: NDArray[np.float32] | NDArray[np.float16]
     region: NDArray[np.bool_]
     confidence: Confidence
     pixel_scale: float

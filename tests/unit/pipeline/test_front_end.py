@@ -212,7 +212,10 @@ def test_a_whole_frame_flow_is_scanned_on_the_looks_grid():
 
 def test_the_front_keeps_only_the_boxs_coarse_flow_and_measures_the_object_the_same():
     """Once the box is chosen, the front keeps the coarse flow over it alone (a copy: the whole picture's
-    flow can be freed), and an object's motion on that grid is what it was on the whole grid."""
+    flow can be freed), in half precision, and an object's motion on that grid is what it was on the whole
+    grid (exactly, of the flow rounded as it is kept)."""
+    from dataclasses import replace
+
     from workers.pipeline.front import front_of_look
     from workers.pipeline.tracking import object_motion
 
@@ -230,20 +233,30 @@ def test_the_front_keeps_only_the_boxs_coarse_flow_and_measures_the_object_the_s
     assert kept.flow.shape[1] < front.flow.shape[1]
     assert kept.flow.shape[1] * f >= roi.height
     assert kept.flow.shape[2] * f >= roi.width
+    assert kept.flow.dtype == np.float16  # kept in half precision
     region = front.candidates.regions[0]
     whole, boxed = front.coarse_view(region), kept.coarse_view(region)
     assert boxed.region.sum() == region.sum()  # the object lies in the box
+    # the same flow, rounded as the box keeps it: the same motion exactly
+    rounded = replace(front, flow=front.flow.astype(np.float16).astype(np.float32)).coarse_view(region)
     motions = [
         object_motion(v.flow, v.region, frequency_hz=4.0, sample_rate_hz=30.0, confidence=v.confidence)
-        for v in (whole, boxed)
+        for v in (whole, rounded, boxed)
     ]
-    np.testing.assert_allclose(motions[1].velocity_px, motions[0].velocity_px, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(motions[2].velocity_px, motions[1].velocity_px, rtol=1e-5, atol=1e-7)
+    # and the rounding (2^-11 of a value) moves the motion by a thousandth of its size at most
+    scale = float(np.abs(motions[0].velocity_px).max())
+    np.testing.assert_allclose(motions[2].velocity_px, motions[0].velocity_px, rtol=0, atol=1e-3 * scale)
     # the camera's and the region's band powers need the ring's flow and the region's only
     region_power, ring_power = front.band_powers(4.0, 1.0, region)
     kept_power, kept_ring = kept.band_powers(4.0, 1.0, region)
+    rounded_front = replace(front, flow=front.flow.astype(np.float16).astype(np.float32))
+    rounded_power, rounded_ring = rounded_front.band_powers(4.0, 1.0, region)
     assert region_power > 0
-    assert kept_power == pytest.approx(region_power, rel=1e-5)
-    np.testing.assert_allclose(kept_ring, ring_power, rtol=1e-5)
+    assert kept_power == pytest.approx(rounded_power, rel=1e-5)
+    np.testing.assert_allclose(kept_ring, rounded_ring, rtol=1e-5)
+    assert kept_power == pytest.approx(region_power, rel=1e-3)
+    np.testing.assert_allclose(kept_ring, ring_power, rtol=1e-3, atol=1e-3 * float(ring_power.max()))
     picture = front.spectra  # the whole picture's spectra (before the box only) give the same powers
     sel = np.abs(picture.frequencies_hz - 4.0) <= 1.5 * picture.bin_hz
     power = picture.power[sel].sum(axis=0)
