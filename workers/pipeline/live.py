@@ -358,13 +358,22 @@ class LiveAnalysis:
         return index
 
     def _make_room(self) -> None:
-        """Before motion is seen, slide the window so that it keeps the last ``lead_frames`` frames."""
+        """Before motion is seen, slide the window so that it keeps the last ``lead_frames`` frames; once
+        it is seen, slide it once more to start ``lead_frames`` before the motion (the slides before went
+        as far as the flow had reached, which lags the frames by up to a few pairs: without this, the
+        window held up to that many frames fewer after the motion, as many more before it)."""
         cap = self.config.window_frames
-        if self._stored < cap or self._motion_at is not None:
+        if self._stored < cap:
             return
-        # The flow thread may lag a few pairs behind: keep the frames whose flow is pending too.
-        keep_from = max(0, min(self._stored - 1 - self.config.lead_frames, self._flow_count - self._base))
-        keep_from = max(keep_from, 1)
+        lead = self.config.lead_frames
+        if self._motion_at is not None:
+            keep_from = self._motion_at - lead - self._base
+            if keep_from <= 0:
+                return
+        else:
+            # The flow thread may lag a few pairs behind: keep the frames whose flow is pending too.
+            keep_from = max(0, min(self._stored - 1 - lead, self._flow_count - self._base))
+            keep_from = max(keep_from, 1)
         n = self._stored - keep_from
         self._gray[:n] = self._gray[keep_from : self._stored]
         self._times[:n] = self._times[keep_from : self._stored]

@@ -93,6 +93,35 @@ def test_memory_is_bounded_by_the_window() -> None:
     assert any(q.code == "window" for q in analysis.quality)
 
 
+def test_a_lagging_flow_leaves_the_window_its_frames_after_the_motion(monkeypatch) -> None:
+    """The window slides as far as the flow has reached, which lags the frames (a loaded machine): once the
+    motion is seen, the window starts ``lead_frames`` before it however far the flow lagged, and the
+    rest of it follows the motion (a lag of 8 pairs left it 8 frames short, as many more before it)."""
+    import time
+
+    from workers.pipeline import live as live_module
+
+    plain = live_module.flow_stream
+
+    def lagging(grays, **kw):
+        for flow in plain(grays, **kw):
+            time.sleep(0.01)  # slower than the frames are pushed: the flow runs the bounded lag behind
+            yield flow
+
+    monkeypatch.setattr(live_module, "flow_stream", lagging)
+    scene = _scene(frames=120, release=70)
+    live = _live(scene, window_frames=32, lead_frames=4)
+    for frame in SceneReader(scene).frames():
+        live.push(rgb=frame.rgb, depth_m=frame.depth_m, timestamp_s=frame.timestamp_s)
+    live.wait(20)
+    motion = live._motion_at
+    assert motion is not None
+    assert 68 <= motion <= 76
+    first, last = live.finish(excitations=[]).frames_used
+    assert first == motion - 4
+    assert last - first == 32
+
+
 def test_bad_frames_are_refused_with_their_index() -> None:
     live = _live(_scene())
     try:
