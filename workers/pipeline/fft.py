@@ -36,6 +36,10 @@ def warm_up() -> None:
 Mix = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]
 
 
+#: Most memory of one block's buffer, MiB (see :meth:`RfftPlans.block_for`).
+BLOCK_MIB = 8.0
+
+
 class RfftPlans:
     """Per-pixel power spectra by FFTW, with plans built once per shape and reused.
 
@@ -51,14 +55,20 @@ class RfftPlans:
         self.block = block
         self._plans: dict[tuple[int, int], list[tuple[Any, NDArray[np.float32]]]] = {}
 
+    def block_for(self, nfft: int) -> int:
+        """Columns per block for transforms of length ``nfft``: ``block``, fewer for a long transform (a
+        block's buffer stays within :data:`BLOCK_MIB`: a 3000-frame window's would be 24 MiB a thread)."""
+        return max(64, min(self.block, int(BLOCK_MIB * 2**20 // (4 * nfft)) // 2 * 2))
+
     def _workers(self, nfft: int) -> list[tuple[Any, NDArray[np.float32]]]:
-        key = (nfft, self.block)
+        block = self.block_for(nfft)
+        key = (nfft, block)
         plans = self._plans.get(key)
         if plans is None:
             plans = []
             pyfftw = _fftw()
             for _ in range(self.threads):
-                buf = pyfftw.empty_aligned((self.block, nfft), dtype="float32")
+                buf = pyfftw.empty_aligned((block, nfft), dtype="float32")
                 plan = pyfftw.builders.rfft(
                     buf, axis=1, threads=1, planner_effort="FFTW_ESTIMATE", avoid_copy=True
                 )
@@ -111,7 +121,8 @@ class RfftPlans:
             if summary is not None:
                 summary.fill(np.ascontiguousarray(out[summary.bins].T), 0)
             return out
-        block = self.block - self.block % pairs
+        block = self.block_for(nfft)
+        block -= block % pairs
         starts = list(range(0, cols, block))
         workers = self._workers(nfft)
 

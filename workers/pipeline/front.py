@@ -84,15 +84,16 @@ class Front:
         """This front with its flow kept over ``roi``'s box only (rounded out to the grid): once the region
         that moves is chosen, the rest of the picture's flow is never read again (a 1000-frame window's
         coarse flow is 128 MiB at 640 x 420), and every object measured lies in the box."""
-        if roi.whole_frame:
-            return self
         f = self.grid_factor
         h, w = self.flow.shape[1:3]
         y0, x0 = int(roi.y // f), int(roi.x // f)
         y1 = min(h, math.ceil((roi.y + roi.height) / f))
         x1 = min(w, math.ceil((roi.x + roi.width) / f))
+        if roi.whole_frame:
+            y0, x0, y1, x1 = 0, 0, h, w
         # copies in half precision (rounding 2^-11 of a value, far below the flow's noise): the whole
-        # picture's flow can be let go, and a 1000-frame window's box holds 37 MiB instead of 74
+        # picture's flow can be let go, and a 1000-frame window's box holds 37 MiB instead of 74 (the
+        # whole picture of a 3000-frame window 192 instead of 384)
         kept = self.flow[:, y0:y1, x0:x1].astype(np.float16)
         ring = self.flow.reshape(len(self.flow), -1, 2)[:, self.ring.pixels].astype(np.float16)
         return replace(self, flow=kept, flow_origin=(y0, x0), ring_flow=ring)

@@ -265,7 +265,10 @@ def test_the_front_keeps_only_the_boxs_coarse_flow_and_measures_the_object_the_s
     with pytest.raises(ValueError, match="keeping_flow_of"):
         _ = kept.spectra
     whole_frame = Roi(0, 0, 320, 240, (240, 320), (240, 320))
-    assert front.keeping_flow_of(whole_frame) is front
+    all_of_it = front.keeping_flow_of(whole_frame)
+    assert all_of_it.flow.shape == front.flow.shape
+    assert all_of_it.flow.dtype == np.float16
+    assert all_of_it.flow_origin == (0, 0)
 
 
 @pytest.mark.slow

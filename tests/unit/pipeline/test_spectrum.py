@@ -113,3 +113,20 @@ def test_fast_length_is_scipys_next_fast_len_for_real_transforms():
     assert [fast_length(n) for n in range(1, 3000)] == [next_fast_len(n, real=True) for n in range(1, 3000)]
     with pytest.raises(ValueError, match="positive"):
         fast_length(0)
+
+
+def test_a_long_transform_goes_in_smaller_blocks_with_the_same_spectra():
+    """Per-pixel spectra are taken a block of columns at a time; a long window's blocks are narrower (a
+    block's buffer within BLOCK_MIB, not 24 MiB a thread at 3000 frames), and the spectra the same."""
+    from workers.pipeline.fft import BLOCK_MIB, RfftPlans
+
+    plans = RfftPlans(threads=2)
+    assert plans.block_for(1000) == 2048
+    assert plans.block_for(3000) * 3000 * 4 <= BLOCK_MIB * 2**20
+    assert plans.block_for(3000) % 2 == 0
+    data = np.random.default_rng(2).normal(size=(3000, 2 * 800)).astype(np.float32)
+    assert 2 * plans.block_for(3000) < 2 * 800  # three blocks, split between two threads
+    power = plans.power(data, nfft=3000)
+    spectra = np.fft.rfft((data - data.mean(axis=0)).astype(np.float64), axis=0)
+    expected = (np.abs(spectra) ** 2).reshape(len(spectra), 800, 2).sum(axis=2)
+    np.testing.assert_allclose(power, expected, rtol=1e-3, atol=1e-3 * float(expected.max()))
