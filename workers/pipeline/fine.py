@@ -17,7 +17,7 @@ import math
 import threading
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -95,29 +95,96 @@ def plan_roi(
     Roi
     """
     H, W = frame_shape
-    union = np.zeros(look.grid.shape, bool)
-    for region in regions:
-        union |= region
-    if not union.any():
+    box = _moving_box(regions, factor=look.grid.factor, frame_shape=frame_shape)
+    if box is None:
         h, w = grid_for(W, H, samples=samples, budget_px=budget_px)
         return Roi(0, 0, W, H, (h, w), frame_shape)
-    f = look.grid.factor
-    ys, xs = np.nonzero(union)
-    x0, x1 = int(xs.min()) * f, (int(xs.max()) + 1) * f
-    y0, y1 = int(ys.min()) * f, (int(ys.max()) + 1) * f
-    area = float(union.sum()) * f * f
-    margin = max(MIN_MARGIN_PX, round(MARGIN_FRACTION * math.sqrt(area)))
-    x0, y0 = max(0, x0 - margin), max(0, y0 - margin)
-    x1, y1 = min(W, x1 + margin), min(H, y1 + margin)
+    x0, y0, x1, y1 = box
     width, height = x1 - x0, y1 - y0
-    if width * height >= 0.6 * W * H:  # most of the frame: all of it (the border shows the camera)
-        x0, y0, width, height = 0, 0, W, H
     halve = look.max_step_px >= HALVING_STEP_PX
     grid = grid_for(width, height, samples=samples, budget_px=budget_px, halve=halve)
     if halve and abs(2 * grid[1] - width) <= 1 and (x0, y0, width, height) != (0, 0, W, H):
         width, height = width - width % 2, height - height % 2  # whole 2 x 2 blocks (a pixel less)
         grid = (height // 2, width // 2)
     return Roi(x0, y0, width, height, grid, frame_shape)
+
+
+def _moving_box(
+    regions: Sequence[NDArray[np.bool_]], *, factor: float, frame_shape: tuple[int, int]
+) -> tuple[int, int, int, int] | None:
+    """The box (x0, y0, x1, y1), input pixels, around ``regions`` (masks of a grid of ``factor`` input
+    pixels a pixel) with a margin of background; None when they are empty, (0, 0, W, H) when the box
+    would hold most of the frame (the border shows the camera)."""
+    H, W = frame_shape
+    if not regions:
+        return None
+    union = np.zeros(regions[0].shape, bool)
+    for region in regions:
+        union |= region
+    if not union.any():
+        return None
+    ys, xs = np.nonzero(union)
+    x0, x1 = int(int(xs.min()) * factor), math.ceil((int(xs.max()) + 1) * factor)
+    y0, y1 = int(int(ys.min()) * factor), math.ceil((int(ys.max()) + 1) * factor)
+    area = float(union.sum()) * factor * factor
+    margin = max(MIN_MARGIN_PX, round(MARGIN_FRACTION * math.sqrt(area)))
+    x0, y0 = max(0, x0 - margin), max(0, y0 - margin)
+    x1, y1 = min(W, x1 + margin), min(H, y1 + margin)
+    if (x1 - x0) * (y1 - y0) >= 0.6 * W * H:
+        return 0, 0, W, H
+    return x0, y0, x1, y1
+
+
+def crop_to_motion(
+    buffers: FrameBuffers,
+    regions: Sequence[NDArray[np.bool_]],
+    *,
+    factor: float,
+    frame_shape: tuple[int, int],
+) -> FrameBuffers:
+    """A whole-frame window's buffers cut, on their own grid, to the box around the moving regions (with
+    :func:`plan_roi`'s margin): what a live stream's final analysis measures, its flow computed as the
+    frames came (the spectra, segmentation and measurement then cover the box, not the frame).
+
+    Parameters
+    ----------
+    buffers : FrameBuffers
+        Flow over the whole frame (``roi`` None); grey frames at input resolution or on the flow grid.
+    regions : sequence of ndarray of bool, shape (h', w')
+        Where the picture moves, on a grid of ``factor`` input pixels a pixel.
+    factor : float
+    frame_shape : (H, W)
+
+    Returns
+    -------
+    FrameBuffers
+        With ``roi`` set; ``buffers`` itself when nothing moves, when the box holds most of the frame, or
+        when a grid pixel is not a whole number of input pixels (the box could not be cut on it).
+    """
+    H, W = frame_shape
+    h, w = buffers.flow.shape[1:3]
+    scale = W / w
+    box = _moving_box(regions, factor=factor, frame_shape=frame_shape)
+    if buffers.roi is not None or box is None or box == (0, 0, W, H) or scale != int(scale) or h * scale != H:
+        return buffers
+    s = int(scale)
+    gx0, gy0 = box[0] // s, box[1] // s
+    gx1, gy1 = min(w, -(-box[2] // s)), min(h, -(-box[3] // s))
+    roi = Roi(gx0 * s, gy0 * s, (gx1 - gx0) * s, (gy1 - gy0) * s, (gy1 - gy0, gx1 - gx0), frame_shape)
+    gray, gray_scale = buffers.gray, buffers.gray_pixel_scale
+    if gray is not None and gray.shape[1:] == (H, W):
+        gray, gray_scale = np.ascontiguousarray(roi.crop(gray.transpose(1, 2, 0)).transpose(2, 0, 1)), 1.0
+    elif gray is not None and gray.shape[1:] == (h, w):
+        gray, gray_scale = np.ascontiguousarray(gray[:, gy0:gy1, gx0:gx1]), float(s)
+    depth = buffers.depth
+    return replace(
+        buffers,
+        flow=np.ascontiguousarray(buffers.flow[:, gy0:gy1, gx0:gx1]),
+        depth=None if depth is None else np.ascontiguousarray(depth[:, gy0:gy1, gx0:gx1]),
+        gray=gray,
+        gray_pixel_scale=gray_scale,
+        roi=roi,
+    )
 
 
 @dataclass
@@ -299,6 +366,7 @@ __all__ = [
     "MIN_MARGIN_PX",
     "ROI_BUDGET_MIB",
     "ROI_BUDGET_PX",
+    "crop_to_motion",
     "grid_for",
     "plan_roi",
     "stream_roi",

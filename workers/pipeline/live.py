@@ -37,7 +37,9 @@ from workers.pipeline.analysis import analyze_window
 from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing
 from workers.pipeline.clipio.types import ClipInfo, Intrinsics
 from workers.pipeline.errors import AnalysisError, ClipError, ParameterError
+from workers.pipeline.fine import crop_to_motion
 from workers.pipeline.flow import FlowConfig, flow_stream, prepare_gray
+from workers.pipeline.front import front_of_buffers
 from workers.pipeline.measure import (
     DAMPING_ABS_FLOOR,
     DAMPING_REL_FLOOR,
@@ -49,7 +51,7 @@ from workers.pipeline.metric import DEPTH_OVERRIDE_REL_SD, DEPTH_REL_SD
 from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, QualityNote, Stopwatch
 from workers.pipeline.ringdown import RingdownFit, fit_ringdown
 from workers.pipeline.stream import BRIGHTNESS_BLOCKS, FrameBuffers
-from workers.pipeline.window import Plan
+from workers.pipeline.window import Plan, analysis_band
 
 #: Two-sided 97.5 % quantiles of Student's t for 1..30 degrees of freedom (beyond: the normal's 1.96).
 _T975 = (
@@ -758,7 +760,24 @@ def _final_analysis(
         intrinsics=live.intrinsics,
     )
     watch.lap("flow")
-    result = analyze_window(buffers, plan, info, config=config, excitations=excitations, watch=watch)
+    front = front_of_buffers(
+        buffers,
+        sample_rate_hz=fps,
+        band_hz=analysis_band(config, fps, n),
+        max_objects=config.max_objects,
+        asserted=len(excitations),
+    )
+    if front.candidates.found:
+        # as the batch path's second pass: what follows covers the region that moves, not the frame
+        frame_shape = (live.height, live.width)
+        buffers = crop_to_motion(
+            buffers, front.candidates.regions, factor=front.grid_factor, frame_shape=frame_shape
+        )
+        front = front.keeping_flow_of(buffers.box(frame_shape))
+    watch.lap("spectrum")
+    result = analyze_window(
+        buffers, plan, info, config=config, excitations=excitations, watch=watch, front=front
+    )
     if live._received > live._base + n + 1:
         result.quality.append(
             QualityNote(

@@ -515,8 +515,8 @@ def _pooled_levels(
     per_bin = series.shape[1] * np.dtype(np.complex64).itemsize
     group = max(_CHUNK, int(SPECTRA_BUDGET_MIB * 2**20 // per_bin) // _CHUNK * _CHUNK)
 
-    def pool_chunk(spectra: NDArray[np.complex64], first: int, k: int) -> None:
-        chunk = spectra[k : k + _CHUNK].reshape(-1, h, w, 2)
+    def pool_chunk(spectra: NDArray[np.complex64], first: int, size: int, k: int) -> None:
+        chunk = spectra[k : k + size].reshape(-1, h, w, 2)
         z = constrained_spectra(chunk, confidence)
         rows = slice(first + k, first + k + len(z))
         for level, (block, (shape, positions, sample)) in enumerate(zip(shapes, grids, strict=True)):
@@ -537,7 +537,9 @@ def _pooled_levels(
 
         def pool_group(first: int) -> None:  # the group's spectra are let go before the next one's
             spectra = _band_spectra(series, taper, bins[first : first + group])
-            list(pool.map(functools.partial(pool_chunk, spectra, first), range(0, len(spectra), _CHUNK)))
+            # a short window's few frequencies are shared between the threads too
+            size = min(_CHUNK, -(-len(spectra) // POOL_THREADS))
+            list(pool.map(functools.partial(pool_chunk, spectra, first, size), range(0, len(spectra), size)))
 
         for first in range(0, len(bins), group):
             pool_group(first)

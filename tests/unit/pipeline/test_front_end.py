@@ -336,3 +336,64 @@ def test_without_room_for_the_kept_frames_the_analysis_reads_the_clip_again(monk
         result = analyze(reader)
     assert result.objects
     assert result.objects[0].eigenfrequency_hz == pytest.approx(4.0, rel=0.02)
+
+
+def _whole_frame_buffers(
+    n: int = 6, *, grid: tuple[int, int] = (60, 80), frame: tuple[int, int] = (240, 320)
+):
+    from workers.pipeline.stream import FrameBuffers
+
+    rng = np.random.default_rng(4)
+    h, w = grid
+    return FrameBuffers(
+        flow=rng.normal(size=(n, h, w, 2)).astype(np.float32),
+        depth=rng.uniform(0.5, 2.0, (n + 1, h, w)).astype(np.float32),
+        gray=rng.integers(0, 255, (n + 1, *frame), dtype=np.uint8),
+        first_rgb=np.zeros((*frame, 3), np.uint8),
+        count=n,
+        times_s=np.arange(n + 1) / 30.0,
+        camera_px=np.zeros((n, 2), np.float32),
+        start_s=0.0,
+    )
+
+
+def test_a_whole_frame_window_is_cut_to_the_box_that_moves_on_its_own_grid():
+    """A live window's flow (computed as the frames came, on a grid of 4 input pixels) is cut to the box
+    around the moving region with plan_roi's margin: the same flow, depth and full-resolution grey
+    frames there, and the box says where it lies. Nothing moving, most of the frame moving, or a grid
+    of a fraction of input pixels leave the buffers as they are."""
+    from workers.pipeline.fine import MIN_MARGIN_PX, crop_to_motion
+
+    buffers = _whole_frame_buffers()
+    region = np.zeros((30, 40), bool)  # a grid of 8 input pixels
+    region[10:14, 20:24] = True  # input x 160-192, y 80-112
+    cut = crop_to_motion(buffers, [region], factor=8.0, frame_shape=(240, 320))
+    roi = cut.roi
+    assert roi is not None
+    assert roi.pixel_scale == 4.0
+    assert roi.x % 4 == 0
+    assert roi.y % 4 == 0
+    assert roi.width % 4 == 0
+    assert roi.height % 4 == 0
+    assert roi.x <= 160 - MIN_MARGIN_PX
+    assert roi.x + roi.width >= 192 + MIN_MARGIN_PX
+    assert roi.y <= 80 - MIN_MARGIN_PX
+    assert roi.y + roi.height >= 112 + MIN_MARGIN_PX
+    assert roi.width * roi.height < 0.2 * 240 * 320
+    gy, gx = roi.y // 4, roi.x // 4
+    h, w = roi.grid_shape
+    np.testing.assert_array_equal(cut.flow, buffers.flow[:, gy : gy + h, gx : gx + w])
+    assert cut.depth is not None
+    assert buffers.depth is not None
+    np.testing.assert_array_equal(cut.depth, buffers.depth[:, gy : gy + h, gx : gx + w])
+    assert cut.gray is not None
+    assert buffers.gray is not None
+    rows, cols = slice(roi.y, roi.y + roi.height), slice(roi.x, roi.x + roi.width)
+    np.testing.assert_array_equal(cut.gray, buffers.gray[:, rows, cols])
+    assert cut.gray_pixel_scale == 1.0
+    assert cut.box((240, 320)) == roi
+    assert crop_to_motion(buffers, [np.zeros((30, 40), bool)], factor=8.0, frame_shape=(240, 320)) is buffers
+    most = np.ones((30, 40), bool)
+    assert crop_to_motion(buffers, [most], factor=8.0, frame_shape=(240, 320)) is buffers
+    odd = _whole_frame_buffers(grid=(70, 93))  # 320 / 93 input pixels a grid pixel
+    assert crop_to_motion(odd, [region], factor=8.0, frame_shape=(240, 320)) is odd

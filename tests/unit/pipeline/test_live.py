@@ -72,6 +72,15 @@ def test_estimates_converge_on_the_truth_and_the_final_analysis_uses_the_live_fl
     assert abs(obj.mass_kg - 0.8) / 0.8 < 0.02  # type: ignore[operator]
     assert analysis.frames_used[1] == scene.frames
     assert analysis.labels.shape == (scene.height, scene.width)
+    # measured over the box that moves (the live flow cut to it), not the whole frame
+    x, y, w, h = analysis.parameters["region"]["box_px"]
+    assert w * h < 0.5 * scene.width * scene.height
+    assert x <= 160 - 40
+    assert x + w >= 160 + 40
+    assert y <= 120 - 30
+    assert y + h >= 120 + 30
+    assert analysis.labels[120, 160] == obj.id
+    assert not analysis.labels[:, : max(x - 1, 0)].any()
 
 
 def test_memory_is_bounded_by_the_window() -> None:
