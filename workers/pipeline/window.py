@@ -538,6 +538,11 @@ def _max_step_for_rate(
     return max(1, math.floor(step)) if math.isfinite(step) else 1
 
 
+#: A survey segment holding this share of the strongest segment's energy at a motion's frequency is part of
+#: that motion's burst (see :func:`_onset_frame`).
+STEADY_SHARE = 0.5
+
+
 def _onset_frame(survey: Survey, frequency_hz: float) -> int:
     """Clip frame where the strongest burst of motion at ``frequency_hz`` starts (a few frames early)."""
     energy = survey.band_energy(frequency_hz)
@@ -547,7 +552,10 @@ def _onset_frame(survey: Survey, frequency_hz: float) -> int:
         return survey.first_frame
     strongest = int(np.argmax(energy))
     quiet = float(np.min(energy))
-    threshold = quiet + 0.1 * (float(energy[strongest]) - quiet)
+    # A segment belongs to the burst when it stands a tenth of the way from the quietest to the strongest,
+    # or holds half the strongest's energy: a steady vibration's segments differ by their noise alone,
+    # and the first of them, not the one its noise made strongest, is where it starts.
+    threshold = min(quiet + 0.1 * (float(energy[strongest]) - quiet), STEADY_SHARE * float(energy[strongest]))
     first = strongest
     while first > 0 and energy[first - 1] >= threshold:
         first -= 1
