@@ -529,7 +529,8 @@ def significance_verdict(
     obj: ObjectMeasurement, scan: MotionScan, *, region: NDArray[np.bool_] | None = None
 ) -> RejectedPeak | None:
     """Why a measured object is not significant, or None: its false-alarm probability per clip (set on
-    the object) exceeds :data:`~workers.pipeline.significance.MAX_FALSE_ALARM`.
+    the object) exceeds :data:`~workers.pipeline.significance.MAX_FALSE_ALARM`. The probability is its
+    strongest line's, at its frequency or one of its ``harmonics_hz``.
 
     Given ``region`` (the object's pixels on the scan's grid), the statistic is the scan's over the
     blocks that overlap the region grown by :data:`OWN_MARGIN_PX` (:meth:`MotionScan.within`), judged by
@@ -537,12 +538,17 @@ def significance_verdict(
     pixels (a second mode of it, until modes are reported) whose own measurement landed on other pixels,
     where nothing rings at it, is not reported as an object there."""
     f = obj.eigenfrequency_hz
-    z_picture = scan.z_at(f)
+    # The motion stands out by its strongest line: a wheel's rate is reported with its marks' passing,
+    # twice as fast and far stronger, among its harmonics (any line of the band is within the per-clip law)
+    low, high = float(scan.frequencies_hz[0]), float(scan.frequencies_hz[-1])
+    lines = [f, *(h for h in obj.harmonics_hz if low <= h <= high)]
+    z_picture = max(scan.z_at(x) for x in lines)
     z = z_picture
     if region is not None:
         grown = cv2.dilate(region.astype(np.uint8), np.ones((2 * OWN_MARGIN_PX + 1,) * 2, np.uint8)) > 0
         try:
-            z = min(z_picture, scan.within(grown).z_at(f))
+            own = scan.within(grown)
+            z = min(z_picture, max(own.z_at(x) for x in lines))
         except ValueError:  # no block with texture under the object: nothing there can show the line
             z = -math.inf
     p = float(scan.calibration.p_clip(z))

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from workers.pipeline.clipio.types import MIN_FRAMES, ClipInfo, ClipReader, ClosingReader, Frame
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.flow import FlowConfig
+from workers.pipeline.look import CoarseGrid
 from workers.pipeline.model import (
     DEFAULT_MAX_FRAMES,
     AnalysisConfig,
@@ -163,9 +164,12 @@ def plan_analysis(
         survey = survey_motion(grays, fps=fps, total_frames=info.frames, band_hz=band)
     # A damaged file decodes fewer frames than it lists: plan within those.
     decodable = min(info.frames, survey.first_frame + survey.frames)
-    # Bytes per flow map: flow (2 x float32), its share of the spectra and depth on the grid, and the
-    # grey frame at input resolution kept for registration.
-    per_sample = grid[0] * grid[1] * (8 + 4 + (4 if info.has_depth else 0)) + info.height * info.width
+    # Bytes per flow map that grow with the window: the look's flow on its coarse grid (2 x float32), the
+    # half-precision copy of it the front keeps, and the scan's pooled levels. (The window's frames wait
+    # in a temporary file, and the second pass's flow, grey frames and spectra have budgets of their
+    # own: workers.pipeline.fine.)
+    look_h, look_w = CoarseGrid.for_frame(info.height, info.width).shape
+    per_sample = look_h * look_w * BYTES_PER_LOOK_PIXEL
     budget = int(config.max_window_mib * 2**20 / per_sample)
     needed = frames_for_band(config, fps)
     if needed:
@@ -537,6 +541,10 @@ def _max_step_for_rate(
                 step = min(step, fps / (harmonic_samples * f))
     return max(1, math.floor(step)) if math.isfinite(step) else 1
 
+
+#: Memory an automatically chosen window takes per flow map and pixel of the look's grid, bytes (its flow, 8;
+#: the front's half-precision copy of the moving box, at most 4; the scan's levels, about 4).
+BYTES_PER_LOOK_PIXEL = 16
 
 #: A survey segment holding this share of the strongest segment's energy at a motion's frequency is part of
 #: that motion's burst (see :func:`_onset_frame`).

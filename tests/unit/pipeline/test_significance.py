@@ -233,3 +233,41 @@ def test_a_thin_edge_is_pooled_along_its_length():
         flow = _vibrate(_noise(seed), 9.0, 0.015, (slice(8, 40), slice(30, 31)))
         scan = _scan(flow, _picture(seed))
         assert scan.false_alarm(9.0) <= MAX_FALSE_ALARM, seed
+
+
+def test_an_object_stands_out_by_its_strongest_line_its_rate_or_an_overtone():
+    """A wheel reported at its turning rate, faint, with its marks' passing (twice as fast, strong) among
+    its harmonics on the same pixels, is significant by that line; reported at the faint rate alone it is
+    not; and an overtone line elsewhere in the picture does not lend the object its significance."""
+    from workers.pipeline.detection import significance_verdict
+    from workers.pipeline.model import ObjectMeasurement
+
+    patch = (slice(14, 34), slice(18, 38))
+    flow = _vibrate(_noise(21), 3.75, 0.004, patch)
+    flow = _vibrate(flow, 7.5, 0.3, patch)
+    flow = _vibrate(flow, 11.25, 0.3, (slice(30, 44), slice(44, 60)))  # another object's line
+    scan = _scan(flow, _picture(21))
+    assert scan.false_alarm(3.75) > MAX_FALSE_ALARM
+    region = np.zeros((H, W), bool)
+    region[patch] = True
+
+    def wheel(harmonics_hz: list[float]) -> ObjectMeasurement:
+        return ObjectMeasurement(
+            id=1, eigenfrequency_hz=3.75, eigenfrequency_sd_hz=0.05, natural_frequency_hz=3.75,
+            damping_ratio=0.0, damping_ratio_sd=0.001, amplitude_px=0.3, amplitude_m=None,
+            amplitude_sd_m=None, depth_m=None, motion_direction=None, stiffness_n_per_m=None,
+            stiffness_sd=None, mass_kg=None, mass_sd=None, pixel_count=400, bbox_px=(18, 14, 20, 20),
+            harmonics_hz=harmonics_hz, release_time_s=0.0, snr_db=10.0, detection_db=20.0,
+            concentration=0.9,
+        )  # fmt: skip
+
+    with_overtone = wheel([7.5])
+    assert significance_verdict(with_overtone, scan, region=region) is None
+    assert with_overtone.false_alarm_probability is not None
+    assert with_overtone.false_alarm_probability <= MAX_FALSE_ALARM
+    alone = significance_verdict(wheel([]), scan, region=region)
+    assert alone is not None
+    assert alone.evidence == "not_significant"
+    elsewhere = significance_verdict(wheel([11.25]), scan, region=region)
+    assert elsewhere is not None
+    assert elsewhere.evidence == "not_significant"
