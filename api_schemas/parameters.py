@@ -48,6 +48,11 @@ Excitation = Annotated[StepReleaseExcitation | ImpulseExcitation, Field(discrimi
 ExcitationSpec = Excitation | Annotated[list[Excitation], Field(min_length=1, max_length=16)]
 
 
+#: Fewest frames of an analysis window (the pipeline's ``workers.pipeline.clipio.types.MIN_FRAMES``, which
+#: a test holds equal: 16 frames give 15 flow maps and 7 frequencies above zero).
+MIN_WINDOW_FRAMES = 16
+
+
 class AnalysisParameters(BaseModel):
     """Analysis options; every field has a default that works without tuning."""
 
@@ -57,7 +62,12 @@ class AnalysisParameters(BaseModel):
     flow: Literal["farneback", "dis"] | None = Field(
         default=None, description="Optical flow; default depends on the method."
     )
-    frames: int | None = Field(default=None, ge=8, le=100_000, description="Analysis window length N.")
+    frames: int | None = Field(
+        default=None,
+        ge=MIN_WINDOW_FRAMES,
+        le=100_000,
+        description=f"Analysis window length N, frames (at least {MIN_WINDOW_FRAMES}).",
+    )
     start_frame: int | None = Field(default=None, ge=0)
     fps: float | None = Field(default=None, gt=0, le=100_000, description="True recording rate, Hz.")
     fx: float | None = Field(default=None, gt=0)

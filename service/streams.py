@@ -106,8 +106,6 @@ def check_request(ctx: ServiceContext, body: StreamCreate) -> None:
     for name in _NOT_FOR_STREAMS:
         if getattr(p, name) is not None:
             raise _invalid(f"parameters.{name}", f"{name} does not apply to a live stream; leave it out")
-    if p.frames is not None and p.frames < 16:
-        raise _invalid("parameters.frames", "a stream's analysis window needs at least 16 frames")
     if (
         p.min_frequency_hz is not None
         and p.max_frequency_hz is not None

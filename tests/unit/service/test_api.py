@@ -101,6 +101,25 @@ def test_fps_is_required_when_the_clip_has_none(client: TestClient, tmp_path: Pa
     assert ok.status_code == 202
 
 
+def test_a_window_shorter_than_the_pipeline_analyses_is_refused_at_the_request(
+    client: TestClient, small_clip: Path
+) -> None:
+    """The request's least window is the pipeline's: 10 frames are refused with the field and the bound
+    (they were accepted from 8, and the job failed inside the worker); 16 are taken."""
+    from api_schemas.parameters import MIN_WINDOW_FRAMES
+    from workers.pipeline.clipio.types import MIN_FRAMES
+
+    assert MIN_WINDOW_FRAMES == MIN_FRAMES
+    clip = upload(client, small_clip)
+    short = client.post("/v1/jobs", json={"clip_id": clip["id"], "parameters": {"frames": MIN_FRAMES - 1}})
+    assert short.status_code == 422
+    error = short.json()["errors"][0]
+    assert error["loc"] == ["body", "parameters", "frames"]
+    assert str(MIN_FRAMES) in error["msg"]
+    ok = client.post("/v1/jobs", json={"clip_id": clip["id"], "parameters": {"frames": MIN_FRAMES}})
+    assert ok.status_code == 202
+
+
 def test_errors_are_problem_json(client: TestClient) -> None:
     for response, status in (
         (client.get("/v1/jobs/x"), 404),
