@@ -51,7 +51,7 @@ from workers.pipeline.metric import DEPTH_OVERRIDE_REL_SD, DEPTH_REL_SD
 from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, QualityNote, Stopwatch
 from workers.pipeline.ringdown import RingdownFit, fit_ringdown
 from workers.pipeline.stream import BRIGHTNESS_BLOCKS, FrameBuffers
-from workers.pipeline.window import Plan, analysis_band
+from workers.pipeline.window import Plan, analysis_band, default_band
 
 #: Two-sided 97.5 % quantiles of Student's t for 1..30 degrees of freedom (beyond: the normal's 1.96).
 _T975 = (
@@ -90,7 +90,8 @@ class LiveConfig:
     target_relative_uncertainty : float
         Relative standard uncertainty of the frequency at which the estimate has converged.
     min_frequency_hz, max_frequency_hz : float or None
-        Band of acceptable frequencies; default two periods of the window up to 0.98 x Nyquist.
+        Band of acceptable frequencies; default :func:`~workers.pipeline.window.default_band` of the
+        frames the estimate used (two periods of them up to 0.98 x Nyquist), as a batch analysis.
     min_periods : float
         Periods of motion after the release a converged estimate must span.
     min_samples : int
@@ -638,8 +639,10 @@ class LiveAnalysis:
         """Apply the convergence rule; remember ``est`` (with its verdict) as the latest estimate."""
         cfg = self.config
         fps = self.fps
-        lo = cfg.min_frequency_hz or 0.0
-        hi = min(cfg.max_frequency_hz or math.inf, 0.98 * fps / 2)
+        # the band a batch analysis of the same frames would search (window.default_band)
+        default_lo, default_hi = default_band(fps, max(1, est.frames_used[1] - est.frames_used[0] - 1))
+        lo = cfg.min_frequency_hz if cfg.min_frequency_hz is not None else default_lo
+        hi = min(cfg.max_frequency_hz if cfg.max_frequency_hz is not None else default_hi, fps / 2)
         meets = (
             est.relative_uncertainty <= cfg.target_relative_uncertainty
             and est.periods >= cfg.min_periods
