@@ -115,9 +115,12 @@ def analyze(
 
         main = next((e for e in excitations if e.object_id in (None, 1)), None)
         return analyze_paper(reader, config=config, excitation=main, progress=progress)
-    result = _analyze_default(reader, config=config, excitations=excitations, progress=progress)
+    onwards = None if progress is None else _Onwards(progress)
+    result = _analyze_default(reader, config=config, excitations=excitations, progress=onwards)
     if not _needs_longer_window(result):
         return result
+    if onwards is not None:
+        onwards.next_pass()
     # Two oscillations share a region or stand closer than the window resolves, and the clip has more:
     # analyse as long a window as the memory budget allows (every k-th frame if need be).
     survey = result.window_survey
@@ -127,7 +130,7 @@ def analyze(
         reader,
         config=config,
         excitations=excitations,
-        progress=progress,
+        progress=onwards,
         survey=survey,
         min_duration_s=survey.frames / survey.fps,
     )
@@ -143,6 +146,25 @@ def analyze(
         )
     )
     return result
+
+
+class _Onwards:
+    """Progress that only goes forward across passes: a second pass's fractions are laid over what the
+    first left (its 5 % is ahead of the first's 93 %), and no report goes back."""
+
+    def __init__(self, progress: Progress) -> None:
+        self._progress = progress
+        self._base = 0.0
+        self._last = 0.0
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        value = self._base + (1.0 - self._base) * min(max(fraction, 0.0), 1.0)
+        if value >= self._last:
+            self._last = value
+            self._progress(stage, value)
+
+    def next_pass(self) -> None:
+        self._base = self._last
 
 
 def _needs_longer_window(result: Analysis) -> bool:

@@ -168,8 +168,13 @@ def test_two_objects_five_percent_apart_are_both_reported_with_their_regimes():
         steady_amplitude_m=0.6 * _px(width),
     )
     scene = Scene(width=width, height=height, fps=fps, frames=1500, objects=(bar, motor), seed=6)
+    reported: list[float] = []
     with SceneReader(scene, depth=False) as reader:
-        result = analyze(reader)
+        result = analyze(reader, progress=lambda stage, fraction: reported.append(fraction))
+    # two passes, and the progress a client sees never goes back (the second pass once restarted at 5 %)
+    assert reported == sorted(reported)
+    assert reported[0] >= 0.0
+    assert reported[-1] <= 1.0
     assert len(result.objects) == 2, [(o.eigenfrequency_hz, o.regime) for o in result.objects]
     for truth, regime in ((bar.damped_frequency_hz, "ring_down"), (motor.damped_frequency_hz, "steady")):
         found = _nearest(result, truth)
