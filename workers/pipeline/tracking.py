@@ -20,6 +20,8 @@ from workers.pipeline.stream import FrameBuffers
 
 #: Objects whose pixels move this coherently are registered as rigid bodies for their amplitude.
 RIGID_COHERENCE = 0.7
+#: A registration whose frames failed more often than this share is not used (the flow's motion is).
+MAX_FAILED_SHARE = 0.1
 #: The coarse grid's motion is followed when its line stands this many times clearer than the fine grid's.
 COARSE_ADVANTAGE = 2.0
 #: Objects whose motion spans this many grid pixels are also followed through the flow.
@@ -526,10 +528,14 @@ def track_object(
         camera -= camera[ref]
         scale = buffers.gray_pixel_scale  # input pixels per pixel of the grey frames
         disp2d, failed = register_translation(
-            buffers.gray, outline, ref_index=ref, initial_px=(initial + camera) / scale
+            buffers.gray,
+            outline,
+            ref_index=ref,
+            initial_px=(initial + camera) / scale,
+            max_failed=MAX_FAILED_SHARE,
         )
         disp2d = disp2d * scale - camera  # the object's motion relative to the camera, input pixels
-        if failed <= 0.1:
+        if failed <= MAX_FAILED_SHARE:
             centred = disp2d - disp2d.mean(axis=0)
             _, vecs = np.linalg.eigh(centred.T @ centred)
             new_axis = vecs[:, -1] if float(vecs[:, -1] @ np.asarray(axis)) >= 0 else -vecs[:, -1]

@@ -110,6 +110,28 @@ def test_registration_ignores_static_background_inside_the_outline(affine):
     assert np.abs(disp[:, 1]).max() < 0.12
 
 
+def test_registration_stops_once_more_frames_failed_than_the_caller_keeps():
+    """Frames that show nothing of the reference's texture fail to register (each after three starts of up
+    to 60 iterations); a caller that discards a registration failing more than a tenth of its frames has
+    it stop as soon as that many did: the share returned is then just over the bound, not the whole."""
+    from workers.pipeline.registration import register_translation
+
+    rng = np.random.default_rng(9)
+    frames = np.stack([_textured(rng, (96, 128), 2.0) for _ in range(60)]).astype(np.uint8)
+    outline = np.zeros((96, 128), bool)
+    outline[30:70, 40:90] = True
+    initial = np.zeros((60, 2))
+    _, every = register_translation(frames, outline, ref_index=0, initial_px=initial, threads=1)
+    assert every > 0.9
+    disp, stopped = register_translation(
+        frames, outline, ref_index=0, initial_px=initial, threads=1, max_failed=0.1
+    )
+    assert 0.1 < stopped <= 0.1 + 2 / 59
+    np.testing.assert_array_equal(disp, initial)  # failed frames keep their starting estimate
+    two = register_translation(frames, outline, ref_index=0, initial_px=initial, threads=2, max_failed=0.1)[1]
+    assert 0.1 < two <= 0.1 + 3 / 59
+
+
 @pytest.mark.parametrize(
     ("ref", "count"), [(0, 257), (12, 257), (128, 257), (256, 257), (3, 10), (9, 10), (0, 2), (1, 2), (0, 1)]
 )
