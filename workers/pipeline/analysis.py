@@ -36,7 +36,7 @@ from workers.pipeline.detection import (
     judge_objects,
     shared_region,
 )
-from workers.pipeline.fine import plan_roi, stream_roi
+from workers.pipeline.fine import crop_to_motion, plan_roi, stream_roi
 from workers.pipeline.flow import needs_resampling, resample_uniform
 from workers.pipeline.front import Front, coarse_region, coarse_share, front_of_buffers, front_of_look
 from workers.pipeline.light import BRIGHTNESS_BLOCKS
@@ -574,7 +574,8 @@ def analyze_window(
         Adds this function's stages to the stopwatch's laps (a new one when None).
     progress : callable, optional
     front : Front, optional
-        The whole picture's findings (the look's); made from ``buffers`` when None.
+        The whole picture's findings (the look's); when None, made from ``buffers`` (the whole frame's),
+        which are then cut to the box that moves (:func:`~workers.pipeline.fine.crop_to_motion`).
 
     Returns
     -------
@@ -590,6 +591,13 @@ def analyze_window(
             max_objects=config.max_objects,
             asserted=len(excitations),
         )
+        if front.candidates.found:
+            # as the batch path's second pass: what follows covers the region that moves, not the frame
+            frame_shape = (info.height, info.width)
+            buffers = crop_to_motion(
+                buffers, front.candidates.regions, factor=front.grid_factor, frame_shape=frame_shape
+            )
+            front = front.keeping_flow_of(buffers.box(frame_shape))
         watch.lap("spectrum")
     box = buffers.box((info.height, info.width))
     quality: list[QualityNote] = [*clip_notes(plan, buffers, info), *frame_notes(buffers)]

@@ -173,7 +173,8 @@ def crop_to_motion(
     roi = Roi(gx0 * s, gy0 * s, (gx1 - gx0) * s, (gy1 - gy0) * s, (gy1 - gy0, gx1 - gx0), frame_shape)
     gray, gray_scale = buffers.gray, buffers.gray_pixel_scale
     if gray is not None and gray.shape[1:] == (H, W):
-        gray, gray_scale = np.ascontiguousarray(roi.crop(gray.transpose(1, 2, 0)).transpose(2, 0, 1)), 1.0
+        rows, cols = slice(roi.y, roi.y + roi.height), slice(roi.x, roi.x + roi.width)
+        gray, gray_scale = np.ascontiguousarray(gray[:, rows, cols]), 1.0
     elif gray is not None and gray.shape[1:] == (h, w):
         gray, gray_scale = np.ascontiguousarray(gray[:, gy0:gy1, gx0:gx1]), float(s)
     depth = buffers.depth

@@ -37,9 +37,7 @@ from workers.pipeline.analysis import analyze_window
 from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing
 from workers.pipeline.clipio.types import ClipInfo, Intrinsics
 from workers.pipeline.errors import AnalysisError, ClipError, ParameterError
-from workers.pipeline.fine import crop_to_motion
 from workers.pipeline.flow import FlowConfig, flow_stream, prepare_gray
-from workers.pipeline.front import front_of_buffers
 from workers.pipeline.measure import (
     DAMPING_ABS_FLOOR,
     DAMPING_REL_FLOOR,
@@ -51,7 +49,7 @@ from workers.pipeline.metric import DEPTH_OVERRIDE_REL_SD, DEPTH_REL_SD
 from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, QualityNote, Stopwatch
 from workers.pipeline.ringdown import RingdownFit, fit_ringdown
 from workers.pipeline.stream import BRIGHTNESS_BLOCKS, FrameBuffers
-from workers.pipeline.window import Plan, analysis_band, default_band
+from workers.pipeline.window import Plan, band_edges
 
 #: Two-sided 97.5 % quantiles of Student's t for 1..30 degrees of freedom (beyond: the normal's 1.96).
 _T975 = (
@@ -90,7 +88,7 @@ class LiveConfig:
     target_relative_uncertainty : float
         Relative standard uncertainty of the frequency at which the estimate has converged.
     min_frequency_hz, max_frequency_hz : float or None
-        Band of acceptable frequencies; default :func:`~workers.pipeline.window.default_band` of the
+        Band of acceptable frequencies; default :func:`~workers.pipeline.window.band_edges` of the
         frames the estimate used (two periods of them up to 0.98 x Nyquist), as a batch analysis.
     min_periods : float
         Periods of motion after the release a converged estimate must span.
@@ -639,10 +637,9 @@ class LiveAnalysis:
         """Apply the convergence rule; remember ``est`` (with its verdict) as the latest estimate."""
         cfg = self.config
         fps = self.fps
-        # the band a batch analysis of the same frames would search (window.default_band)
-        default_lo, default_hi = default_band(fps, max(1, est.frames_used[1] - est.frames_used[0] - 1))
-        lo = cfg.min_frequency_hz if cfg.min_frequency_hz is not None else default_lo
-        hi = min(cfg.max_frequency_hz if cfg.max_frequency_hz is not None else default_hi, fps / 2)
+        # the band a batch analysis of the same frames would search
+        maps = max(1, est.frames_used[1] - est.frames_used[0] - 1)
+        lo, hi = band_edges(cfg.min_frequency_hz, cfg.max_frequency_hz, fps, maps)
         meets = (
             est.relative_uncertainty <= cfg.target_relative_uncertainty
             and est.periods >= cfg.min_periods
@@ -763,24 +760,7 @@ def _final_analysis(
         intrinsics=live.intrinsics,
     )
     watch.lap("flow")
-    front = front_of_buffers(
-        buffers,
-        sample_rate_hz=fps,
-        band_hz=analysis_band(config, fps, n),
-        max_objects=config.max_objects,
-        asserted=len(excitations),
-    )
-    if front.candidates.found:
-        # as the batch path's second pass: what follows covers the region that moves, not the frame
-        frame_shape = (live.height, live.width)
-        buffers = crop_to_motion(
-            buffers, front.candidates.regions, factor=front.grid_factor, frame_shape=frame_shape
-        )
-        front = front.keeping_flow_of(buffers.box(frame_shape))
-    watch.lap("spectrum")
-    result = analyze_window(
-        buffers, plan, info, config=config, excitations=excitations, watch=watch, front=front
-    )
+    result = analyze_window(buffers, plan, info, config=config, excitations=excitations, watch=watch)
     if live._received > live._base + n + 1:
         result.quality.append(
             QualityNote(

@@ -244,6 +244,17 @@ def default_band(fps: float, n: int) -> tuple[float, float]:
     return BAND_MIN_PERIODS * fps / n, BAND_NYQUIST_FRACTION * fps / 2
 
 
+def band_edges(
+    min_frequency_hz: float | None, max_frequency_hz: float | None, fps: float, n: int
+) -> tuple[float, float]:
+    """The edges the user gave, :func:`default_band`'s where they gave none, the upper one at most the
+    Nyquist rate (unchecked: :func:`analysis_band` refuses an empty band)."""
+    default_lo, default_hi = default_band(fps, n)
+    lo = min_frequency_hz if min_frequency_hz is not None else default_lo
+    hi = max_frequency_hz if max_frequency_hz is not None else default_hi
+    return lo, min(hi, fps / 2)
+
+
 def analysis_band(config: AnalysisConfig, fps: float, n: int) -> tuple[float, float]:
     """The band searched in a window of ``n`` flow maps at ``fps``: the user's, or from
     :data:`BAND_MIN_PERIODS` periods of the window up to :data:`BAND_NYQUIST_FRACTION` of the Nyquist
@@ -254,11 +265,7 @@ def analysis_band(config: AnalysisConfig, fps: float, n: int) -> tuple[float, fl
     ParameterError
         When the band is empty at this rate and length.
     """
-    nyquist = fps / 2
-    default_lo, default_hi = default_band(fps, n)
-    lo = config.min_frequency_hz if config.min_frequency_hz is not None else default_lo
-    hi = config.max_frequency_hz if config.max_frequency_hz is not None else default_hi
-    hi = min(hi, nyquist)
+    lo, hi = band_edges(config.min_frequency_hz, config.max_frequency_hz, fps, n)
     if lo >= hi:
         raise ParameterError(
             f"frequency band [{lo:.3g}, {hi:.3g}] Hz is empty at {fps:g} fps with {n} flow samples; "
@@ -600,6 +607,7 @@ __all__ = [
     "StridedReader",
     "WindowPlan",
     "analysis_band",
+    "band_edges",
     "default_band",
     "fixed_window",
     "plan_analysis",
