@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.artefacts import artefact_verdict, block_coverage, camera_intermodulation
+from workers.pipeline.artefacts import Suspect, artefact_verdict, block_coverage, camera_intermodulation
 from workers.pipeline.clipio.types import ClipInfo, ClipReader
 from workers.pipeline.confidence import Confidence, flow_confidence, tensor_sqrt
 from workers.pipeline.detection import (
@@ -41,7 +41,7 @@ from workers.pipeline.flow import needs_resampling, resample_uniform
 from workers.pipeline.front import Front, coarse_region, coarse_share, front_of_buffers, front_of_look
 from workers.pipeline.light import BRIGHTNESS_BLOCKS
 from workers.pipeline.look import Look, frame_noise, look_at
-from workers.pipeline.measure import assign_excitations, bounding_box, measure_object
+from workers.pipeline.measure import Region, WindowContext, assign_excitations, bounding_box, measure_object
 from workers.pipeline.model import (
     DEFAULT_MAX_FRAMES,
     DEFAULT_WINDOW_MIB,
@@ -268,6 +268,18 @@ def look_buffers(look: Look) -> FrameBuffers:
 
 
 @dataclass(frozen=True)
+class _Window:
+    """The window being analysed: its buffers, which frames they are, the clip, the options, and the box
+    of the frame their grid covers."""
+
+    buffers: FrameBuffers
+    plan: Plan
+    info: ClipInfo
+    config: AnalysisConfig
+    box: Roi
+
+
+@dataclass(frozen=True)
 class _Spectra:
     """The window's per-pixel spectra on its grid, their sum over the pixels and the background's; and,
     when asked for, the spectra of the constrained flow (what the image shows of each pixel's motion: along
@@ -415,35 +427,37 @@ def _merged(first: Segmentation, second: Segmentation, *, order: list[Peak]) -> 
 
 
 def _measure(
+    window: _Window,
     regions: _Regions,
     spectra: _Spectra,
-    buffers: FrameBuffers,
-    plan: Plan,
-    info: ClipInfo,
-    box: Roi,
     front: Front,
     *,
-    config: AnalysisConfig,
     excitations: Sequence[Excitation],
 ) -> tuple[list[ObjectMeasurement], dict[int, Excitation]]:
     """Measure every segmented region."""
+    buffers, plan, info, config, box = window.buffers, window.plan, window.info, window.config, window.box
     by_label = assign_excitations(list(excitations), regions.labels_full, len(regions.seg.peaks))
+    context = WindowContext(
+        buffers=buffers,
+        sample_rate_hz=plan.fps,
+        pixel_scale=box.pixel_scale,
+        intrinsics=info.intrinsics,
+        depth_override_m=config.depth_m,
+        band_hz=plan_band(plan, config, buffers),
+        confidence=spectra.confidence,
+    )
     objects = [
         measure_object(
-            label=label,
-            peak=peak,
-            mask=regions.labels_grid == label,
-            full_mask=regions.labels_full == label,
-            buffers=buffers,
-            fps=plan.fps,
-            pixel_scale=box.pixel_scale,
-            intrinsics=info.intrinsics,
-            depth_override=config.depth_m,
+            Region(
+                label=label,
+                peak=peak,
+                mask=regions.labels_grid == label,
+                full_mask=regions.labels_full == label,
+                excluded=tuple(e.reason for e in regions.exclusions if e.label == label),
+                coarse=_coarse_view(front, regions, label),
+            ),
+            context,
             excitation=by_label.get(label),
-            excluded=[e.reason for e in regions.exclusions if e.label == label],
-            band_hz=plan_band(plan, config, buffers),
-            confidence=spectra.confidence,
-            coarse=_coarse_view(front, regions, label),
         )
         for label, peak in enumerate(regions.seg.peaks, start=1)
     ]
@@ -486,19 +500,18 @@ def _artefacts(
         region_power, ring_power = front.band_powers(
             obj.eigenfrequency_hz, cand.peak.width_bins, own | cand.region
         )
-        verdict = artefact_verdict(
-            front.evidence,
+        suspect = Suspect(
             frequency_hz=obj.eigenfrequency_hz,
             sd_hz=obj.eigenfrequency_sd_hz or 0.0,
-            peak_hz=cand.peak.frequency_hz,
-            peak_sd_hz=peak_sd_hz(cand.peak, front.scan.bin_hz),
             width_bins=cand.peak.width_bins,
             localised=front.scan.localised_share(obj.eigenfrequency_hz, own),
-            coverage=block_coverage(regions.labels_full, obj.id, BRIGHTNESS_BLOCKS),
             region_power=region_power,
+            peak_hz=cand.peak.frequency_hz,
+            peak_sd_hz=peak_sd_hz(cand.peak, front.scan.bin_hz),
+            coverage=block_coverage(regions.labels_full, obj.id, BRIGHTNESS_BLOCKS),
             ring_power=ring_power,
-            sample_rate_hz=sample_rate_hz,
         )
+        verdict = artefact_verdict(front.evidence, suspect, sample_rate_hz=sample_rate_hz)
         if verdict is None:
             stronger = [
                 o.eigenfrequency_hz
@@ -583,23 +596,9 @@ def analyze_window(
     """
     watch = watch or Stopwatch()
     if front is None:
-        band = analysis_band(config, plan.fps, buffers.count)
-        front = front_of_buffers(
-            buffers,
-            sample_rate_hz=plan.fps,
-            band_hz=band,
-            max_objects=config.max_objects,
-            asserted=len(excitations),
-        )
-        if front.candidates.found:
-            # as the batch path's second pass: what follows covers the region that moves, not the frame
-            frame_shape = (info.height, info.width)
-            buffers = crop_to_motion(
-                buffers, front.candidates.regions, factor=front.grid_factor, frame_shape=frame_shape
-            )
-            front = front.keeping_flow_of(buffers.box(frame_shape))
+        buffers, front = _whole_frame_front(buffers, plan, info, config=config, asserted=len(excitations))
         watch.lap("spectrum")
-    box = buffers.box((info.height, info.width))
+    window = _Window(buffers, plan, info, config, buffers.box((info.height, info.width)))
     quality: list[QualityNote] = [*clip_notes(plan, buffers, info), *frame_notes(buffers)]
     if progress:
         progress("spectrum", 0.82)
@@ -607,22 +606,41 @@ def analyze_window(
     watch.lap("spectrum")
     if progress:
         progress("segmentation", 0.88)
-    regions = _segment(spectra, buffers, box, front, config)
+    regions = _segment(spectra, buffers, window.box, front, config)
     watch.lap("segmentation")
     if progress:
         progress("mechanics", 0.93)
-    objects, by_label = _measure(
-        regions, spectra, buffers, plan, info, box, front, config=config, excitations=excitations
-    )
+    objects, by_label = _measure(window, regions, spectra, front, excitations=excitations)
     if buffers.depth is None:
         _to_rest(objects, regions.labels_full)
     objects, labels_full, rejected = _judge(objects, regions, front, plan, by_label, quality)
     objects, labels_full = _ordered(objects, labels_full, float(buffers.times_s[-1]))
     quality.extend(_notes(objects, plan, info, config, buffers, spectra))
     watch.lap("mechanics")
-    return _analysis(
-        objects, labels_full, spectra, front, buffers, plan, info, config, box, quality, watch, rejected
+    return _analysis(window, front, spectra, objects, labels_full, rejected, quality, watch)
+
+
+def _whole_frame_front(
+    buffers: FrameBuffers, plan: Plan, info: ClipInfo, *, config: AnalysisConfig, asserted: int
+) -> tuple[FrameBuffers, Front]:
+    """The whole picture's findings made from a window's whole-frame buffers (a live stream's), and the
+    buffers cut to the box that moves, as the batch path's second pass covers it
+    (:func:`~workers.pipeline.fine.crop_to_motion`)."""
+    band = analysis_band(config, plan.fps, buffers.count)
+    front = front_of_buffers(
+        buffers,
+        sample_rate_hz=plan.fps,
+        band_hz=band,
+        max_objects=config.max_objects,
+        asserted=asserted,
     )
+    if not front.candidates.found:
+        return buffers, front
+    frame_shape = (info.height, info.width)
+    buffers = crop_to_motion(
+        buffers, front.candidates.regions, factor=front.grid_factor, frame_shape=frame_shape
+    )
+    return buffers, front.keeping_flow_of(buffers.box(frame_shape))
 
 
 def _footing(front: Front, regions: _Regions, label: int) -> Footing:
@@ -646,7 +664,7 @@ def _judge(
         regions.seg,
         scan=front.scan,
         band_hz=front.band_hz,
-        fps=plan.fps,
+        sample_rate_hz=plan.fps,
         bin_hz=front.scan.bin_hz,
         footings=[_footing(front, regions, o.id) for o in objects],
     )
@@ -707,19 +725,18 @@ NO_DEPTH = QualityNote(
 
 
 def _analysis(
+    window: _Window,
+    front: Front,
+    spectra: _Spectra,
     objects: list[ObjectMeasurement],
     labels_full: NDArray[np.uint16],
-    spectra: _Spectra,
-    front: Front,
-    buffers: FrameBuffers,
-    plan: Plan,
-    info: ClipInfo,
-    config: AnalysisConfig,
-    box: Roi,
+    rejected: list[RejectedPeak],
     quality: list[QualityNote],
     watch: Stopwatch,
-    rejected: list[RejectedPeak],
 ) -> Analysis:
+    """The window's result: its objects and labels, spectra, the scan's frequency map and detection
+    statistic, and what was analysed."""
+    buffers, plan, config, box = window.buffers, window.plan, window.config, window.box
     fmap, fvalid = front.scan.frequency_map()
     return Analysis(
         objects=objects,
@@ -730,7 +747,7 @@ def _analysis(
         frequency_map_valid=fvalid,
         frame_rgb=buffers.first_rgb,
         fps=plan.clip_fps,
-        fps_source=info.fps_source or "unknown",
+        fps_source=window.info.fps_source or "unknown",
         frames_used=(plan.start, plan.start + buffers.count * plan.step + 1),
         band_hz=front.band_hz,
         quality=quality,
@@ -772,7 +789,9 @@ def _still(
     box = Roi.whole((info.height, info.width), front.scan.grid_shape)
     spectra = _Spectra(front.spectra, summed, background_spectrum(front.spectra), front.scan_confidence)
     labels = np.zeros((info.height, info.width), np.uint16)
-    return _analysis([], labels, spectra, front, buffers, plan, info, config, box, quality, watch, [])
+    return _analysis(
+        _Window(buffers, plan, info, config, box), front, spectra, [], labels, [], quality, watch
+    )
 
 
 __all__ = [

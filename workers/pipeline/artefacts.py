@@ -558,75 +558,86 @@ def block_coverage(labels: NDArray[np.integer], label: int, blocks: int) -> NDAr
     return np.asarray(cv2.resize(mask, (blocks, blocks), interpolation=cv2.INTER_AREA), np.float64)
 
 
-def artefact_verdict(
-    evidence: WindowEvidence,
-    *,
-    frequency_hz: float,
-    sd_hz: float,
-    peak_hz: float | None = None,
-    peak_sd_hz: float = 0.0,
-    width_bins: float,
-    localised: float,
-    coverage: NDArray[np.float64] | None,
-    region_power: float,
-    ring_power: NDArray[np.float32] | None,
-    sample_rate_hz: float,
-) -> RejectedPeak | None:
-    """Why a measured object is an artefact of the light, the codec or the camera, or None.
+@dataclass(frozen=True)
+class Suspect:
+    """One measured object as the artefact tests see it.
 
-    A motion confined to one region (``localised``, the share of the picture's excess power at the peak
-    inside the object's region, at least :data:`LOCALISED`) is an object whatever the codec or the camera
-    do at its frequency: they move the whole picture. (Flicker is shown by brightness oscillating outside
-    the region too.) Otherwise the evidence must match in numbers (:meth:`WindowEvidence.flicker`,
-    :meth:`~WindowEvidence.keyframes` within the
-    object's own frequency uncertainty, :meth:`~WindowEvidence.camera`).
-
-    Parameters
+    Attributes
     ----------
     frequency_hz, sd_hz : float
         The object's frequency and its standard uncertainty.
-    peak_hz, peak_sd_hz : float, optional
-        The frequency of the peak the object was found at, and its uncertainty (a codec's comb is judged
-        on either: a fit to the pulses' broadband motion may wander from their line).
     width_bins : float
         Half-power half width of its peak, bins.
     localised : float
-    coverage : ndarray of float64, shape (B, B), or None
-        Fraction of each brightness block its region covers.
+        The share of the picture's excess power at the peak inside the object's region.
     region_power : float
         Its region's typical band power on the evidence's grid.
+    peak_hz, peak_sd_hz : float, optional
+        The frequency of the peak the object was found at, and its uncertainty (a codec's comb is judged
+        on either: a fit to the pulses' broadband motion may wander from their line).
+    coverage : ndarray of float64, shape (B, B), or None
+        Fraction of each brightness block its region covers.
     ring_power : ndarray of float32, shape (R,), or None
         Band power of the border ring's pixels there.
+    """
+
+    frequency_hz: float
+    sd_hz: float
+    width_bins: float
+    localised: float
+    region_power: float
+    peak_hz: float | None = None
+    peak_sd_hz: float = 0.0
+    coverage: NDArray[np.float64] | None = None
+    ring_power: NDArray[np.float32] | None = None
+
+
+def artefact_verdict(
+    evidence: WindowEvidence, suspect: Suspect, *, sample_rate_hz: float
+) -> RejectedPeak | None:
+    """Why a measured object is an artefact of the light, the codec or the camera, or None.
+
+    A motion confined to one region (``suspect.localised`` at least :data:`LOCALISED`) is an object
+    whatever the codec or the camera do at its frequency: they move the whole picture. (Flicker is shown
+    by brightness oscillating outside the region too.) Otherwise the evidence must match in numbers
+    (:meth:`WindowEvidence.flicker`, :meth:`~WindowEvidence.keyframes` within the object's own frequency
+    uncertainty, :meth:`~WindowEvidence.camera`).
+
+    Parameters
+    ----------
+    evidence : WindowEvidence
+    suspect : Suspect
     sample_rate_hz : float
 
     Returns
     -------
     RejectedPeak or None
     """
+    frequency_hz, sd_hz, width_bins = suspect.frequency_hz, suspect.sd_hz, suspect.width_bins
     found = None
-    if coverage is not None:
+    if suspect.coverage is not None:
         # Flicker's own evidence is the brightness outside the region (its apparent motion follows the
         # texture, so it may look localised): it needs no test of where the motion is.
-        found = evidence.flicker(frequency_hz, width_bins, coverage)
-    if found is None and localised >= LOCALISED:
+        found = evidence.flicker(frequency_hz, width_bins, suspect.coverage)
+    if found is None and suspect.localised >= LOCALISED:
         return None
-    if found is None and peak_hz is not None:
-        found = evidence.keyframes(peak_hz, peak_sd_hz, sample_rate_hz)
-        frequency_hz = peak_hz if found is not None else frequency_hz
+    if found is None and suspect.peak_hz is not None:
+        found = evidence.keyframes(suspect.peak_hz, suspect.peak_sd_hz, sample_rate_hz)
+        frequency_hz = suspect.peak_hz if found is not None else frequency_hz
     if found is None and sd_hz <= 0.5 * evidence.bin_hz:  # a fit that knows its frequency within half a bin
         found = evidence.keyframes(frequency_hz, sd_hz, sample_rate_hz)
     found = found or evidence.camera(
         frequency_hz,
         width_bins,
-        region_power=region_power,
-        ring_power=ring_power,
+        region_power=suspect.region_power,
+        ring_power=suspect.ring_power,
         fps=sample_rate_hz,
         sd_hz=sd_hz,
     )
     if found is None:
         return None
     return RejectedPeak(
-        frequency_hz, found.reason, found.evidence, {**found.figures, "localised_share": localised}
+        frequency_hz, found.reason, found.evidence, {**found.figures, "localised_share": suspect.localised}
     )
 
 
@@ -644,6 +655,7 @@ __all__ = [
     "KEYFRAME_Z",
     "LOCALISED",
     "Finding",
+    "Suspect",
     "WindowEvidence",
     "artefact_verdict",
     "block_coverage",

@@ -13,6 +13,7 @@ Used by the frame stream (:mod:`workers.pipeline.stream`) and the survey (:mod:`
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -154,4 +155,46 @@ class CameraRing:
         return rms > min_rms_px and self.still_fraction(flows, camera) <= MAX_STILL_FRACTION
 
 
-__all__ = ["CAMERA_MOTION_MIN_PX", "CameraRing"]
+@dataclass(frozen=True)
+class CameraRemoval:
+    """The camera's motion in a window's flow, and whether it was removed.
+
+    Attributes
+    ----------
+    camera_px : ndarray of float32, shape (N, 2)
+        Per-map camera motion removed from the flow, grid pixels (zeros when none was).
+    border_px : ndarray of float32, shape (N, 2)
+        The median motion of the picture's border in each map, whether removed or not.
+    removed : bool
+    still_fraction : float
+        Fraction of the border's textured pixels that stayed still while its median moved.
+    """
+
+    camera_px: NDArray[np.float32]
+    border_px: NDArray[np.float32]
+    removed: bool
+    still_fraction: float
+
+
+def remove_camera_motion(
+    flow: NDArray[np.float32], border_px: NDArray[np.float32], ring: CameraRing
+) -> CameraRemoval:
+    """Subtract the camera's motion from ``flow`` (N, h, w, 2) in place when the whole picture moved.
+
+    Only real camera motion is compensated: subtracting the jitter of a still camera (codec noise) from
+    every pixel would bury a sub-pixel vibration, and the median of a border an object reaches into is
+    the object's motion. ``border_px`` (N, 2) is each map's border motion (``ring.motion``); ``ring``
+    holds the first frame's texture.
+    """
+    flat = flow.reshape(len(flow), -1, flow.shape[-1])
+    removed = ring.moves_as_whole(flat, border_px)
+    still = ring.still_fraction(flat, border_px)
+    camera = border_px.copy()
+    if removed:
+        flow -= camera[:, None, None, :]
+    else:
+        camera[:] = 0.0
+    return CameraRemoval(camera_px=camera, border_px=border_px, removed=removed, still_fraction=still)
+
+
+__all__ = ["CAMERA_MOTION_MIN_PX", "CameraRemoval", "CameraRing", "remove_camera_motion"]

@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.model import ObjectMeasurement, QualityNote, RejectedPeak
 from workers.pipeline.peaks import Peak, PeakPolicy, interpolate_peak
+from workers.pipeline.ringdown import Ringdown
 from workers.pipeline.segmentation import Segmentation
 from workers.pipeline.significance import MAX_FALSE_ALARM, MotionScan
 
@@ -635,29 +636,49 @@ def held_verdict(
     return None
 
 
+@dataclass(frozen=True)
+class OvertoneRules:
+    """When a region is an overtone of a stronger object (see :func:`judge_objects`).
+
+    Attributes
+    ----------
+    tolerance : float
+        Relative tolerance of an overtone's frequency (or a bin and a half, whichever is wider).
+    shared_power : float
+        The region's pixels move at the stronger object's own frequency with at least this share of their
+        power at their own.
+    max_order : int
+        Overtones up to this order ...
+    max_folded_order : int
+        ... and, folded back below the Nyquist rate, up to this one.
+    """
+
+    tolerance: float = 0.02
+    shared_power: float = 0.25
+    max_order: int = 10
+    max_folded_order: int = 5
+
+
 def judge_objects(
     objects: list[ObjectMeasurement],
     seg: Segmentation,
     *,
     scan: MotionScan,
     band_hz: tuple[float, float],
-    fps: float,
+    sample_rate_hz: float,
     bin_hz: float,
-    harmonic_tolerance: float = 0.02,
-    shared_power: float = 0.25,
-    max_order: int = 10,
-    max_folded_order: int = 5,
     footings: Sequence[Footing] | None = None,
+    overtones: OvertoneRules = OvertoneRules(),
 ) -> dict[int, RejectedPeak]:
     """The objects (by id) that are not reported, and why: :func:`oscillation_verdict`,
     :func:`significance_verdict` (every object's false-alarm probability is set), or an overtone of a
     stronger object on the same pixels.
 
-    A region ringing at n times (n up to ``max_order``; or, folded back below the Nyquist rate, at
-    |n f - m fps| for n up to ``max_folded_order``) the frequency of a stronger object, whose pixels
-    also move at that object's own frequency with at least ``shared_power`` of their power at their own,
-    is its overtone. Two objects an octave apart (two strings) ring on pixels of their own and are both
-    kept; a neighbour's spectral leakage is far weaker than that.
+    A region ringing at n times (n up to ``overtones.max_order``; or, folded back below the Nyquist rate,
+    at |n f - m fs| for n up to ``overtones.max_folded_order``) the frequency of a stronger object, whose
+    pixels also move at that object's own frequency with at least ``overtones.shared_power`` of their
+    power at their own, is its overtone. Two objects an octave apart (two strings) ring on pixels of
+    their own and are both kept; a neighbour's spectral leakage is far weaker than that.
 
     Parameters
     ----------
@@ -666,15 +687,13 @@ def judge_objects(
     seg : Segmentation
         Their labels and band powers on the flow grid.
     band_hz : (low, high)
-    fps, bin_hz : float
+    sample_rate_hz, bin_hz : float
         Rate of the samples and width of one bin, Hz.
-    harmonic_tolerance : float
-        Relative tolerance of an overtone's frequency (or a bin and a half, whichever is wider).
-    shared_power, max_order, max_folded_order : float, int, int
     footings : sequence of Footing, optional
         Where each object was found and measured on the scan's grid: its significance is judged on its
         own pixels (:func:`significance_verdict`), and a line found on a stronger object's pixels is
         that object's (:func:`held_verdict`).
+    overtones : OvertoneRules, optional
 
     Returns
     -------
@@ -690,16 +709,7 @@ def judge_objects(
             verdict = held_verdict(obj, footing, kept_footings) or verdict
         verdict = oscillation_verdict(obj, band_hz=band_hz) or verdict
         if verdict is None:
-            verdict = _overtone(
-                obj,
-                kept,
-                seg,
-                fps=fps,
-                bin_hz=bin_hz,
-                tolerance=harmonic_tolerance,
-                shared_power=shared_power,
-                orders=(max_order, max_folded_order),
-            )
+            verdict = _overtone(obj, kept, seg, sample_rate_hz=sample_rate_hz, bin_hz=bin_hz, rules=overtones)
         if verdict is None:
             kept.append(obj)
             if footing is not None:
@@ -714,33 +724,36 @@ def _overtone(
     stronger: list[ObjectMeasurement],
     seg: Segmentation,
     *,
-    fps: float,
+    sample_rate_hz: float,
     bin_hz: float,
-    tolerance: float,
-    shared_power: float,
-    orders: tuple[int, int],
+    rules: OvertoneRules,
 ) -> RejectedPeak | None:
+    """Why ``obj`` is an overtone (or the image, or the motion) of one of the ``stronger`` objects on its
+    pixels, or None (see :func:`judge_objects`)."""
     f = obj.eigenfrequency_hz
     region = seg.labels == obj.id
     own = obj.id - 1
     if not region.any() or not 0 <= own < len(seg.peaks):
         return None
     own_power = float(np.median(seg.band_power[own][region]))
-    slack = max(tolerance * f, 1.5 * bin_hz)
+    slack = max(rules.tolerance * f, 1.5 * bin_hz)
     for base in stronger:
         index = base.id - 1
         if not 0 <= index < len(seg.peaks):
             continue
         f0 = base.eigenfrequency_hz
-        for order in range(1, orders[0] + 1):
+        for order in range(1, rules.max_order + 1):
             same = [(f0, "")] if order == 1 else []
-            for image, how in same + images_of(f0, order, sample_rate_hz=fps, max_folded_order=orders[1]):
+            folded = images_of(
+                f0, order, sample_rate_hz=sample_rate_hz, max_folded_order=rules.max_folded_order
+            )
+            for image, how in same + folded:
                 if abs(f - image) > slack:
                     continue
                 if order == 1 and not how:
                     if not touching(region, seg.labels == base.id):
                         continue  # the same frequency elsewhere: another object
-                elif float(np.median(seg.band_power[index][region])) < shared_power * own_power:
+                elif float(np.median(seg.band_power[index][region])) < rules.shared_power * own_power:
                     continue  # its pixels do not move at the stronger object's frequency: another object
                 break
             else:
@@ -850,19 +863,18 @@ def clip_regime(obj: ObjectMeasurement, survey: Survey | None, *, clip_s: float)
     return obj.regime
 
 
-def regime_of(obj: ObjectMeasurement, *, decay: float, decay_sd: float) -> str:
-    """``ring_down``, ``steady`` or ``growing``: how the object's oscillation evolved over the window.
+def regime_of(ring: Ringdown | None, *, decay: float, decay_sd: float) -> str:
+    """``ring_down``, ``steady`` or ``growing``: how an object's oscillation evolved over the window.
 
     Parameters
     ----------
-    obj : ObjectMeasurement
-        With its sliding-window ``ringdown`` when it has one (for growth).
+    ring : Ringdown or None
+        The object's sliding-window amplitude, when it has one (for growth).
     decay, decay_sd : float
         The fitted envelope's decay over the fitted span and its standard uncertainty, nepers.
     """
     if decay >= MIN_DECAY and decay >= 3 * decay_sd:
         return "ring_down"
-    ring = obj.ringdown
     if ring is not None and len(ring.amplitude) >= 4:
         amp = np.asarray(ring.amplitude, np.float64)
         ok = amp > 0
@@ -902,6 +914,7 @@ __all__ = [
     "Candidate",
     "Candidates",
     "Footing",
+    "OvertoneRules",
     "clip_regime",
     "drop_objects",
     "find_candidates",

@@ -170,54 +170,72 @@ def _band_power(
     return np.asarray(power.reshape(-1, 2).sum(axis=1), np.float64)
 
 
+@dataclass(frozen=True)
+class _Picture:
+    """The whole picture's series on one grid: its flow, mean grey frame and border ring, block
+    brightness and its change, the border's motion in the grid's pixels, whether the camera's motion was
+    removed, and the input pixels per grid pixel."""
+
+    flow: NDArray[np.float32]
+    mean_gray: NDArray[np.float32]
+    ring: CameraRing
+    brightness: NDArray[np.float32] | None
+    frame_change: NDArray[np.float32] | None
+    border_px: NDArray[np.float32] | None
+    camera_removed: bool
+    grid_factor: float
+
+
 def _front(
-    flow: NDArray[np.float32],
-    mean_gray: NDArray[np.float32],
-    ring: CameraRing,
-    picture: tuple[NDArray[np.float32] | None, NDArray[np.float32] | None, NDArray[np.float32] | None, bool],
+    picture: _Picture,
     *,
     sample_rate_hz: float,
     band_hz: tuple[float, float],
     max_objects: int,
-    grid_factor: float,
     asserted: int = 0,
 ) -> Front:
-    """The findings from the whole picture's ``flow`` on a grid, its mean grey frame and border ring, and
-    its ``picture`` series (block brightness, its change, the border's motion in that grid's pixels, and
-    whether the camera's motion was removed): the artefact evidence and the scan."""
+    """The findings from the whole ``picture``: the artefact evidence and the scan."""
     from workers.pipeline.fft import fast_length
 
-    brightness, frame_change, border_px, camera_removed = picture
+    flow = picture.flow
     nfft = fast_length(len(flow))
     evidence = WindowEvidence(
         frequencies_hz=np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz).astype(np.float64),
         nfft=nfft,
-        brightness=brightness,
-        frame_change=frame_change,
-        border_px=border_px,
-        camera_removed=camera_removed,
-        ring_pixels=ring.pixels,
-        ring_textured=ring.textured,
+        brightness=picture.brightness,
+        frame_change=picture.frame_change,
+        border_px=picture.border_px,
+        camera_removed=picture.camera_removed,
+        ring_pixels=picture.ring.pixels,
+        ring_textured=picture.ring.textured,
     )
-    change = frame_change if frame_change is not None else np.zeros((0, 1, 1), np.float32)
-    confidence = flow_confidence(mean_gray, frame_noise=frame_noise(change))
-    # The band the user narrowed is searched; the whole band the window shows calibrates the statistic.
-    default_lo, default_hi = default_band(sample_rate_hz, len(flow))
-    scanned = (min(band_hz[0], default_lo), max(band_hz[1], default_hi))
-    window_hz = np.fft.rfftfreq(len(flow), d=1.0 / sample_rate_hz)[1:]
-    if np.count_nonzero((window_hz >= scanned[0]) & (window_hz <= scanned[1])) < MIN_BINS:
-        # A short window (a live stream that stopped early): every frequency it holds calibrates.
-        if len(window_hz) < MIN_BINS:
-            raise AnalysisError(
-                f"the window of {len(flow)} flow maps is too short to tell motion from noise (it holds "
-                f"{len(window_hz)} frequencies, the detection needs {MIN_BINS}); analyse more frames"
-            )
-        scanned = (float(window_hz[0]), float(window_hz[-1]))
+    change = picture.frame_change if picture.frame_change is not None else np.zeros((0, 1, 1), np.float32)
+    confidence = flow_confidence(picture.mean_gray, frame_noise=frame_noise(change))
+    scanned = _scanned_band(len(flow), sample_rate_hz=sample_rate_hz, band_hz=band_hz)
     scan = motion_scan(flow, confidence, sample_rate_hz=sample_rate_hz, band_hz=scanned, search_hz=band_hz)
     candidates = find_candidates(scan, band_hz=band_hz, max_objects=max_objects, asserted=asserted)
     if evidence.flow_level is None:
         evidence.flow_level = still_flow_level(flow, confidence, candidates)
-    return Front(band_hz, scan, candidates, evidence, ring, grid_factor, confidence, flow)
+    return Front(band_hz, scan, candidates, evidence, picture.ring, picture.grid_factor, confidence, flow)
+
+
+def _scanned_band(
+    samples: int, *, sample_rate_hz: float, band_hz: tuple[float, float]
+) -> tuple[float, float]:
+    """The band the scan covers: the band the user narrowed is searched, the whole band a window of
+    ``samples`` flow maps shows calibrates the statistic; a short window (a live stream that stopped
+    early) calibrates on every frequency it holds."""
+    default_lo, default_hi = default_band(sample_rate_hz, samples)
+    scanned = (min(band_hz[0], default_lo), max(band_hz[1], default_hi))
+    window_hz = np.fft.rfftfreq(samples, d=1.0 / sample_rate_hz)[1:]
+    if np.count_nonzero((window_hz >= scanned[0]) & (window_hz <= scanned[1])) >= MIN_BINS:
+        return scanned
+    if len(window_hz) < MIN_BINS:
+        raise AnalysisError(
+            f"the window of {samples} flow maps is too short to tell motion from noise (it holds "
+            f"{len(window_hz)} frequencies, the detection needs {MIN_BINS}); analyse more frames"
+        )
+    return (float(window_hz[0]), float(window_hz[-1]))
 
 
 def still_flow_level(
@@ -263,16 +281,18 @@ def front_of_look(
         How many objects the user's excitations name (see
         :func:`~workers.pipeline.detection.find_candidates`).
     """
-    return _front(
-        look.flow,
-        look.mean_gray,
-        look.ring,
-        (look.brightness, look.frame_change, look.border_px, look.camera_removed),
-        sample_rate_hz=sample_rate_hz,
-        band_hz=band_hz,
-        max_objects=max_objects,
+    picture = _Picture(
+        flow=look.flow,
+        mean_gray=look.mean_gray,
+        ring=look.ring,
+        brightness=look.brightness,
+        frame_change=look.frame_change,
+        border_px=look.border_px,
+        camera_removed=look.camera_removed,
         grid_factor=look.input_px_per_grid_px,
-        asserted=asserted,
+    )
+    return _front(
+        picture, sample_rate_hz=sample_rate_hz, band_hz=band_hz, max_objects=max_objects, asserted=asserted
     )
 
 
@@ -312,16 +332,18 @@ def front_of_buffers(
     ring = CameraRing((h, w))
     ring.set_texture(np.clip(mean, 0, 255).astype(np.uint8))
     border = None if buffers.border_px is None else buffers.border_px / np.float32(factor)
-    return _front(
-        flow,
-        mean,
-        ring,
-        (buffers.brightness, buffers.frame_change, border, buffers.camera_removed),
-        sample_rate_hz=sample_rate_hz,
-        band_hz=band_hz,
-        max_objects=max_objects,
+    picture = _Picture(
+        flow=flow,
+        mean_gray=mean,
+        ring=ring,
+        brightness=buffers.brightness,
+        frame_change=buffers.frame_change,
+        border_px=border,
+        camera_removed=buffers.camera_removed,
         grid_factor=buffers.first_rgb.shape[1] / w,
-        asserted=asserted,
+    )
+    return _front(
+        picture, sample_rate_hz=sample_rate_hz, band_hz=band_hz, max_objects=max_objects, asserted=asserted
     )
 
 

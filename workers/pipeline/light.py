@@ -10,6 +10,7 @@ objects).
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -77,4 +78,24 @@ def flickering_rows(
     return float(np.mean((row_snr >= FLICKER_SNR) & (coherence >= FLICKER_COHERENCE))), k
 
 
-__all__ = ["FLICKER_COHERENCE", "FLICKER_ROWS", "FLICKER_SNR", "flickering_rows", "floor_of"]
+def block_brightness(gray: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """Mean grey level of each of ``BRIGHTNESS_BLOCKS`` x ``BRIGHTNESS_BLOCKS`` blocks of a frame."""
+    return np.asarray(cv2.resize(gray, (BRIGHTNESS_BLOCKS,) * 2, interpolation=cv2.INTER_AREA), np.float32)
+
+
+def block_change(previous: NDArray[np.uint8], gray: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """Mean absolute grey-level change of each block between two consecutive frames."""
+    diff = cv2.absdiff(gray, previous)
+    return np.asarray(cv2.resize(diff, (BRIGHTNESS_BLOCKS,) * 2, interpolation=cv2.INTER_AREA), np.float32)
+
+
+__all__ = [
+    "BRIGHTNESS_BLOCKS",
+    "FLICKER_COHERENCE",
+    "FLICKER_ROWS",
+    "FLICKER_SNR",
+    "block_brightness",
+    "block_change",
+    "flickering_rows",
+    "floor_of",
+]

@@ -22,7 +22,6 @@ interval of the one before).
 
 from __future__ import annotations
 
-import itertools
 import math
 import queue
 import threading
@@ -34,10 +33,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.analysis import analyze_window
-from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing
+from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing, remove_camera_motion
 from workers.pipeline.clipio.types import ClipInfo, Intrinsics
 from workers.pipeline.errors import AnalysisError, ClipError, ParameterError
 from workers.pipeline.flow import FlowConfig, flow_stream, prepare_gray
+from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
 from workers.pipeline.measure import (
     DAMPING_ABS_FLOOR,
     DAMPING_REL_FLOOR,
@@ -48,7 +48,7 @@ from workers.pipeline.mechanics import detect_release, release_amplitude, releas
 from workers.pipeline.metric import DEPTH_OVERRIDE_REL_SD, DEPTH_REL_SD
 from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, QualityNote, Stopwatch
 from workers.pipeline.ringdown import RingdownFit, fit_ringdown
-from workers.pipeline.stream import BRIGHTNESS_BLOCKS, FrameBuffers
+from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.window import Plan, band_edges
 
 #: Two-sided 97.5 % quantiles of Student's t for 1..30 degrees of freedom (beyond: the normal's 1.96).
@@ -232,6 +232,11 @@ class LiveAnalysis:
         self._gray = np.empty((cap, height, width), np.uint8)
         self._depth: NDArray[np.float32] | None = None
         self._times = np.zeros(cap, np.float64)
+        # Block brightness of each kept frame and its change from the frame before (flicker and codec
+        # keyframe evidence), taken as frames arrive.
+        self._brightness = np.zeros((cap, BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS), np.float32)
+        self._change = np.zeros((cap - 1, BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS), np.float32)
+        self._last_small: NDArray[np.uint8] | None = None
         self._energy = np.zeros((h, w), np.float64)
         self._first_rgb: NDArray[np.uint8] | None = None
         self._base = 0  # absolute index of the frame in slot 0
@@ -336,6 +341,9 @@ class LiveAnalysis:
             if 0 <= slot < self.config.window_frames:
                 cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY, dst=self._gray[slot])
                 self._times[slot] = t - self._first_time
+                self._brightness[slot] = block_brightness(gray_grid)
+                if slot > 0 and self._last_small is not None:
+                    self._change[slot - 1] = block_change(self._last_small, gray_grid)
                 if depth_m is not None:
                     if self._depth is None:
                         self._depth = np.full((self.config.window_frames, *self.grid), np.nan, np.float32)
@@ -349,6 +357,7 @@ class LiveAnalysis:
                 elif self._depth is not None:
                     self._depth[slot] = np.nan
                 self._stored = slot + 1
+        self._last_small = gray_grid
         self._grays.put(gray_grid)
         # Bounded lag: a caller faster than the flow waits here (and so slows whoever feeds it).
         lag = 2 * self.config.flow.threads + 4
@@ -378,6 +387,8 @@ class LiveAnalysis:
         n = self._stored - keep_from
         self._gray[:n] = self._gray[keep_from : self._stored]
         self._times[:n] = self._times[keep_from : self._stored]
+        self._brightness[:n] = self._brightness[keep_from : self._stored]
+        self._change[: n - 1] = self._change[keep_from : self._stored - 1]
         if self._depth is not None:
             self._depth[:n] = self._depth[keep_from : self._stored]
         flows_kept = max(0, self._flow_count - self._base - keep_from)
@@ -693,106 +704,78 @@ class LiveAnalysis:
                 raise AnalysisError(
                     f"the stream delivered {self._received} frame(s); an analysis needs at least 8"
                 )
-        return _final_analysis(self, n=n, config=analysis_config or AnalysisConfig(), excitations=excitations)
+        return self._final_analysis(n, config=analysis_config or AnalysisConfig(), excitations=excitations)
 
-
-def _final_analysis(
-    live: LiveAnalysis, *, n: int, config: AnalysisConfig, excitations: list[Excitation]
-) -> Analysis:
-    """The full analysis of the live window's ``n`` flow maps, without computing them again: the same
-    stages as :func:`workers.pipeline.analysis.analyze` after its frame stream
-    (:func:`~workers.pipeline.analysis.analyze_window`)."""
-    watch = Stopwatch()
-    fps = live.fps
-    flow = live._flow[:n]
-    camera = live._camera[:n].copy()
-    ring = CameraRing(live.grid)
-    assert live._first_rgb is not None
-    gray = live._gray[: n + 1]
-    first_small = prepare_gray(live._first_rgb, live.grid)
-    ring.set_texture(first_small)
-    flat = flow.reshape(n, -1, 2)
-    border = camera.copy()
-    removed = ring.moves_as_whole(flat, camera)
-    if removed:
-        flow -= camera[:, None, None, :]
-    else:
-        camera[:] = 0.0
-    times = live._times[: n + 1]
-    brightness, change = _picture_series(gray, live.grid)
-    buffers = FrameBuffers(
-        flow=flow,
-        depth=None if live._depth is None else live._depth[: n + 1],
-        gray=gray,
-        first_rgb=live._first_rgb,
-        count=n,
-        times_s=times - times[0],
-        camera_px=camera,
-        start_s=float(times[0]),
-        brightness=brightness,
-        frame_change=change,
-        camera_removed=removed,
-        camera_still_fraction=ring.still_fraction(flat, border),
-        border_px=border,
-        announced=n,
-    )
-    flow_cfg = live.config.flow
-    plan = Plan(
-        fps=fps,
-        clip_fps=fps,
-        start=live._base,
-        stop=live._base + n + 1,
-        step=1,
-        flow=flow_cfg,
-        grid=live.grid,
-        pixel_scale=live.pixel_scale,
-        decodable_frames=live._base + n + 1,
-    )
-    info = ClipInfo(
-        format="stream",
-        frames=live._base + n + 1,
-        width=live.width,
-        height=live.height,
-        fps=fps,
-        fps_source="user" if live.config.fps is not None else "timestamps",
-        has_depth=live._depth is not None,
-        depth_scale=None,
-        intrinsics=live.intrinsics,
-    )
-    watch.lap("flow")
-    result = analyze_window(buffers, plan, info, config=config, excitations=excitations, watch=watch)
-    if live._received > live._base + n + 1:
-        result.quality.append(
-            QualityNote(
-                "window",
-                f"frames {live._base}-{live._base + n + 1} of the {live._received} streamed were analysed "
-                f"(the window holds at most {live.config.window_frames} frames from just before the motion)",
-                "info",
-            )
+    def _final_analysis(self, n: int, *, config: AnalysisConfig, excitations: list[Excitation]) -> Analysis:
+        """The full analysis of the window's ``n`` flow maps, without computing them again: the batch
+        stages after the frame stream (:func:`~workers.pipeline.analysis.analyze_window`)."""
+        watch = Stopwatch()
+        buffers = self._window_buffers(n)
+        first, stop = self._base, self._base + n + 1
+        plan = Plan(
+            fps=self.fps,
+            clip_fps=self.fps,
+            start=first,
+            stop=stop,
+            step=1,
+            flow=self.config.flow,
+            grid=self.grid,
+            pixel_scale=self.pixel_scale,
+            decodable_frames=stop,
         )
-    result.parameters |= {
-        "live": True,
-        "target_relative_uncertainty": live.config.target_relative_uncertainty,
-    }
-    return result
+        info = ClipInfo(
+            format="stream",
+            frames=stop,
+            width=self.width,
+            height=self.height,
+            fps=self.fps,
+            fps_source="user" if self.config.fps is not None else "timestamps",
+            has_depth=self._depth is not None,
+            depth_scale=None,
+            intrinsics=self.intrinsics,
+        )
+        watch.lap("flow")
+        result = analyze_window(buffers, plan, info, config=config, excitations=excitations, watch=watch)
+        if self._received > stop:
+            result.quality.append(
+                QualityNote(
+                    "window",
+                    f"frames {first}-{stop} of the {self._received} streamed were analysed (the window "
+                    f"holds at most {self.config.window_frames} frames from just before the motion)",
+                    "info",
+                )
+            )
+        result.parameters |= {
+            "live": True,
+            "target_relative_uncertainty": self.config.target_relative_uncertainty,
+        }
+        return result
 
-
-def _picture_series(
-    gray: NDArray[np.uint8], grid: tuple[int, int]
-) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Block brightness (T, B, B) and frame-to-frame block change (T - 1, B, B) of grey frames, as the
-    frame stream keeps them (the evidence of flicker and codec keyframes)."""
-    import cv2
-
-    blocks = (BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS)
-    h, w = grid
-    small = [g if g.shape == grid else cv2.resize(g, (w, h), interpolation=cv2.INTER_AREA) for g in gray]
-    brightness = [cv2.resize(g, blocks, interpolation=cv2.INTER_AREA) for g in small]
-    change = [
-        cv2.resize(cv2.absdiff(b, a), blocks, interpolation=cv2.INTER_AREA)
-        for a, b in itertools.pairwise(small)
-    ]
-    return np.asarray(brightness, np.float32), np.asarray(change, np.float32)
+    def _window_buffers(self, n: int) -> FrameBuffers:
+        """The window's ``n`` flow maps and what the frame stream keeps beside them, the camera's motion
+        removed as the batch stream removes it."""
+        assert self._first_rgb is not None
+        flow = self._flow[:n]
+        ring = CameraRing(self.grid)
+        ring.set_texture(prepare_gray(self._first_rgb, self.grid))
+        camera = remove_camera_motion(flow, self._camera[:n].copy(), ring)
+        times = self._times[: n + 1]
+        return FrameBuffers(
+            flow=flow,
+            depth=None if self._depth is None else self._depth[: n + 1],
+            gray=self._gray[: n + 1],
+            first_rgb=self._first_rgb,
+            count=n,
+            times_s=times - times[0],
+            camera_px=camera.camera_px,
+            start_s=float(times[0]),
+            brightness=self._brightness[: n + 1],
+            frame_change=self._change[:n],
+            camera_removed=camera.removed,
+            camera_still_fraction=camera.still_fraction,
+            border_px=camera.border_px,
+            announced=n,
+        )
 
 
 def estimate_dict(est: LiveEstimate) -> dict[str, Any]:

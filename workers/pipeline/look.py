@@ -40,11 +40,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.artefacts import keyframe_maps, repair_keyframe_maps
-from workers.pipeline.camera import CameraRing
+from workers.pipeline.camera import CameraRing, remove_camera_motion
 from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader
 from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.errors import AnalysisError
-from workers.pipeline.light import BRIGHTNESS_BLOCKS
+from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
 from workers.pipeline.model import Progress
 
 #: Width of the coarse grid, pixels (an integer factor below the frame's width, never above it).
@@ -376,11 +376,9 @@ class _LookState:
         small = self.grid.shrink(gray)
         self.sum += small
         self.times[i] = stamp
-        blocks = (BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS)
-        self.brightness[i] = cv2.resize(small, blocks, interpolation=cv2.INTER_AREA)
+        self.brightness[i] = block_brightness(small)
         if self._previous is not None:
-            diff = cv2.absdiff(small, self._previous)
-            self.change[i - 1] = cv2.resize(diff, blocks, interpolation=cv2.INTER_AREA)
+            self.change[i - 1] = block_change(self._previous, small)
         self._previous = small
         if self.kept is not None:
             try:
@@ -401,12 +399,7 @@ class _LookState:
         mean = (self.sum / max(self.frames, 1)).astype(np.float32)
         self.ring.set_texture(np.clip(mean, 0, 255).astype(np.uint8))
         flat = flow.reshape(count, -1, 2)
-        border = self.ring.motions(flat)
-        removed = self.ring.moves_as_whole(flat, border)
-        still = self.ring.still_fraction(flat, border)
-        camera = border.copy() if removed else np.zeros_like(border)
-        if removed:
-            flow -= camera[:, None, None, :]
+        camera = remove_camera_motion(flow, self.ring.motions(flat), self.ring)
         if self.kept is not None:
             self.kept.truncate(count + 1)
         confidence = flow_confidence(mean, frame_noise=frame_noise(self.change[:count]))
@@ -422,10 +415,10 @@ class _LookState:
             first_rgb=first_rgb,
             brightness=self.brightness[: count + 1],
             frame_change=self.change[:count],
-            border_px=border,
-            camera_px=camera,
-            camera_removed=removed,
-            camera_still_fraction=still,
+            border_px=camera.border_px,
+            camera_px=camera.camera_px,
+            camera_removed=camera.removed,
+            camera_still_fraction=camera.still_fraction,
             ring=self.ring,
             max_step_px=_fastest(flow, confidence.weight >= 0.5) * self.grid.factor,
             decode_s=decode_s,

@@ -6,6 +6,7 @@ excitation, and the series the figures plot.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -14,13 +15,13 @@ from workers.pipeline.clipio.types import Intrinsics
 from workers.pipeline.confidence import Confidence
 from workers.pipeline.detection import regime_of
 from workers.pipeline.errors import ParameterError
-from workers.pipeline.mechanics import release_amplitude, release_instant, stiffness_and_mass
-from workers.pipeline.metric import metric_amplitude
+from workers.pipeline.mechanics import Mechanics, release_amplitude, release_instant, stiffness_and_mass
+from workers.pipeline.metric import MetricAmplitude, metric_amplitude
 from workers.pipeline.model import Excitation, ObjectMeasurement
 from workers.pipeline.peaks import Peak
 from workers.pipeline.ringdown import Ringdown, RingdownFit, sliding_ringdown
 from workers.pipeline.stream import FrameBuffers
-from workers.pipeline.tracking import CoarseView, second_motion, track_object
+from workers.pipeline.tracking import CoarseView, Track, second_motion, track_object
 
 #: Systematic floors on the ring-down fit's statistical uncertainties (model mismatch: projection
 #: nonlinearity, registration errors correlated with the motion), measured on randomised ground truth.
@@ -52,26 +53,40 @@ def bounding_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int]:
     return (x0, y0, int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1)
 
 
-def measure_object(
-    *,
-    label: int,
-    peak: Peak,
-    mask: NDArray[np.bool_],
-    full_mask: NDArray[np.bool_],
-    buffers: FrameBuffers,
-    fps: float,
-    pixel_scale: float,
-    intrinsics: Intrinsics | None,
-    depth_override: float | None,
-    excitation: Excitation | None,
-    excluded: list[str],
-    band_hz: tuple[float, float] | None = None,
-    confidence: Confidence | None = None,
-    coarse: CoarseView | None = None,
-) -> ObjectMeasurement:
-    """Measure one object of the window.
+@dataclass(frozen=True)
+class WindowContext:
+    """What every object of a window is measured against.
 
-    Parameters
+    Attributes
+    ----------
+    buffers : FrameBuffers
+    sample_rate_hz : float
+        Rate of the flow samples, Hz.
+    pixel_scale : float
+        Input pixels per grid pixel.
+    intrinsics : Intrinsics or None
+    depth_override_m : float or None
+        A user-given constant distance (clips without depth).
+    band_hz : (low, high) or None
+        The analysed band (the fitted frequency stays inside it).
+    confidence : Confidence or None
+        Of the grid's flow (:mod:`workers.pipeline.confidence`).
+    """
+
+    buffers: FrameBuffers
+    sample_rate_hz: float
+    pixel_scale: float
+    intrinsics: Intrinsics | None = None
+    depth_override_m: float | None = None
+    band_hz: tuple[float, float] | None = None
+    confidence: Confidence | None = None
+
+
+@dataclass(frozen=True)
+class Region:
+    """One object of the window, as segmentation found it.
+
+    Attributes
     ----------
     label : int
         The object's id (its value in the label image).
@@ -81,49 +96,129 @@ def measure_object(
         Its pixels on the flow grid.
     full_mask : ndarray of bool, shape (H, W)
         ... at input resolution, over the whole frame.
-    buffers : FrameBuffers
-    fps : float
-        Rate of the flow samples, Hz.
-    pixel_scale : float
-        Input pixels per grid pixel.
-    intrinsics : Intrinsics or None
-    depth_override : float or None
-        A user-given constant distance (clips without depth).
+    excluded : tuple of str
+        Notes on pixels removed from its mask.
+    coarse : CoarseView or None
+        The object on the first pass's coarse grid (see :func:`~workers.pipeline.tracking.track_object`).
+    """
+
+    label: int
+    peak: Peak
+    mask: NDArray[np.bool_]
+    full_mask: NDArray[np.bool_]
+    excluded: tuple[str, ...] = ()
+    coarse: CoarseView | None = None
+
+
+@dataclass(frozen=True)
+class _Release:
+    """When and from how far the object was let go (or struck), from its fitted motion."""
+
+    t_rel: float  # seconds after the motion's onset
+    amp_px: float
+    amp_sd_px: float
+    time_s: float  # seconds from the clip's first frame
+    times_from_onset: NDArray[np.float64]
+
+
+def measure_object(
+    region: Region, window: WindowContext, *, excitation: Excitation | None = None
+) -> ObjectMeasurement:
+    """Measure one object of the window.
+
+    Parameters
+    ----------
+    region : Region
+    window : WindowContext
     excitation : Excitation or None
         How it was excited; None: stiffness and mass are not measured.
-    excluded : list of str
-        Notes on pixels removed from its mask.
-    band_hz : (low, high), optional
-        The analysed band (the fitted frequency stays inside it).
-    confidence : Confidence, optional
-        Of the grid's flow (:mod:`workers.pipeline.confidence`).
-    coarse : CoarseView, optional
-        The object on the first pass's coarse grid (see :func:`~workers.pipeline.tracking.track_object`).
 
     Returns
     -------
     ObjectMeasurement
     """
     track = track_object(
-        buffers,
-        mask,
-        fps=fps,
-        pixel_scale=pixel_scale,
-        frequency_guess_hz=peak.frequency_hz,
-        band_hz=band_hz,
-        confidence=confidence,
-        coarse=coarse,
+        window.buffers,
+        region.mask,
+        fps=window.sample_rate_hz,
+        pixel_scale=window.pixel_scale,
+        frequency_guess_hz=region.peak.frequency_hz,
+        band_hz=window.band_hz,
+        confidence=window.confidence,
+        coarse=region.coarse,
     )
-    fit, onset, velocity = track.fit, track.onset, track.velocity_px
-    f_sd = frequency_sd_hz(fit)
-    zeta_sd = damping_sd(fit)
-    kind = excitation.kind if excitation else None
-    t_rel = release_instant(fit, fps=fps, excitation=kind)
-    amp_px = release_amplitude(fit, t_release_s=t_rel, excitation=kind)
-    amp_sd_px = fit.amplitude_sd * math.exp(-fit.decay_per_s * t_rel)
-    release_time = buffers.start_s + float(buffers.times_s[onset]) + t_rel
-    times_from_onset = buffers.times_s - buffers.times_s[onset]
+    fit = track.fit
+    release = _release(track, window, excitation)
+    metric = _metric(track, release, region, window)
+    mech = _mechanics(fit, metric, excitation)
+    ringdown = _ringdown(track, window)
+    # Whether it decays is judged on the fit's own (statistical) uncertainty, before systematic floors.
+    decay_sd = fit.damping_sd * 2 * math.pi * fit.natural_frequency_hz * fit.duration_s
+    regime = regime_of(ringdown, decay=fit.decay, decay_sd=decay_sd)
+    ringing = regime == "ring_down"
+    displacement, model = _displacements(track, release)
+    return ObjectMeasurement(
+        id=region.label,
+        eigenfrequency_hz=fit.frequency_hz,
+        eigenfrequency_sd_hz=frequency_sd_hz(fit),
+        # Damping needs a decay to measure; a sustained (or growing) oscillation shows none here.
+        natural_frequency_hz=fit.natural_frequency_hz if ringing else fit.frequency_hz,
+        damping_ratio=fit.damping_ratio if ringing else None,
+        damping_ratio_sd=damping_sd(fit) if ringing else None,
+        amplitude_px=release.amp_px,
+        amplitude_m=metric.amplitude_m,
+        amplitude_sd_m=metric.amplitude_sd_m,
+        depth_m=metric.depth_m,
+        motion_direction=metric.direction,
+        stiffness_n_per_m=mech.stiffness_n_per_m,
+        stiffness_sd=mech.stiffness_sd,
+        mass_kg=mech.mass_kg,
+        mass_sd=mech.mass_sd,
+        pixel_count=int(region.full_mask.sum()),
+        bbox_px=bounding_box(region.full_mask),
+        harmonics_hz=list(region.peak.harmonics_hz),
+        release_time_s=release.time_s if ringing or excitation is not None else None,
+        snr_db=fit.snr_db,
+        detection_db=fit.detection_db,
+        concentration=fit.concentration,
+        second_motion=second_motion(
+            window.buffers.flow, region.mask, frequency_hz=fit.frequency_hz, fps=window.sample_rate_hz
+        ),
+        null_reasons=[*_regime_reasons(fit, regime), *metric.null_reasons, *mech.null_reasons],
+        amplitude_source=track.source,
+        notes=[*region.excluded, *metric.notes],
+        ringdown=ringdown,
+        saturated_fraction=_saturated(window.buffers.first_rgb, region.full_mask),
+        fitted_duration_s=float(
+            window.buffers.times_s[len(track.velocity_px)] - window.buffers.times_s[track.onset]
+        ),
+        displacement_px=displacement,
+        model_displacement_px=model,
+        axis_px=track.axis_px,
+        regime=regime,
+    )
 
+
+def _release(track: Track, window: WindowContext, excitation: Excitation | None) -> _Release:
+    """The release (or strike) instant and the amplitude then, from the fitted model."""
+    fit, buffers = track.fit, window.buffers
+    kind = excitation.kind if excitation else None
+    t_rel = release_instant(fit, fps=window.sample_rate_hz, excitation=kind)
+    return _Release(
+        t_rel=t_rel,
+        amp_px=release_amplitude(fit, t_release_s=t_rel, excitation=kind),
+        amp_sd_px=fit.amplitude_sd * math.exp(-fit.decay_per_s * t_rel),
+        time_s=buffers.start_s + float(buffers.times_s[track.onset]) + t_rel,
+        times_from_onset=buffers.times_s - buffers.times_s[track.onset],
+    )
+
+
+def _metric(track: Track, release: _Release, region: Region, window: WindowContext) -> MetricAmplitude:
+    """The amplitude at release in metres (see :func:`~workers.pipeline.metric.metric_amplitude`)."""
+    fit, onset, buffers = track.fit, track.onset, window.buffers
+    amp_px, amp_sd_px, times_from_onset = release.amp_px, release.amp_sd_px, release.times_from_onset
+    full_mask, intrinsics, depth_override = region.full_mask, window.intrinsics, window.depth_override_m
+    pixel_scale = window.pixel_scale
     metric = metric_amplitude(
         fit=fit,
         amplitude_px=amp_px,
@@ -139,98 +234,76 @@ def measure_object(
         intrinsics=intrinsics,
         depth_override_m=depth_override,
     )
-    null_reasons = list(metric.null_reasons)
-    notes = [*excluded, *metric.notes]
-    k = k_sd = m = m_sd = None
-    if excitation is None:
-        null_reasons.append("no excitation given: stiffness and mass need a held force or an impulse")
-    elif metric.amplitude_m is not None and metric.amplitude_sd_m is not None:
-        mech = stiffness_and_mass(
-            kind=excitation.kind,
-            value=excitation.value,
-            value_sd=excitation.uncertainty,
-            amplitude_m=metric.amplitude_m,
-            amplitude_sd_m=metric.amplitude_sd_m,
-            natural_frequency_hz=fit.natural_frequency_hz,
-            damped_frequency_hz=fit.frequency_hz,
-            frequency_sd_hz=f_sd,
-        )
-        k, k_sd, m, m_sd = mech.stiffness_n_per_m, mech.stiffness_sd, mech.mass_kg, mech.mass_sd
-        null_reasons.extend(mech.null_reasons)
+    return metric
 
-    n = len(velocity)
-    ringdown = None
-    if n - onset >= 16:
-        ringdown = sliding_ringdown(velocity[onset:], fps=fps, frequency_hz=fit.frequency_hz)
-        ringdown = Ringdown(
-            times_s=ringdown.times_s + float(buffers.times_s[onset]),
-            amplitude=ringdown.amplitude,
-            frequency_hz=ringdown.frequency_hz,
-            spectrogram_hz=ringdown.spectrogram_hz,
-            spectrogram_power=ringdown.spectrogram_power,
+
+def _mechanics(fit: RingdownFit, metric: MetricAmplitude, excitation: Excitation | None) -> Mechanics:
+    """Stiffness and mass from the excitation and the metric amplitude, or why they are not measured."""
+    if excitation is None:
+        return Mechanics(
+            null_reasons=["no excitation given: stiffness and mass need a held force or an impulse"]
         )
-    # Clipped where the sensor's grey level is at its limit: one colour channel at 0 (a saturated blue)
-    # still carries texture in the others.
-    grey = buffers.first_rgb[full_mask].astype(np.float32).mean(axis=1)
-    saturated = float(np.mean((grey >= 254) | (grey <= 1))) if grey.size else 0.0
-    disp = np.concatenate([[0.0], np.cumsum(velocity)])
-    t = times_from_onset[: n + 1]
-    model = np.full(n + 1, np.nan)
-    after = t >= t_rel
-    model[after] = fit.displacement(t[after])
-    # Align the integrated displacement to the model's mean level after release.
-    if after.any():
-        disp = disp - np.nanmean(disp[after] - model[after])
-    obj = ObjectMeasurement(
-        id=label,
-        eigenfrequency_hz=fit.frequency_hz,
-        eigenfrequency_sd_hz=f_sd,
-        natural_frequency_hz=fit.natural_frequency_hz,
-        damping_ratio=fit.damping_ratio,
-        damping_ratio_sd=zeta_sd,
-        amplitude_px=amp_px,
+    if metric.amplitude_m is None or metric.amplitude_sd_m is None:
+        return Mechanics()
+    return stiffness_and_mass(
+        kind=excitation.kind,
+        value=excitation.value,
+        value_sd=excitation.uncertainty,
         amplitude_m=metric.amplitude_m,
         amplitude_sd_m=metric.amplitude_sd_m,
-        depth_m=metric.depth_m,
-        motion_direction=metric.direction,
-        stiffness_n_per_m=k,
-        stiffness_sd=k_sd,
-        mass_kg=m,
-        mass_sd=m_sd,
-        pixel_count=int(full_mask.sum()),
-        bbox_px=bounding_box(full_mask),
-        harmonics_hz=list(peak.harmonics_hz),
-        release_time_s=release_time,
-        snr_db=fit.snr_db,
-        detection_db=fit.detection_db,
-        concentration=fit.concentration,
-        second_motion=second_motion(buffers.flow, mask, frequency_hz=fit.frequency_hz, fps=fps),
-        null_reasons=null_reasons,
-        amplitude_source=track.source,
-        notes=notes,
-        ringdown=ringdown,
-        saturated_fraction=saturated,
-        fitted_duration_s=float(buffers.times_s[n] - buffers.times_s[onset]),
-        displacement_px=disp,
-        model_displacement_px=model,
-        axis_px=track.axis_px,
+        natural_frequency_hz=fit.natural_frequency_hz,
+        damped_frequency_hz=fit.frequency_hz,
+        frequency_sd_hz=frequency_sd_hz(fit),
     )
-    # Whether it decays is judged on the fit's own (statistical) uncertainty, before systematic floors.
-    decay_sd = fit.damping_sd * 2 * math.pi * fit.natural_frequency_hz * fit.duration_s
-    obj.regime = regime_of(obj, decay=fit.decay, decay_sd=decay_sd)
-    if obj.regime != "ring_down":
-        # Damping needs a decay to measure; a sustained (or growing) oscillation shows none here.
-        obj.damping_ratio = obj.damping_ratio_sd = None
-        obj.natural_frequency_hz = fit.frequency_hz
-        grows = "grows" if obj.regime == "growing" else "does not decay"
-        obj.null_reasons.insert(
-            0,
-            f"damping: the motion {grows} in the analysed window ({math.exp(-fit.decay) * 100:.0f} % of its "
-            f"amplitude left after {fit.duration_s:.3g} s): a {obj.regime} vibration, not a ring-down",
-        )
-        if excitation is None:
-            obj.release_time_s = None
-    return obj
+
+
+def _ringdown(track: Track, window: WindowContext) -> Ringdown | None:
+    """The sliding-window amplitude and frequency of the motion after its onset (None when too short)."""
+    velocity, onset = track.velocity_px, track.onset
+    if len(velocity) - onset < 16:
+        return None
+    ringdown = sliding_ringdown(
+        velocity[onset:], fps=window.sample_rate_hz, frequency_hz=track.fit.frequency_hz
+    )
+    return Ringdown(
+        times_s=ringdown.times_s + float(window.buffers.times_s[onset]),
+        amplitude=ringdown.amplitude,
+        frequency_hz=ringdown.frequency_hz,
+        spectrogram_hz=ringdown.spectrogram_hz,
+        spectrogram_power=ringdown.spectrogram_power,
+    )
+
+
+def _regime_reasons(fit: RingdownFit, regime: str) -> list[str]:
+    """Why the damping is not measured: a sustained or growing oscillation shows no decay."""
+    if regime == "ring_down":
+        return []
+    grows = "grows" if regime == "growing" else "does not decay"
+    return [
+        f"damping: the motion {grows} in the analysed window ({math.exp(-fit.decay) * 100:.0f} % of its "
+        f"amplitude left after {fit.duration_s:.3g} s): a {regime} vibration, not a ring-down"
+    ]
+
+
+def _displacements(track: Track, release: _Release) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The integrated displacement along the motion's axis and the fitted model's, input pixels (N + 1,),
+    the former aligned to the model's mean level after release."""
+    n = len(track.velocity_px)
+    disp = np.concatenate([[0.0], np.cumsum(track.velocity_px)])
+    t = release.times_from_onset[: n + 1]
+    model = np.full(n + 1, np.nan)
+    after = t >= release.t_rel
+    model[after] = track.fit.displacement(t[after])
+    if after.any():
+        disp = disp - np.nanmean(disp[after] - model[after])
+    return disp, model
+
+
+def _saturated(first_rgb: NDArray[np.uint8], full_mask: NDArray[np.bool_]) -> float:
+    """Share of the object's pixels clipped where the sensor's grey level is at its limit: one colour
+    channel at 0 (a saturated blue) still carries texture in the others."""
+    grey = first_rgb[full_mask].astype(np.float32).mean(axis=1)
+    return float(np.mean((grey >= 254) | (grey <= 1))) if grey.size else 0.0
 
 
 def assign_excitations(
@@ -281,4 +354,12 @@ def assign_excitations(
     return out
 
 
-__all__ = ["assign_excitations", "bounding_box", "damping_sd", "frequency_sd_hz", "measure_object"]
+__all__ = [
+    "Region",
+    "WindowContext",
+    "assign_excitations",
+    "bounding_box",
+    "damping_sd",
+    "frequency_sd_hz",
+    "measure_object",
+]

@@ -30,6 +30,9 @@ Progress = Callable[[str, float], None]
 DEFAULT_MAX_FRAMES = 256
 #: Memory budget of an automatically chosen window's buffers (flow maps, grey frames, depth, spectra).
 DEFAULT_WINDOW_MIB = 384.0
+#: The band's default upper edge, and the highest frequency any stage searches: this fraction of the
+#: Nyquist rate (the default band is :func:`workers.pipeline.window.default_band`).
+BAND_NYQUIST_FRACTION = 0.98
 
 
 @dataclass(frozen=True, kw_only=True)

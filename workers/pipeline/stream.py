@@ -13,12 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.camera import CameraRing
+from workers.pipeline.camera import CameraRemoval, CameraRing, remove_camera_motion
 from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader, Frame
 from workers.pipeline.errors import AnalysisError
 from workers.pipeline.fft import warm_up as spectrum_warm_up
 from workers.pipeline.flow import FlowConfig, flow_magnitude, flow_stream, prepare_gray
-from workers.pipeline.light import BRIGHTNESS_BLOCKS
+from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
 from workers.pipeline.model import Progress
 from workers.pipeline.roi import Roi
 
@@ -129,125 +129,143 @@ def stream_frames(
     AnalysisError
         When fewer than ``MIN_FRAMES`` frames decoded.
     """
-    import cv2
-
     # The FFT library's import (a third of a second) overlaps decoding and flow instead of following them.
     threading.Thread(target=spectrum_warm_up, name="spectrum-warm-up", daemon=True).start()
     n = stop - start - 1
-    h, w = grid
-    channels = 1 if magnitude else 2
-    flow_buf = np.empty((n, h, w, channels), np.float32)
-    depth_buf: NDArray[np.float32] | None = None
-    first_rgb: NDArray[np.uint8] | None = None
-    times = np.empty(n + 1, np.float64)
-    has_depth = reader.info.has_depth
-    info = reader.info
-    gray_buf = np.empty((n + 1, info.height, info.width), np.uint8) if keep_gray else None
-    blocks = BRIGHTNESS_BLOCKS
-    brightness = np.empty((n + 1, blocks, blocks), np.float32)
-    change = np.zeros((n, blocks, blocks), np.float32)
-    ring = CameraRing(grid)
-    decode_s = 0.0  # CPU seconds spent in the reader
-    frames_read = 0
-
-    def grays() -> Iterator[NDArray[np.uint8]]:
-        nonlocal depth_buf, first_rgb, decode_s, frames_read
-        # A reader that can sample depth onto the grid before converting it to metres saves the
-        # conversion of pixels the grid drops (same values: nearest-neighbour either way).
-        frames: Iterator[Frame] = iter(reader.frames_with_depth_on(grid, start, stop))
-        previous: NDArray[np.uint8] | None = None
-        for i in itertools.count():
-            # The reader's own CPU time: its wall time would count the moments the flow threads,
-            # busy on both cores meanwhile, held the CPU.
-            started = time.thread_time()
-            next_frame = next(frames, None)
-            decode_s += time.thread_time() - started
-            if next_frame is None:
-                return
-            frame = next_frame
-            frames_read = i + 1
-            times[i] = frame.timestamp_s
-            if first_rgb is None:
-                first_rgb = np.array(frame.rgb, copy=True)
-            if has_depth and frame.depth_m is not None:
-                if depth_buf is None:
-                    depth_buf = np.empty((n + 1, h, w), np.float32)
-                    depth_buf[:i] = np.nan
-                d = frame.depth_m
-                if d.shape != grid:
-                    d = cv2.resize(d, (w, h), interpolation=cv2.INTER_NEAREST)
-                depth_buf[i] = d
-            elif depth_buf is not None:
-                depth_buf[i] = np.nan
-            if gray_buf is not None:
-                full = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY, dst=gray_buf[i])
-                small = full if full.shape == grid else cv2.resize(full, (w, h), interpolation=cv2.INTER_AREA)
-            else:
-                small = prepare_gray(frame.rgb, grid)
-            brightness[i] = cv2.resize(small, (blocks, blocks), interpolation=cv2.INTER_AREA)
-            if previous is not None:
-                diff = cv2.absdiff(small, previous)
-                change[i - 1] = cv2.resize(diff, (blocks, blocks), interpolation=cv2.INTER_AREA)
-            else:
-                ring.set_texture(small)
-            previous = small
-            yield small
-
-    count = 0
+    kept = _Kept(
+        n, grid, reader.info.has_depth, (reader.info.height, reader.info.width) if keep_gray else None
+    )
+    flow_buf = np.empty((n, *grid, 1 if magnitude else 2), np.float32)
     # The camera's own motion (shake, drift) moves the whole frame; estimate it each frame from a ring
     # along the border (see workers.pipeline.camera) so that it is neither an object nor mixed into one.
     camera = np.zeros((n, 2), np.float32)
     # Flow is written straight into the buffer by the flow threads (magnitudes are reduced here); the
     # camera's motion is taken from each map while the threads compute the next ones.
-    direct = None if magnitude else flow_buf
-    for i, flow in enumerate(flow_stream(grays(), config=flow_cfg, out=direct)):
+    frames = iter(reader.frames_with_depth_on(grid, start, stop))
+    count = 0
+    for i, flow in enumerate(
+        flow_stream(kept.grays(frames), config=flow_cfg, out=None if magnitude else flow_buf)
+    ):
         if magnitude:
             flow_buf[i, ..., 0] = flow_magnitude(flow)
         else:
-            camera[i] = ring.motion(flow)
+            camera[i] = kept.ring.motion(flow)
         count = i + 1
         if progress is not None and (i % 8 == 0 or i == n - 1):
             progress("flow", 0.05 + 0.75 * count / n)
-    if first_rgb is None or count + 1 < MIN_FRAMES:
+    if kept.first_rgb is None or count + 1 < MIN_FRAMES:
         raise AnalysisError(
-            f"the clip ended after {frames_read} of the {n + 1} frames it announced; at least "
+            f"the clip ended after {kept.frames_read} of the {n + 1} frames it announced; at least "
             f"{MIN_FRAMES} frames are needed"
         )
     if count < n:  # the clip ended early: keep what decoded
-        flow_buf, camera, change = flow_buf[:count], camera[:count], change[:count]
-        times, brightness = times[: count + 1], brightness[: count + 1]
-        if depth_buf is not None:
-            depth_buf = depth_buf[: count + 1]
-        if gray_buf is not None:
-            gray_buf = gray_buf[: count + 1]
-    # Compensate only real camera motion: subtracting the jitter of a still camera (codec noise) from
-    # every pixel would bury a sub-pixel vibration, and the median of a border an object reaches into is
-    # the object's motion.
-    flat = flow_buf.reshape(len(flow_buf), -1, channels)
-    removed = not magnitude and ring.moves_as_whole(flat, camera)
-    still = ring.still_fraction(flat, camera) if not magnitude else 0.0
-    border = camera.copy()
-    if removed:
-        flow_buf -= camera[:, None, None, :]
-    else:
-        camera[:] = 0.0
+        flow_buf, camera = flow_buf[:count], camera[:count]
+        kept.trim(count + 1)
+    removal = (
+        CameraRemoval(camera_px=camera * 0, border_px=camera, removed=False, still_fraction=0.0)
+        if magnitude
+        else remove_camera_motion(flow_buf, camera, kept.ring)
+    )
     return FrameBuffers(
-        camera_px=camera,
-        border_px=border,
+        camera_px=removal.camera_px,
+        border_px=removal.border_px,
         flow=flow_buf,
-        depth=depth_buf,
-        gray=gray_buf,
-        first_rgb=first_rgb,
+        depth=kept.depth,
+        gray=kept.gray,
+        first_rgb=kept.first_rgb,
         count=count,
-        times_s=times - times[0],
-        start_s=float(times[0]),
-        decode_s=decode_s,
-        brightness=brightness,
-        frame_change=change,
-        camera_removed=removed,
-        camera_still_fraction=still,
+        times_s=kept.times - kept.times[0],
+        start_s=float(kept.times[0]),
+        decode_s=kept.decode_s,
+        brightness=kept.brightness,
+        frame_change=kept.change,
+        camera_removed=removal.removed,
+        camera_still_fraction=removal.still_fraction,
         announced=n,
     )
 
 
-__all__ = ["BRIGHTNESS_BLOCKS", "FrameBuffers", "stream_frames"]
+class _Kept:
+    """What the frame stream keeps of each frame as it passes on its way to the flow: capture times, the
+    first colour frame, depth on the grid, grey frames (at input resolution, ``gray_shape``, or none),
+    block brightness and change, and the camera ring's texture."""
+
+    def __init__(
+        self, n: int, grid: tuple[int, int], has_depth: bool, gray_shape: tuple[int, int] | None
+    ) -> None:
+        self.n, self.grid, self.has_depth = n, grid, has_depth
+        self.times = np.empty(n + 1, np.float64)
+        self.first_rgb: NDArray[np.uint8] | None = None
+        self.depth: NDArray[np.float32] | None = None
+        self.gray = None if gray_shape is None else np.empty((n + 1, *gray_shape), np.uint8)
+        self.brightness = np.empty((n + 1, BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS), np.float32)
+        self.change = np.zeros((n, BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS), np.float32)
+        self.ring = CameraRing(grid)
+        self.decode_s = 0.0  # CPU seconds spent in the reader
+        self.frames_read = 0
+
+    def grays(self, frames: Iterator[Frame]) -> Iterator[NDArray[np.uint8]]:
+        """Each frame of ``frames`` grey on the grid, after keeping what the analysis needs of it."""
+        previous: NDArray[np.uint8] | None = None
+        for i in itertools.count():
+            # The reader's own CPU time: its wall time would count the moments the flow threads, busy on
+            # both cores meanwhile, held the CPU.
+            started = time.thread_time()
+            frame = next(frames, None)
+            self.decode_s += time.thread_time() - started
+            if frame is None:
+                return
+            self.frames_read = i + 1
+            small = self._keep(i, frame)
+            self.brightness[i] = block_brightness(small)
+            if previous is not None:
+                self.change[i - 1] = block_change(previous, small)
+            else:
+                self.ring.set_texture(small)
+            previous = small
+            yield small
+
+    def _keep(self, i: int, frame: Frame) -> NDArray[np.uint8]:
+        """Keep frame ``i``'s time, colour (the first), depth and grey frame; its grey frame on the grid."""
+        import cv2
+
+        h, w = self.grid
+        self.times[i] = frame.timestamp_s
+        if self.first_rgb is None:
+            self.first_rgb = np.array(frame.rgb, copy=True)
+        if self.has_depth and frame.depth_m is not None:
+            # A reader that can sample depth onto the grid before converting it to metres saves the
+            # conversion of pixels the grid drops (same values: nearest-neighbour either way).
+            if self.depth is None:
+                self.depth = np.empty((self.n + 1, h, w), np.float32)
+                self.depth[:i] = np.nan
+            d = frame.depth_m
+            self.depth[i] = (
+                d if d.shape == self.grid else cv2.resize(d, (w, h), interpolation=cv2.INTER_NEAREST)
+            )
+        elif self.depth is not None:
+            self.depth[i] = np.nan
+        if self.gray is None:
+            return prepare_gray(frame.rgb, self.grid)
+        full = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY, dst=self.gray[i])
+        small = full if full.shape == self.grid else cv2.resize(full, (w, h), interpolation=cv2.INTER_AREA)
+        return np.asarray(small, np.uint8)
+
+    def trim(self, frames: int) -> None:
+        """Keep the first ``frames`` frames only (the clip ended early)."""
+        self.times, self.brightness, self.change = (
+            self.times[:frames],
+            self.brightness[:frames],
+            self.change[: frames - 1],
+        )
+        if self.depth is not None:
+            self.depth = self.depth[:frames]
+        if self.gray is not None:
+            self.gray = self.gray[:frames]
+
+
+__all__ = [
+    "BRIGHTNESS_BLOCKS",
+    "FrameBuffers",
+    "stream_frames",
+]

@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -34,7 +34,8 @@ from numpy.typing import NDArray
 from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing
 from workers.pipeline.detection import SURVEY_PEAKS
 from workers.pipeline.errors import ParameterError
-from workers.pipeline.light import BRIGHTNESS_BLOCKS, FLICKER_ROWS, flickering_rows
+from workers.pipeline.light import FLICKER_ROWS, block_brightness, flickering_rows
+from workers.pipeline.model import BAND_NYQUIST_FRACTION
 from workers.pipeline.peaks import Peak, detect_peaks
 
 #: Floats held by the survey's segment buffer (flow of every survey pixel over one Welch segment).
@@ -245,8 +246,6 @@ def survey_motion(
     ParameterError
         On a non-positive ``fps``, fewer than 17 frames, or frames that change size.
     """
-    import cv2
-
     if not (math.isfinite(fps) and fps > 0):
         raise ParameterError(f"survey: fps={fps} must be a positive number of frames per second")
     if total_frames < 17:
@@ -263,65 +262,129 @@ def survey_motion(
         raise ParameterError("survey: the clip yielded no frames") from None
     height, width = first.shape[:2]
     factor = survey_factor(height, width, segment_frames=length, width_px=width_px)
-    h, w = height // factor, width // factor
-    scale = 1.0 / factor
+    flows = _SurveyFlow(first, factor)
+    acc = _WelchAccumulator(
+        length=length,
+        pixels=flows.pixels,
+        fps=fps,
+        first_frame=first_frame,
+        scale=1.0 / factor,
+        ring=flows.ring,
+    )
+    flows.feed(iterator, acc)
+    if acc.samples < 16:
+        raise ParameterError(f"survey: the clip yielded only {acc.samples + 1} frames; analyse it whole")
+    acc.finish()
+    power, whitened, median_snr, background = acc.averages()
+    bin_hz = fps / acc.length
+    peaks = _survey_peaks(
+        acc.frequencies_hz,
+        (power, background, whitened, median_snr),
+        bin_hz=bin_hz,
+        nyquist_hz=fps / 2,
+        min_snr_db=min_snr_db,
+        band_hz=band_hz,
+    )
+    starts, span, seg_power = acc.segments_stored()
+    return Survey(
+        fps=fps,
+        first_frame=first_frame,
+        frames=acc.samples + 1,
+        grid_shape=flows.shape,
+        grid_scale=1.0 / factor,
+        segment_frames=acc.length,
+        frequencies_hz=acc.frequencies_hz,
+        power=power,
+        whitened=whitened,
+        median_snr=median_snr,
+        segments=acc.count,
+        segment_starts=starts,
+        segment_span=span,
+        segment_power=seg_power,
+        block_frames=acc.blocks.size,
+        block_energy=acc.blocks.values(),
+        max_step_px=acc.steps.quantile(0.9),
+        peaks=peaks,
+        global_peaks_hz=[p.frequency_hz for p in peaks if median_snr[p.bin] > GLOBAL_MEDIAN_SNR],
+        flicker_hz=_flicker(np.asarray(flows.brightness, np.float32), fps=fps, peaks=peaks, bin_hz=bin_hz),
+    )
 
-    def small(gray: NDArray[np.uint8]) -> NDArray[np.uint8]:
+
+class _SurveyFlow:
+    """The survey's flow: each frame area-averaged by an integer ``factor`` onto the survey grid, its
+    block brightness kept, and the flow from the frame before (DIS, ultrafast)."""
+
+    def __init__(self, first: NDArray[np.uint8], factor: int) -> None:
+        import cv2
+
+        self.size = first.shape[:2]
+        self.factor = factor
+        self.shape = (self.size[0] // factor, self.size[1] // factor)
+        self.pixels = self.shape[0] * self.shape[1]
+        self._dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
+        self._dis.setFinestScale(0)  # the grid is already coarse: do not skip its finest level
+        self._dis.setPatchStride(6)  # ... but sparser patches keep it about as cheap as decoding a frame
+        self.ring = CameraRing(self.shape, every=2)
+        self._previous = self._small(first)
+        self.ring.set_texture(self._previous)
+        self.brightness = [block_brightness(self._previous)]
+
+    def _small(self, gray: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        import cv2
+
+        height, width = self.size
         if gray.shape[:2] != (height, width):
             raise ParameterError(
                 f"survey: a frame is {gray.shape[1]}x{gray.shape[0]}, the clip started at "
                 f"{width}x{height}; re-encode the clip at one size"
             )
-        if factor == 1:
+        if self.factor == 1:
             return np.ascontiguousarray(gray)
-        crop = gray[: h * factor, : w * factor]
+        h, w = self.shape
+        crop = gray[: h * self.factor, : w * self.factor]
         return np.asarray(cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
 
-    dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
-    dis.setFinestScale(0)  # the grid is already coarse: do not skip its finest level
-    dis.setPatchStride(6)  # ... but sparser patches keep it about as cheap as decoding a frame
-    ring = CameraRing((h, w), every=2)
-    first_small = small(first)
-    ring.set_texture(first_small)
-    acc = _WelchAccumulator(
-        length=length, pixels=h * w, fps=fps, first_frame=first_frame, scale=scale, ring=ring
-    )
-    previous = [first_small]
-    blocks = (BRIGHTNESS_BLOCKS, BRIGHTNESS_BLOCKS)
-    brightness = [np.asarray(cv2.resize(first_small, blocks, interpolation=cv2.INTER_AREA), np.float32)]
-
-    def flow_to(gray: NDArray[np.uint8]) -> NDArray[np.float32]:
-        nxt = small(gray)
-        flow = np.asarray(dis.calc(previous[0], nxt, None), np.float32)
-        previous[0] = nxt
-        brightness.append(np.asarray(cv2.resize(nxt, blocks, interpolation=cv2.INTER_AREA), np.float32))
+    def _flow_to(self, gray: NDArray[np.uint8]) -> NDArray[np.float32]:
+        nxt = self._small(gray)
+        flow = np.asarray(self._dis.calc(self._previous, nxt, None), np.float32)
+        self._previous = nxt
+        self.brightness.append(block_brightness(nxt))
         return flow
 
-    # Downscaling and flow run in one worker thread (in frame order) while the main thread decodes the
-    # next frames and accumulates; OpenCV and the decoder release the GIL.
-    pending: deque[Future[NDArray[np.float32]]] = deque()
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="survey") as pool:
-        try:
-            for gray in iterator:
-                pending.append(pool.submit(flow_to, gray))
-                if len(pending) >= 3:
+    def feed(self, grays: Iterator[NDArray[np.uint8]], acc: _WelchAccumulator) -> None:
+        """The flow of every frame of ``grays`` added to ``acc``, in frame order. Downscaling and flow run
+        in one worker thread while this one decodes the next frames and accumulates; OpenCV and the
+        decoder release the GIL."""
+        pending: deque[Future[NDArray[np.float32]]] = deque()
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="survey") as pool:
+            try:
+                for gray in grays:
+                    pending.append(pool.submit(self._flow_to, gray))
+                    if len(pending) >= 3:
+                        acc.add(pending.popleft().result())
+                while pending:
                     acc.add(pending.popleft().result())
-            while pending:
-                acc.add(pending.popleft().result())
-        finally:
-            for job in pending:
-                job.cancel()
-    count = acc.samples
-    if count < 16:
-        raise ParameterError(f"survey: the clip yielded only {count + 1} frames; analyse it whole")
-    acc.finish()
-    freqs = acc.frequencies_hz
-    power, whitened, median_snr, background = acc.averages()
-    nyquist = fps / 2
-    bin_hz = fps / acc.length
+            finally:
+                for job in pending:
+                    job.cancel()
+
+
+def _survey_peaks(
+    freqs: NDArray[np.float64],
+    spectra: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
+    *,
+    bin_hz: float,
+    nyquist_hz: float,
+    min_snr_db: float,
+    band_hz: tuple[float, float] | None,
+) -> list[Peak]:
+    """The survey's confident peaks in the Welch ``spectra`` (summed power, background, whitened, median
+    pixel's whitened): over the whole band, and within the user's band on their own as well, so that
+    stronger motions elsewhere never crowd them out (the band chooses where to look)."""
+    power, background, whitened, median_snr = spectra
     # Peaks are searched from the first bin so that a low peak's left flank counts for its prominence;
     # those below two bins (unresolved from the mean and slow drift) are dropped afterwards.
-    band = (0.5 * bin_hz, 0.98 * nyquist)
+    band = (0.5 * bin_hz, BAND_NYQUIST_FRACTION * nyquist_hz)
     policy = dataclasses.replace(SURVEY_PEAKS, weak_min_snr_db=min_snr_db)
 
     def peaks_in(searched: tuple[float, float]) -> list[Peak]:
@@ -342,31 +405,7 @@ def survey_motion(
         if inside[1] - inside[0] >= 3 * bin_hz:
             extra = peaks_in(inside)
             peaks += [p for p in extra if all(abs(p.frequency_hz - q.frequency_hz) > bin_hz for q in peaks)]
-    global_hz = [p.frequency_hz for p in peaks if median_snr[p.bin] > GLOBAL_MEDIAN_SNR]
-    flicker_hz = _flicker(np.asarray(brightness, np.float32), fps=fps, peaks=peaks, bin_hz=bin_hz)
-    starts, span, seg_power = acc.segments_stored()
-    return Survey(
-        fps=fps,
-        first_frame=first_frame,
-        frames=count + 1,
-        grid_shape=(h, w),
-        grid_scale=scale,
-        segment_frames=acc.length,
-        frequencies_hz=freqs,
-        power=power,
-        whitened=whitened,
-        median_snr=median_snr,
-        segments=acc.count,
-        segment_starts=starts,
-        segment_span=span,
-        segment_power=seg_power,
-        block_frames=acc.blocks.size,
-        block_energy=acc.blocks.values(),
-        max_step_px=acc.steps.quantile(0.9),
-        peaks=peaks,
-        global_peaks_hz=global_hz,
-        flicker_hz=flicker_hz,
-    )
+    return peaks
 
 
 def _flicker(brightness: NDArray[np.float32], *, fps: float, peaks: list[Peak], bin_hz: float) -> list[float]:
@@ -537,7 +576,7 @@ class _WelchAccumulator:
                 (spec.real**2 + spec.imag**2).reshape(len(spec), -1, 2).sum(axis=2)
             )
         freqs = self.frequencies_hz
-        band = (freqs >= 2.5 * self.fps / n) & (freqs <= 0.98 * self.fps / 2)
+        band = (freqs >= 2.5 * self.fps / n) & (freqs <= BAND_NYQUIST_FRACTION * self.fps / 2)
         if band.sum() < 3:
             band = freqs > 0
         in_band = np.flatnonzero(band)

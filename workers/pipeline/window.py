@@ -17,6 +17,7 @@ from workers.pipeline.errors import ParameterError
 from workers.pipeline.flow import FlowConfig
 from workers.pipeline.look import CoarseGrid
 from workers.pipeline.model import (
+    BAND_NYQUIST_FRACTION,
     DEFAULT_MAX_FRAMES,
     AnalysisConfig,
     ObjectMeasurement,
@@ -28,8 +29,6 @@ from workers.pipeline.survey import Survey, survey_motion
 
 #: The band's default lower edge: this many periods of the window (nothing slower is an oscillation of it).
 BAND_MIN_PERIODS = 2.0
-#: The band's default upper edge: this fraction of the Nyquist rate.
-BAND_NYQUIST_FRACTION = 0.98
 #: A band holds at least this many of the window's frequencies (so that its noise can be measured).
 MIN_BAND_BINS = 16
 
@@ -324,6 +323,34 @@ class WindowPlan:
         return (self.stop_frame - self.start_frame - 1) // self.frame_step
 
 
+@dataclass(frozen=True)
+class WindowRules:
+    """How :func:`plan_window` sizes a window (the defaults are the analysis's).
+
+    Attributes
+    ----------
+    min_periods : float
+        The window spans at least this many periods of the lowest confident frequency.
+    max_step_grid_px : float
+        Most motion between two analysed frames, flow-grid pixels (bounds the stride).
+    samples_per_period : float
+        Fewest analysed frames per period of any frequency seen (bounds the stride).
+    resolve_lines : float
+        Lines resolved between two close peaks.
+    end_energy : float
+        A motion ends where its energy falls below this share of its peak ...
+    lasting_energy : float
+        ... and is followed that far when it is still this strong where the default window would end.
+    """
+
+    min_periods: float = 10.0
+    max_step_grid_px: float = 6.0
+    samples_per_period: float = 4.0
+    resolve_lines: float = 4.0
+    end_energy: float = 0.02
+    lasting_energy: float = 0.5
+
+
 def plan_window(
     survey: Survey,
     *,
@@ -333,26 +360,19 @@ def plan_window(
     grid_scale: float,
     band_hz: tuple[float, float] | None = None,
     min_duration_s: float | None = None,
-    min_periods: float = 10.0,
-    max_step_grid_px: float = 6.0,
-    samples_per_period: float = 4.0,
-    resolve_lines: float = 4.0,
-    end_energy: float = 0.02,
-    lasting_energy: float = 0.5,
+    rules: WindowRules = WindowRules(),
 ) -> WindowPlan:
     """Choose the main analysis window from a survey of the whole clip.
 
     The window starts where the strongest ring-down of the strongest object frequency begins and lasts
-    as long as the scene needs: at least ``min_periods`` periods of the lowest confident frequency and
-    ``default_frames`` frames when the clip has them; as long as the motion lasts when it is still
-    ``lasting_energy`` as strong (in energy) where that window would end (until it falls below
-    ``end_energy`` of its peak: a steady vibration lasts to the end of the clip); and long enough to
-    resolve close frequencies (``resolve_lines`` lines between two peaks closer than a few survey bins,
-    or within a peak wider than a line). When that needs more than
-    ``default_frames`` flow maps, every k-th frame is analysed, provided each frequency seen keeps at
-    least ``samples_per_period`` samples per period (its strong harmonics stay below the Nyquist rate;
-    lighting flicker may fold back, it is rejected anyway) and the motion between analysed frames stays
-    below ``max_step_grid_px``; the window never gives more than ``max_samples`` flow maps.
+    as long as the scene needs: at least ``rules.min_periods`` periods of the lowest confident frequency
+    and ``default_frames`` frames when the clip has them; as long as the motion lasts when it is still
+    ``rules.lasting_energy`` as strong (in energy) where that window would end (until it falls below
+    ``rules.end_energy`` of its peak: a steady vibration lasts to the end of the clip), at most
+    :data:`LASTING_PERIODS` periods; and long enough to resolve close frequencies (``rules.resolve_lines``
+    lines between two peaks closer than a few survey bins, or within a peak wider than a line). When
+    that needs more than ``default_frames`` flow maps, every k-th frame is analysed (:func:`_frame_step`);
+    the window never gives more than ``max_samples`` flow maps.
 
     Parameters
     ----------
@@ -369,7 +389,7 @@ def plan_window(
         Only peaks in this band shape the window (the analysis searches no other).
     min_duration_s : float, optional
         The window spans at least this long (a second pass that separates close frequencies).
-    min_periods, max_step_grid_px, samples_per_period, resolve_lines, end_energy, lasting_energy : float
+    rules : WindowRules, optional
 
     Returns
     -------
@@ -380,7 +400,6 @@ def plan_window(
             f"plan_window: max_samples={max_samples} and default_frames={default_frames} are too small; "
             "allow at least 8 flow maps"
         )
-    fps = survey.fps
     lo, hi = band_hz if band_hz is not None else (0.0, math.inf)
     seen = [p for p in survey.peaks if lo <= p.frequency_hz <= hi and p.frequency_hz not in survey.flicker_hz]
     objects = [p for p in seen if p.frequency_hz not in survey.global_peaks_hz]
@@ -400,48 +419,18 @@ def plan_window(
     main = (objects or seen)[0] if seen else None
     lowest = min((p.frequency_hz for p in seen), default=None)
     onset = _onset_frame(survey, main.frequency_hz) if main is not None else survey.first_frame
-    length = min(default_frames, total_frames)
-    why = ""
-    if lowest is not None:
-        length = max(length, math.ceil(min_periods * fps / lowest) + 1)
-    resolve_s = _resolution_needed(survey, seen, lines=resolve_lines)
-    if resolve_s > 0 and math.ceil(resolve_s * fps) + 1 > length:
-        length = math.ceil(resolve_s * fps) + 1
-        why = f"; {resolve_s:.3g} s resolve frequencies {resolve_lines / resolve_s:.3g} Hz apart"
-    if seen and _energy_at(survey, [p.frequency_hz for p in seen], onset + length) >= lasting_energy:
-        # Still strong where the window would end (a steady vibration, a lightly damped fork): follow
-        # the motion while it lasts.
-        lasting = _motion_end(survey, [p.frequency_hz for p in seen], onset, level=end_energy) - onset
-        # ... until the window holds LASTING_PERIODS periods of the slowest motion: more costs its time
-        # for a precision no one needs (a lightly damped 128 Hz fork rings for 1500 frames at 500 fps)
-        lasting = min(lasting, math.ceil(LASTING_PERIODS * fps / lowest) + 1) if lowest else lasting
-        if lasting > length:
-            length = lasting
-            why += "; the motion lasts that long"
-    if min_duration_s is not None and math.ceil(min_duration_s * fps) + 1 > length:
-        length = math.ceil(min_duration_s * fps) + 1
-        why += f"; {min_duration_s:.3g} s asked for"
-    # Frames skipped between analysed frames: as few as keep the buffer near the default size.
-    step = max(1, math.ceil((length - 1) / max(default_frames - 1, 1)))
-    step_max_rate = _max_step_for_rate(survey, samples_per_period=samples_per_period)
-    per_frame_grid_px = survey.max_step_px * grid_scale
-    step_max_motion = max(1, math.floor(max_step_grid_px / max(per_frame_grid_px, 1e-9)))
-    # The band's top stays below the Nyquist rate of the analysed frames: striding never folds it away.
-    step_max_band = (
-        max(1, math.floor(BAND_NYQUIST_FRACTION * fps / (2 * hi))) if math.isfinite(hi) else 1 << 30
+    length, why = _window_length(
+        survey, seen, onset=onset, first_guess=min(default_frames, total_frames), rules=rules
     )
-    step = max(1, min(step, step_max_rate, step_max_motion, step_max_band))
+    if min_duration_s is not None and math.ceil(min_duration_s * survey.fps) + 1 > length:
+        length = math.ceil(min_duration_s * survey.fps) + 1
+        why += f"; {min_duration_s:.3g} s asked for"
+    step = _frame_step(
+        survey, length, default_frames=default_frames, grid_scale=grid_scale, top_hz=hi, rules=rules
+    )
     length = min(length, step * max_samples + 1, total_frames)
-    start = max(0, onset)
-    stop = min(total_frames, start + length)
-    if stop - start < min(length, total_frames):
-        start = max(0, stop - length)  # late ring-down: take the frames before it rather than fewer
-    # Whole steps: round the window up to the next analysed frame when the clip has it, else down.
-    intervals = math.ceil((stop - start - 1) / step)
-    if start + intervals * step + 1 > total_frames:
-        intervals = (stop - start - 1) // step
-    stop = start + intervals * step + 1
-    periods = (lowest or 0.0) * (stop - start - 1) / fps
+    start, stop = _placed(onset, length, step, total_frames)
+    periods = (lowest or 0.0) * (stop - start - 1) / survey.fps
     every = "" if step == 1 else f" (one frame in {step})"
     if main is None or lowest is None:
         reason = f"frames {start}-{stop}{every} of {total_frames}{why}"
@@ -459,6 +448,68 @@ def plan_window(
         periods=periods,
         reason=reason,
     )
+
+
+def _window_length(
+    survey: Survey, seen: list[Peak], *, onset: int, first_guess: int, rules: WindowRules
+) -> tuple[int, str]:
+    """Frames the window needs for the peaks ``seen`` (at least ``first_guess``), and why, as the tail of
+    a sentence: enough periods of the lowest, close frequencies resolved, a lasting motion followed."""
+    fps = survey.fps
+    length, why = first_guess, ""
+    lowest = min((p.frequency_hz for p in seen), default=None)
+    if lowest is not None:
+        length = max(length, math.ceil(rules.min_periods * fps / lowest) + 1)
+    resolve_s = _resolution_needed(survey, seen, lines=rules.resolve_lines)
+    if resolve_s > 0 and math.ceil(resolve_s * fps) + 1 > length:
+        length = math.ceil(resolve_s * fps) + 1
+        why = f"; {resolve_s:.3g} s resolve frequencies {rules.resolve_lines / resolve_s:.3g} Hz apart"
+    frequencies = [p.frequency_hz for p in seen]
+    if seen and _energy_at(survey, frequencies, onset + length) >= rules.lasting_energy:
+        # Still strong where the window would end (a steady vibration, a lightly damped fork): follow
+        # the motion while it lasts ...
+        lasting = _motion_end(survey, frequencies, onset, level=rules.end_energy) - onset
+        # ... until the window holds LASTING_PERIODS periods of the slowest motion: more costs its time
+        # for a precision no one needs (a lightly damped 128 Hz fork rings for 1500 frames at 500 fps)
+        lasting = min(lasting, math.ceil(LASTING_PERIODS * fps / lowest) + 1) if lowest else lasting
+        if lasting > length:
+            length = lasting
+            why += "; the motion lasts that long"
+    return length, why
+
+
+def _frame_step(
+    survey: Survey, length: int, *, default_frames: int, grid_scale: float, top_hz: float, rules: WindowRules
+) -> int:
+    """Frames skipped between analysed frames: as few as keep a window of ``length`` frames near the
+    default size, provided each frequency seen keeps at least ``rules.samples_per_period`` samples per
+    period (its strong harmonics stay below the Nyquist rate; lighting flicker may fold back, it is
+    rejected anyway), the motion between analysed frames stays below ``rules.max_step_grid_px``, and the
+    band's top (``top_hz``) stays below the Nyquist rate of the analysed frames."""
+    step = max(1, math.ceil((length - 1) / max(default_frames - 1, 1)))
+    step_max_rate = _max_step_for_rate(survey, samples_per_period=rules.samples_per_period)
+    per_frame_grid_px = survey.max_step_px * grid_scale
+    step_max_motion = max(1, math.floor(rules.max_step_grid_px / max(per_frame_grid_px, 1e-9)))
+    # Striding never folds the band's top away.
+    step_max_band = (
+        max(1, math.floor(BAND_NYQUIST_FRACTION * survey.fps / (2 * top_hz)))
+        if math.isfinite(top_hz)
+        else 1 << 30
+    )
+    return max(1, min(step, step_max_rate, step_max_motion, step_max_band))
+
+
+def _placed(onset: int, length: int, step: int, total_frames: int) -> tuple[int, int]:
+    """[start, stop) of a window of ``length`` frames from ``onset``, inside the clip, in whole steps."""
+    start = max(0, onset)
+    stop = min(total_frames, start + length)
+    if stop - start < min(length, total_frames):
+        start = max(0, stop - length)  # late ring-down: take the frames before it rather than fewer
+    # Whole steps: round the window up to the next analysed frame when the clip has it, else down.
+    intervals = math.ceil((stop - start - 1) / step)
+    if start + intervals * step + 1 > total_frames:
+        intervals = (stop - start - 1) // step
+    return start, start + intervals * step + 1
 
 
 def _resolution_needed(survey: Survey, peaks: list[Peak], *, lines: float, near_bins: float = 6.0) -> float:
@@ -606,6 +657,7 @@ __all__ = [
     "Plan",
     "StridedReader",
     "WindowPlan",
+    "WindowRules",
     "analysis_band",
     "band_edges",
     "default_band",

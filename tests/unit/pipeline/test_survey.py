@@ -18,7 +18,7 @@ from workers.pipeline.survey import (
     survey_motion,
 )
 from workers.pipeline.synth import Scene, SceneObject, SceneReader
-from workers.pipeline.window import plan_window
+from workers.pipeline.window import WindowRules, plan_window
 
 #: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
 pytestmark = pytest.mark.accuracy
@@ -106,12 +106,22 @@ def test_slow_motion_is_sampled_sparsely_over_enough_periods():
     assert (plan.stop_frame - plan.start_frame - 1) % plan.frame_step == 0
     # Motion between analysed frames is bounded: a tighter bound gives a smaller step.
     tight = plan_window(
-        survey, total_frames=1000, default_frames=256, max_samples=1024, grid_scale=1.0, max_step_grid_px=0.5
+        survey,
+        total_frames=1000,
+        default_frames=256,
+        max_samples=1024,
+        grid_scale=1.0,
+        rules=WindowRules(max_step_grid_px=0.5),
     )
     assert tight.frame_step < plan.frame_step
     # The memory budget caps the window whatever the frequency asks for.
     capped = plan_window(
-        survey, total_frames=1000, default_frames=64, max_samples=64, grid_scale=1.0, max_step_grid_px=0.5
+        survey,
+        total_frames=1000,
+        default_frames=64,
+        max_samples=64,
+        grid_scale=1.0,
+        rules=WindowRules(max_step_grid_px=0.5),
     )
     assert capped.samples <= 64
 

@@ -1,0 +1,72 @@
+"""The live window's buffers: what the final analysis gets is what the batch frame stream keeps of the
+same frames (block brightness and change taken as frames arrive, the camera's motion removed alike)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from workers.pipeline.camera import CameraRing, remove_camera_motion
+from workers.pipeline.flow import prepare_gray
+from workers.pipeline.light import block_brightness, block_change
+from workers.pipeline.live import LiveAnalysis, LiveConfig
+from workers.pipeline.synth import Scene, SceneObject, SceneReader
+
+
+def _pushed(scene: Scene, **config: object) -> tuple[LiveAnalysis, list[np.ndarray]]:
+    live = LiveAnalysis(
+        width=scene.width,
+        height=scene.height,
+        config=LiveConfig(fps=scene.fps, **config),  # type: ignore[arg-type]
+    )
+    rgbs = []
+    for frame in SceneReader(scene).frames():
+        live.push(rgb=frame.rgb, depth_m=None, timestamp_s=frame.timestamp_s)
+        rgbs.append(frame.rgb)
+    live.close()
+    return live, rgbs
+
+
+@pytest.mark.parametrize("release", [5, 40], ids=["motion-at-once", "window-slides-first"])
+def test_block_series_taken_as_frames_arrive_match_the_kept_frames(release: int) -> None:
+    obj = SceneObject(
+        center_px=(48, 36), size_px=(30, 24), frequency_hz=4.0, force_n=6.0, release_frame=release
+    )
+    scene = Scene(
+        width=96, height=72, frames=70, fps=30.0, objects=(obj,), seed=2, flicker=0.05, flicker_hz=3.0
+    )
+    live, rgbs = _pushed(scene, window_frames=32, lead_frames=4)
+    n = live._flows
+    buffers = live._window_buffers(n)
+    # The kept frames are the stream's frames base .. base + n: their grey frames on the grid give the
+    # same series as the batch stream's (workers.pipeline.stream).
+    smalls = [prepare_gray(rgbs[live._base + i], live.grid) for i in range(n + 1)]
+    assert buffers.brightness is not None
+    assert buffers.frame_change is not None
+    np.testing.assert_array_equal(buffers.brightness, np.stack([block_brightness(g) for g in smalls]))
+    changes = np.stack([block_change(a, b) for a, b in itertools.pairwise(smalls)])
+    np.testing.assert_array_equal(buffers.frame_change, changes)
+    if release == 40:
+        assert live._base > 0, "the window should have slid before the motion"
+    assert np.ptp(buffers.brightness) > 0  # the flicker shows
+
+
+def test_the_camera_motion_is_judged_as_the_batch_stream_judges_it() -> None:
+    obj = SceneObject(center_px=(48, 36), size_px=(30, 24), frequency_hz=4.0, force_n=6.0, release_frame=5)
+    scene = Scene(
+        width=96, height=72, frames=40, fps=30.0, objects=(obj,), seed=3, shake_px=1.5, shake_hz=2.0
+    )
+    live, rgbs = _pushed(scene, window_frames=64)
+    n = live._flows
+    raw = live._flow[:n].copy()
+    border = live._camera[:n].copy()
+    buffers = live._window_buffers(n)
+    ring = CameraRing(live.grid)
+    ring.set_texture(prepare_gray(rgbs[0], live.grid))
+    expected = remove_camera_motion(raw, border, ring)
+    assert expected.removed  # the shake is removed ...
+    assert buffers.camera_removed
+    assert buffers.camera_still_fraction == pytest.approx(expected.still_fraction)
+    np.testing.assert_array_equal(buffers.flow, raw)
