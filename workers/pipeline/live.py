@@ -38,12 +38,7 @@ from workers.pipeline.clipio.types import ClipInfo, Intrinsics
 from workers.pipeline.errors import AnalysisError, ClipError, ParameterError
 from workers.pipeline.flow import FlowConfig, flow_stream, prepare_gray
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
-from workers.pipeline.measure import (
-    DAMPING_ABS_FLOOR,
-    DAMPING_REL_FLOOR,
-    FREQUENCY_LINEWIDTH_FLOOR,
-    FREQUENCY_REL_FLOOR,
-)
+from workers.pipeline.measure import FREQUENCY_REL_FLOOR, damping_sd, frequency_sd_hz
 from workers.pipeline.mechanics import detect_release, release_amplitude, release_instant, stiffness_and_mass
 from workers.pipeline.metric import DEPTH_OVERRIDE_REL_SD, DEPTH_REL_SD
 from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, QualityNote, Stopwatch
@@ -559,15 +554,10 @@ class LiveAnalysis:
         # The fit's standard error assumes many samples; an early estimate has few degrees of freedom.
         dof = max(samples - 5, 1)
         t_factor = (_T975[dof - 1] if dof <= len(_T975) else 1.959964) / 1.959964
-        floor = max(
-            LIVE_FREQUENCY_REL_FLOOR, FREQUENCY_REL_FLOOR, FREQUENCY_LINEWIDTH_FLOOR * 2 * fit.damping_ratio
+        f_sd = frequency_sd_hz(
+            fit, rel_floor=max(LIVE_FREQUENCY_REL_FLOOR, FREQUENCY_REL_FLOOR), t_factor=t_factor
         )
-        stat = fit.frequency_sd_hz if math.isfinite(fit.frequency_sd_hz) else f
-        f_sd = math.hypot(stat * t_factor, floor * f)
-        z_stat = fit.damping_sd if math.isfinite(fit.damping_sd) else 1.0
-        zeta_sd = math.sqrt(
-            (z_stat * t_factor) ** 2 + (DAMPING_REL_FLOOR * fit.damping_ratio) ** 2 + DAMPING_ABS_FLOOR**2
-        )
+        zeta_sd = damping_sd(fit, t_factor=t_factor)
         kind = self.excitation.kind if self.excitation else None
         t_rel = release_instant(fit, fps=fps, excitation=kind)
         amp_px = release_amplitude(fit, t_release_s=t_rel, excitation=kind)

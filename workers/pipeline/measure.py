@@ -16,7 +16,7 @@ from workers.pipeline.confidence import Confidence
 from workers.pipeline.detection import regime_of
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.mechanics import Mechanics, release_amplitude, release_instant, stiffness_and_mass
-from workers.pipeline.metric import MetricAmplitude, metric_amplitude
+from workers.pipeline.metric import DepthContext, ImageAmplitude, MetricAmplitude, metric_amplitude
 from workers.pipeline.model import Excitation, ObjectMeasurement
 from workers.pipeline.peaks import Peak
 from workers.pipeline.ringdown import Ringdown, RingdownFit, sliding_ringdown
@@ -33,15 +33,24 @@ DAMPING_REL_FLOOR = 0.015
 DAMPING_ABS_FLOOR = 3e-4
 
 
-def frequency_sd_hz(fit: RingdownFit) -> float:
-    """The frequency's standard uncertainty: the fit's own with the systematic floors added."""
-    f_floor = max(FREQUENCY_REL_FLOOR, FREQUENCY_LINEWIDTH_FLOOR * 2 * abs(fit.damping_ratio))
-    return math.hypot(fit.frequency_sd_hz, f_floor * fit.frequency_hz)
+def frequency_sd_hz(
+    fit: RingdownFit, *, rel_floor: float = FREQUENCY_REL_FLOOR, t_factor: float = 1.0
+) -> float:
+    """The frequency's standard uncertainty: the fit's own, times ``t_factor`` (an early live estimate's
+    few degrees of freedom), with the systematic floors added (``rel_floor`` of the frequency, or a
+    fraction of the resonance's width). A fit that could not state its own counts as 100 %."""
+    f_floor = max(rel_floor, FREQUENCY_LINEWIDTH_FLOOR * 2 * abs(fit.damping_ratio))
+    stat = fit.frequency_sd_hz if math.isfinite(fit.frequency_sd_hz) else fit.frequency_hz
+    return math.hypot(stat * t_factor, f_floor * fit.frequency_hz)
 
 
-def damping_sd(fit: RingdownFit) -> float:
-    """The damping ratio's standard uncertainty: the fit's own with the systematic floors added."""
-    return math.sqrt(fit.damping_sd**2 + (DAMPING_REL_FLOOR * fit.damping_ratio) ** 2 + DAMPING_ABS_FLOOR**2)
+def damping_sd(fit: RingdownFit, *, t_factor: float = 1.0) -> float:
+    """The damping ratio's standard uncertainty: the fit's own, times ``t_factor``, with the systematic
+    floors added. A fit that could not state its own counts as 1."""
+    stat = fit.damping_sd if math.isfinite(fit.damping_sd) else 1.0
+    return math.sqrt(
+        (stat * t_factor) ** 2 + (DAMPING_REL_FLOOR * fit.damping_ratio) ** 2 + DAMPING_ABS_FLOOR**2
+    )
 
 
 def bounding_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int]:
@@ -220,19 +229,23 @@ def _metric(track: Track, release: _Release, region: Region, window: WindowConte
     full_mask, intrinsics, depth_override = region.full_mask, window.intrinsics, window.depth_override_m
     pixel_scale = window.pixel_scale
     metric = metric_amplitude(
-        fit=fit,
-        amplitude_px=amp_px,
-        amplitude_sd_px=amp_sd_px,
-        axis_px=track.axis_px,
-        source=track.source,
-        depth=buffers.depth,
-        region=track.region,
-        shifts_grid_px=None if track.shifts_px is None else track.shifts_px / pixel_scale,
-        times_from_onset_s=times_from_onset,
-        onset=onset,
+        ImageAmplitude(
+            fit=fit,
+            amplitude_px=amp_px,
+            amplitude_sd_px=amp_sd_px,
+            axis_px=track.axis_px,
+            source=track.source,
+        ),
+        DepthContext(
+            depth=buffers.depth,
+            region=track.region,
+            shifts_grid_px=None if track.shifts_px is None else track.shifts_px / pixel_scale,
+            times_from_onset_s=times_from_onset,
+            onset=onset,
+            override_m=depth_override,
+        ),
         full_mask=full_mask,
         intrinsics=intrinsics,
-        depth_override_m=depth_override,
     )
     return metric
 
