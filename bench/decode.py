@@ -61,7 +61,12 @@ def main() -> None:
         ),
         "ros1 bag realsense-sdk": lambda d: (
             w.write_ros_bag(
-                d / "rs.bag", rgb, stamps_ns=stamps, intrinsics=k, depth=depth, layout="realsense-sdk"
+                d / "rs.bag",
+                rgb,
+                stamps_ns=stamps,
+                intrinsics=k,
+                depth=depth,
+                options=w.RosBagOptions(layout="realsense-sdk"),
             ),
             {},
         ),
@@ -71,13 +76,25 @@ def main() -> None:
         ),
         "ros2 sqlite3 raw": lambda d: (
             w.write_ros_bag(
-                d / "s", rgb, stamps_ns=stamps, intrinsics=k, depth=depth, version=2, storage="sqlite3"
+                d / "s",
+                rgb,
+                stamps_ns=stamps,
+                intrinsics=k,
+                depth=depth,
+                version=2,
+                options=w.RosBagOptions(storage="sqlite3"),
             ),
             {},
         ),
         "ros2 mcap compressed": lambda d: (
             w.write_ros_bag(
-                d / "mc", rgb, stamps_ns=stamps, intrinsics=k, depth=depth, version=2, compressed=True
+                d / "mc",
+                rgb,
+                stamps_ns=stamps,
+                intrinsics=k,
+                depth=depth,
+                version=2,
+                options=w.RosBagOptions(compressed=True),
             ),
             {},
         ),

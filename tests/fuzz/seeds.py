@@ -90,7 +90,11 @@ def write_seeds(folder: Path) -> list[Path]:
     out.append(w.write_ros_bag(folder / "raw.bag", rgb, stamps_ns=stamps, intrinsics=INTRINSICS, depth=depth))
     out.append(
         w.write_ros_bag(
-            folder / "compressed.bag", rgb, stamps_ns=stamps, intrinsics=INTRINSICS, compressed=True
+            folder / "compressed.bag",
+            rgb,
+            stamps_ns=stamps,
+            intrinsics=INTRINSICS,
+            options=w.RosBagOptions(compressed=True),
         )
     )
     out.append(
@@ -100,7 +104,7 @@ def write_seeds(folder: Path) -> list[Path]:
             stamps_ns=stamps,
             intrinsics=INTRINSICS,
             depth=depth,
-            layout="realsense-sdk",
+            options=w.RosBagOptions(layout="realsense-sdk"),
         )
     )
     with tempfile.TemporaryDirectory() as tmp:
@@ -112,7 +116,7 @@ def write_seeds(folder: Path) -> list[Path]:
                 intrinsics=INTRINSICS,
                 depth=depth,
                 version=2,
-                storage=storage,  # type: ignore[arg-type]
+                options=w.RosBagOptions(storage=storage),  # type: ignore[arg-type]
             )
             single = next(bag.glob(f"*{suffix}"))
             target = folder / f"ros2{suffix}"

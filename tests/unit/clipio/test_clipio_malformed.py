@@ -236,7 +236,12 @@ def db3_topic_without_name(d: Path) -> tuple[Path, dict[str, Any]]:
     import sqlite3
 
     folder = w.write_ros_bag(
-        d / "b3", _rgb(), stamps_ns=_stamps(20), intrinsics=(50, 50, 20, 16), version=2, storage="sqlite3"
+        d / "b3",
+        _rgb(),
+        stamps_ns=_stamps(20),
+        intrinsics=(50, 50, 20, 16),
+        version=2,
+        options=w.RosBagOptions(storage="sqlite3"),
     )
     p = d / "noname.db3"
     p.write_bytes(next(folder.glob("*.db3")).read_bytes())

@@ -347,8 +347,7 @@ def test_ros1_bag_realsense_sdk_layout_depth_units_from_bag(truth: Truth, tmp_pa
         stamps_ns=truth.stamps_ns,
         intrinsics=truth.intrinsics,
         depth=depth_units,
-        layout="realsense-sdk",
-        depth_scale=units,
+        options=w.RosBagOptions(layout="realsense-sdk", depth_scale=units),
     )
     info, rgb, depth, _ = read_all(path)
     assert info.streams[0] == "/device_0/sensor_1/Color_0/image/data"
@@ -367,7 +366,7 @@ def test_ros2_bag_folder(truth: Truth, tmp_path: Path, storage: str) -> None:
         intrinsics=truth.intrinsics,
         depth=truth.depth,
         version=2,
-        storage=storage,  # type: ignore[arg-type]
+        options=w.RosBagOptions(storage=storage),  # type: ignore[arg-type]
     )
     assert detect_format(path) == "ros2-bag"
     info, rgb, depth, _ = read_all(path)
@@ -383,7 +382,7 @@ def test_ros2_zipped_bag_folder(truth: Truth, tmp_path: Path, storage: str) -> N
         stamps_ns=truth.stamps_ns,
         intrinsics=truth.intrinsics,
         depth=truth.depth,
-        storage=storage,
+        options=w.RosBagOptions(storage=storage),  # type: ignore[arg-type]
     )
     assert detect_format(path) == "ros2-bag"
     scratch = tmp_path / "scratch"
@@ -419,7 +418,7 @@ def test_ros2_compressed_image_and_compressed_depth(truth: Truth, tmp_path: Path
         intrinsics=truth.intrinsics,
         depth=truth.depth,
         version=2,
-        compressed=True,
+        options=w.RosBagOptions(compressed=True),
     )
     info, rgb, depth, _ = read_all(path)
     assert info.streams[0].endswith("/compressed")

@@ -63,7 +63,7 @@ def test_k4a_recording_with_calibration(truth: Any, tmp_path: Path, mode: str) -
         depth=truth.depth,
         fps=truth.fps,
         intrinsics=truth.intrinsics,
-        depth_mode=mode,
+        options=w.K4aOptions(depth_mode=mode),
     )
     assert detect_format(path) == "k4a-mkv"
     with open_clip(path) as reader:
@@ -99,7 +99,7 @@ def test_k4a_depth_delay_is_paired_by_time(truth: Any, tmp_path: Path) -> None:
         depth=truth.depth,
         fps=truth.fps,
         intrinsics=truth.intrinsics,
-        depth_delay_frames=0.3,
+        options=w.K4aOptions(depth_delay_frames=0.3),
     )
     with open_clip(path) as reader:
         assert reader.info.frames == len(truth.rgb)
@@ -284,8 +284,7 @@ def test_open3d_dataset(truth: Any, tmp_path: Path, as_zip: bool) -> None:
         intrinsics=ASYMMETRIC,
         units_per_metre=5000.0,
         fps=15.0,
-        image_format="png",
-        root="scene/",
+        options=w.Open3dOptions(image_format="png", root="scene/"),
     )
     assert detect_format(path) == "open3d"
     with open_clip(path) as reader:
@@ -315,7 +314,7 @@ def test_open3d_defaults_flags_and_intrinsic_json(truth: Any, tmp_path: Path) ->
         truth.rgb,
         depth=truth.depth,
         intrinsics=ASYMMETRIC,
-        intrinsic_name="intrinsic.json",
+        options=w.Open3dOptions(intrinsic_name="intrinsic.json"),
     )
     with open_clip(path) as reader:
         assert reader.info.depth_scale == 0.001  # Open3D's default: 1000 units per metre

@@ -119,11 +119,27 @@ def detect_format(path: str | Path) -> str:
     """
     path = Path(path)
     if path.is_dir():
-        names = [p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file()]
-        layout = _zip_layout(names)
-        if layout in ("ros2-bag", "tum", "zip-frames", "open3d"):
-            return layout
-        raise UnsupportedFormatError(f"{path.name}/: folder holds no clip ({_SUPPORTED})")
+        return _folder_format(path)
+    head = _read_head(path)
+    ext = path.suffix.lower()
+    fmt = _format_by_magic(path, head, ext)
+    if fmt is not None:
+        return fmt
+    _refuse_by_name_or_magic(path, head, ext)
+    return _video_format(path, head, ext)
+
+
+def _folder_format(path: Path) -> str:
+    """The format of a folder clip: a ROS 2 bag, a TUM sequence, ``rgb/`` frames or an Open3D dataset."""
+    names = [p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file()]
+    layout = _zip_layout(names)
+    if layout in ("ros2-bag", "tum", "zip-frames", "open3d"):
+        return layout
+    raise UnsupportedFormatError(f"{path.name}/: folder holds no clip ({_SUPPORTED})")
+
+
+def _read_head(path: Path) -> bytes:
+    """The first 64 bytes of the file; an unreadable or empty file is a :class:`ClipError`."""
     try:
         with path.open("rb") as fh:
             head = fh.read(64)
@@ -131,7 +147,14 @@ def detect_format(path: str | Path) -> str:
         raise ClipError(f"cannot read {path.name}: {exc.strerror or exc}") from exc
     if not head:
         raise ClipError(f"{path.name} is empty (0 bytes); upload the clip again")
-    ext = path.suffix.lower()
+    return head
+
+
+def _format_by_magic(path: Path, head: bytes, ext: str) -> str | None:
+    """The format that the file's magic bytes name (a bag, or a zip by its layout), else None.
+
+    A bag of an unsupported version, a corrupt zip or a zip of no clip layout raises.
+    """
     if head.startswith(b"#ROSBAG V2.0"):
         return "ros1-bag"
     if head.startswith(b"#ROSBAG V"):
@@ -145,21 +168,32 @@ def detect_format(path: str | Path) -> str:
     if head.startswith(b"SQLite format 3\x00"):
         return "ros2-bag"
     if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
-        try:
-            with zipfile.ZipFile(path) as zf:
-                names = zf.namelist()
-        except ZIP_ERRORS as exc:
-            kind = "npz" if ext == ".npz" else "zip"
-            raise ClipError(
-                f"{kind}: {path.name} is a zip archive but is corrupt or truncated ({exc}); upload it again"
-            ) from exc
-        layout = _zip_layout(names)
-        if layout is None:
-            listing = ", ".join(sorted({n.split("/", 1)[0] for n in visible(names)})[:8]) or "nothing"
-            raise UnsupportedFormatError(
-                f"{path.name}: zip holds no clip layout (found: {listing}); {_SUPPORTED}"
-            )
-        return layout
+        return _zip_format(path, ext)
+    return None
+
+
+def _zip_format(path: Path, ext: str) -> str:
+    """The clip layout inside the zip archive at ``path`` (see :func:`_zip_layout`)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = zf.namelist()
+    except ZIP_ERRORS as exc:
+        kind = "npz" if ext == ".npz" else "zip"
+        raise ClipError(
+            f"{kind}: {path.name} is a zip archive but is corrupt or truncated ({exc}); upload it again"
+        ) from exc
+    layout = _zip_layout(names)
+    if layout is None:
+        listing = ", ".join(sorted({n.split("/", 1)[0] for n in visible(names)})[:8]) or "nothing"
+        raise UnsupportedFormatError(
+            f"{path.name}: zip holds no clip layout (found: {listing}); {_SUPPORTED}"
+        )
+    return layout
+
+
+def _refuse_by_name_or_magic(path: Path, head: bytes, ext: str) -> None:
+    """Refuse what is not a video before FFmpeg probes it: a lone ``.npy`` array or image, or a file
+    named as a bag or an archive that lacks the format's magic bytes."""
     if head.startswith(b"\x93NUMPY"):
         raise UnsupportedFormatError(
             f"{path.name}: a single .npy array is not a clip; save an .npz with rgb=(T, H, W, 3) and fps"
@@ -174,6 +208,10 @@ def detect_format(path: str | Path) -> str:
         raise UnsupportedFormatError(
             f"{path.name}: a single image is not a clip; zip the frames as rgb/*.png (and depth/*.png)"
         )
+
+
+def _video_format(path: Path, head: bytes, ext: str) -> str:
+    """``k4a-mkv`` or ``video`` when FFmpeg finds a video stream; else why the file is not a clip."""
     why = _probe_video(path)
     if why is None:
         if head.startswith(_EBML_MAGIC):

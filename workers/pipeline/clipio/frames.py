@@ -144,6 +144,91 @@ def _parse_tum_list(archive: Archive, name: str, root: str) -> tuple[NDArray[np.
     return np.asarray(stamps, dtype=np.float64), files
 
 
+def _tum_frames(
+    archive: Archive, rel: dict[str, str], root: str, notes: list[str]
+) -> tuple[list[str], list[str] | None, NDArray[np.float64]]:
+    """The frame files of a TUM sequence from ``rgb.txt`` (and ``depth.txt``), in time order.
+
+    Parameters
+    ----------
+    archive : Archive
+    rel : dict
+        Archive names keyed by their name relative to the sequence's ``root`` folder.
+    root : str
+    notes : list of str
+        Appended to: the colour frames dropped for want of a depth frame, and how depth was paired.
+
+    Returns
+    -------
+    (rgb_files, depth_files, rgb_times)
+        Colour frame names, the depth frame nearest in time to each (None without ``depth.txt``), and
+        the colour frames' timestamps, seconds.
+    """
+    rgb_t, rgb_files = _parse_tum_list(archive, rel["rgb.txt"], root)
+    if len(rgb_files) == 0:
+        raise ClipError("tum: rgb.txt lists no frames")
+    order = np.argsort(rgb_t, kind="stable")
+    rgb_t = rgb_t[order]
+    rgb_files = [rgb_files[i] for i in order]
+    if "depth.txt" not in rel:
+        return rgb_files, None, rgb_t
+    d_t, d_files = _parse_tum_list(archive, rel["depth.txt"], root)
+    if len(d_files) == 0:
+        raise ClipError("tum: depth.txt lists no frames; remove it or add the depth frames")
+    d_order = np.argsort(d_t, kind="stable")
+    d_t = d_t[d_order]
+    d_files = [d_files[i] for i in d_order]
+    tol = pairing_tolerance(rgb_t, d_t)
+    idx, ok = associate_nearest(rgb_t, d_t, tol)
+    if int(ok.sum()) < len(ok):
+        notes.append(
+            f"{len(ok) - int(ok.sum())} colour frames had no depth frame within "
+            f"{tol * 1000:.0f} ms and were dropped"
+        )
+    rgb_t = rgb_t[ok]
+    rgb_files = [f for f, keep in zip(rgb_files, ok, strict=True) if keep]
+    depth_files = [d_files[i] for i in idx[ok]]
+    notes.append("depth paired to colour by nearest timestamp")
+    return rgb_files, depth_files, rgb_t
+
+
+def _folder_frames(rel: dict[str, str]) -> tuple[list[str], list[str] | None]:
+    """The ``rgb/`` and ``depth/`` frame files of the frame-folder layout, each in natural name order
+    (depth None without ``depth/``); ``rel`` keys archive names by their name relative to the root."""
+    rgb_files = sorted(
+        (n for r, n in rel.items() if r.startswith("rgb/") and r.lower().endswith(COLOR_EXTS)),
+        key=natural_key,
+    )
+    if not rgb_files:
+        listing = ", ".join(sorted({r.split("/", 1)[0] for r in rel})[:8]) or "nothing"
+        raise ClipError(
+            f"zip-frames: no colour frames under rgb/ (found: {listing}); put rgb/*.png or "
+            "rgb/*.jpg in the zip"
+        )
+    depth_list = sorted(
+        (n for r, n in rel.items() if r.startswith("depth/") and r.lower().endswith(".png")),
+        key=natural_key,
+    )
+    depth_files = depth_list or None
+    if depth_files is not None and len(depth_files) != len(rgb_files):
+        raise ClipError(
+            f"zip-frames: {len(rgb_files)} colour frames but {len(depth_files)} depth frames; "
+            "rgb/ and depth/ must hold one frame each per time step (or remove depth/)"
+        )
+    return rgb_files, depth_files
+
+
+def _stream_names(is_tum: bool, has_depth: bool, has_camera: bool) -> tuple[str, ...]:
+    """What ``ClipInfo.streams`` lists for a frame-folder or TUM clip."""
+    if is_tum:
+        streams = ["rgb.txt", *(["depth.txt"] if has_depth else [])]
+    else:
+        streams = ["rgb/"] + (["depth/"] if has_depth else [])
+    if has_camera:
+        streams.append("camera.json")
+    return tuple(streams)
+
+
 class FramesClip(ClosingReader):
     """Reader of the frame-folder (``zip-frames``) and TUM (``tum``) layouts; see the module docstring."""
 
@@ -182,54 +267,10 @@ class FramesClip(ClosingReader):
         notes: list[str] = []
         stamps: NDArray[np.float64] | None = None
         if is_tum:
-            rgb_t, rgb_files = _parse_tum_list(self._archive, rel["rgb.txt"], root)
-            if len(rgb_files) == 0:
-                raise ClipError("tum: rgb.txt lists no frames")
-            order = np.argsort(rgb_t, kind="stable")
-            rgb_t = rgb_t[order]
-            rgb_files = [rgb_files[i] for i in order]
-            depth_files: list[str] | None = None
-            if "depth.txt" in rel:
-                d_t, d_files = _parse_tum_list(self._archive, rel["depth.txt"], root)
-                if len(d_files) == 0:
-                    raise ClipError("tum: depth.txt lists no frames; remove it or add the depth frames")
-                d_order = np.argsort(d_t, kind="stable")
-                d_t = d_t[d_order]
-                d_files = [d_files[i] for i in d_order]
-                tol = pairing_tolerance(rgb_t, d_t)
-                idx, ok = associate_nearest(rgb_t, d_t, tol)
-                if int(ok.sum()) < len(ok):
-                    notes.append(
-                        f"{len(ok) - int(ok.sum())} colour frames had no depth frame within "
-                        f"{tol * 1000:.0f} ms and were dropped"
-                    )
-                rgb_t = rgb_t[ok]
-                rgb_files = [f for f, keep in zip(rgb_files, ok, strict=True) if keep]
-                depth_files = [d_files[i] for i in idx[ok]]
-                notes.append("depth paired to colour by nearest timestamp")
-            stamps = rgb_t
+            rgb_files, depth_files, stamps = _tum_frames(self._archive, rel, root, notes)
             default_scale = TUM_DEPTH_SCALE
         else:
-            rgb_files = sorted(
-                (n for r, n in rel.items() if r.startswith("rgb/") and r.lower().endswith(COLOR_EXTS)),
-                key=natural_key,
-            )
-            if not rgb_files:
-                listing = ", ".join(sorted({r.split("/", 1)[0] for r in rel})[:8]) or "nothing"
-                raise ClipError(
-                    f"zip-frames: no colour frames under rgb/ (found: {listing}); put rgb/*.png or "
-                    "rgb/*.jpg in the zip"
-                )
-            depth_list = sorted(
-                (n for r, n in rel.items() if r.startswith("depth/") and r.lower().endswith(".png")),
-                key=natural_key,
-            )
-            depth_files = depth_list or None
-            if depth_files is not None and len(depth_files) != len(rgb_files):
-                raise ClipError(
-                    f"zip-frames: {len(rgb_files)} colour frames but {len(depth_files)} depth frames; "
-                    "rgb/ and depth/ must hold one frame each per time step (or remove depth/)"
-                )
+            rgb_files, depth_files = _folder_frames(rel)
             default_scale = DEFAULT_DEPTH_SCALE
         # The frame count before any per-frame work; each lookup in constant time (a zip may list
         # hundreds of thousands of entries).
@@ -237,32 +278,7 @@ class FramesClip(ClosingReader):
         for f in rgb_files + (depth_files or []):
             if f not in self._archive:
                 raise ClipError(f"{fmt}: frame file {f!r} is listed but missing from the archive")
-
-        head = self._header(rgb_files[0])
-        width, height = head.width, head.height
-        check_size(fmt, width, height, limits)
-        check_decoded(fmt, len(rgb_files), width, height, depth_files is not None, limits)
-        max_frame_bytes = width * height * 8 + (1 << 20)
-        self._max_frame_bytes = max_frame_bytes
-        if depth_files is not None:
-            dh = self._header(depth_files[0])
-            if dh.kind != "png" or dh.bit_depth != 16 or dh.channels != 1:
-                raise ClipError(
-                    f"{fmt}: depth frame {depth_files[0]!r} must be a 16-bit single-channel PNG "
-                    f"(got {dh.kind}, {dh.bit_depth}-bit, {dh.channels} channel(s))"
-                )
-            if (dh.width, dh.height) != (width, height):
-                raise ClipError(
-                    f"{fmt}: depth frames are {dh.width}x{dh.height} but colour frames are {width}x{height}; "
-                    "depth must be aligned to colour, same size"
-                )
-        # Every frame's header, before any frame is decoded: a frame deep in the clip that declares a
-        # larger size (a decompression bomb) is refused here, at the upload's validation.
-        for names, is_depth in ((rgb_files, False), (depth_files or [], True)):
-            for name in names:
-                check_image(
-                    self._header(name), f"{fmt}: {name}", limits, size=(width, height), depth=is_depth
-                )
+        width, height = self._check_frame_headers(rgb_files, depth_files, limits)
 
         timing = resolve_timing(
             fmt,
@@ -275,11 +291,6 @@ class FramesClip(ClosingReader):
         self._rgb_files = rgb_files
         self._depth_files = depth_files
         self._depth_scale = depth_scale
-        streams = ["rgb/"] + (["depth/"] if depth_files else [])
-        if is_tum:
-            streams = ["rgb.txt", *(["depth.txt"] if depth_files else [])]
-        if "camera.json" in rel:
-            streams.append("camera.json")
         self._info = ClipInfo(
             format=fmt,
             frames=len(rgb_files),
@@ -292,13 +303,47 @@ class FramesClip(ClosingReader):
             intrinsics=camera_intrinsics(camera, overrides, width, height, fmt),
             timestamps_s=timing.timestamps_s,
             dropped_frames=timing.dropped_frames,
-            streams=tuple(streams),
+            streams=_stream_names(is_tum, bool(depth_files), "camera.json" in rel),
             measured_fps=timing.measured_fps,
             container_fps=camera.get("fps"),
             size_bytes=_size_of(self.path),
             depth_source=(root + "depth/") if depth_files is not None else None,
             notes=tuple(notes) + timing.notes,
         )
+
+    def _check_frame_headers(
+        self, rgb_files: list[str], depth_files: list[str] | None, limits: ReadLimits
+    ) -> tuple[int, int]:
+        """The clip's frame size (width, height), from the first colour frame, once every frame's header
+        declares it (and the depth frames are 16-bit single-channel PNGs).
+
+        Every header is read before any frame is decoded: a frame deep in the clip that declares a larger
+        size (a decompression bomb) is refused here, at the upload's validation.
+        """
+        fmt = self._fmt
+        head = self._header(rgb_files[0])
+        width, height = head.width, head.height
+        check_size(fmt, width, height, limits)
+        check_decoded(fmt, len(rgb_files), width, height, depth_files is not None, limits)
+        self._max_frame_bytes = width * height * 8 + (1 << 20)
+        if depth_files is not None:
+            dh = self._header(depth_files[0])
+            if dh.kind != "png" or dh.bit_depth != 16 or dh.channels != 1:
+                raise ClipError(
+                    f"{fmt}: depth frame {depth_files[0]!r} must be a 16-bit single-channel PNG "
+                    f"(got {dh.kind}, {dh.bit_depth}-bit, {dh.channels} channel(s))"
+                )
+            if (dh.width, dh.height) != (width, height):
+                raise ClipError(
+                    f"{fmt}: depth frames are {dh.width}x{dh.height} but colour frames are {width}x{height}; "
+                    "depth must be aligned to colour, same size"
+                )
+        for names, is_depth in ((rgb_files, False), (depth_files or [], True)):
+            for name in names:
+                check_image(
+                    self._header(name), f"{fmt}: {name}", limits, size=(width, height), depth=is_depth
+                )
+        return width, height
 
     def _header(self, name: str) -> ImageHeader:
         """The header of frame file ``name``, reading as little of it as its format needs."""

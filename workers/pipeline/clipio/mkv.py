@@ -377,6 +377,39 @@ def _stamps(pts: list[int], time_base: Any, what: str) -> NDArray[np.float64]:
     return np.sort(np.asarray(pts, np.int64)).astype(np.float64) * float(time_base)
 
 
+def _pair_depth(
+    color_t: NDArray[np.float64], depth_pts: list[int], time_base: Any, notes: list[str]
+) -> tuple[NDArray[np.intp], list[int]]:
+    """Pair each colour frame with the depth frame nearest in time.
+
+    Parameters
+    ----------
+    color_t : ndarray of float64
+        The colour frames' times, sorted, seconds.
+    depth_pts : list of int
+        The depth track's presentation times, in file order.
+    time_base : Fraction
+        The depth track's.
+    notes : list of str
+        Appended to: the colour frames dropped for want of a depth frame close enough.
+
+    Returns
+    -------
+    (keep, pts)
+        Indices of the colour frames kept, and the presentation time of each one's depth frame.
+    """
+    depth_t = _stamps(depth_pts, time_base, "depth")
+    tol = pairing_tolerance(color_t, depth_t)
+    idx, ok = associate_nearest(color_t, depth_t, tol)
+    if int(ok.sum()) < len(ok):
+        notes.append(
+            f"{len(ok) - int(ok.sum())} colour frames had no depth frame within {tol * 1000:.0f} ms "
+            "and were dropped"
+        )
+    sorted_depth_pts = sorted(depth_pts)
+    return np.nonzero(ok)[0], [sorted_depth_pts[i] for i in idx[ok]]
+
+
 class K4aClip(ClosingReader):
     """Reader of Azure Kinect / Orbbec ``.mkv`` recordings; see the module docstring."""
 
@@ -404,79 +437,27 @@ class K4aClip(ClosingReader):
 
     def _setup(self, container: Any) -> None:
         limits, overrides = self._limits, self._overrides
-        color, depth = find_tracks(container)
-        if color is None:
-            raise ClipError(
-                f"{FORMAT}: {self.path.name} has a depth track but no colour track; record with the colour "
-                "camera on (k4arecorder --color-mode)"
-            )
-        for stream, what in ((color, "colour"), (depth, "depth")):
-            if stream is not None and stream.codec_context is None:  # FFmpeg has no decoder for it
-                raise ClipError(
-                    f"{FORMAT}: {self.path.name}'s {what} track is in a codec FFmpeg cannot decode "
-                    f"({_tag(stream) or 'unknown'}); record with k4arecorder's standard formats"
-                )
+        color, depth = self._tracks(container)
         width, height = int(color.codec_context.width), int(color.codec_context.height)
         check_size(FORMAT, width, height, limits)
         self._color_index = color.index
         self._color_codec = str(color.codec_context.name)
         notes: list[str] = []
-        pts: dict[int, list[int]] = {color.index: []}
-        use_depth = depth is not None
         if depth is not None:
-            dsize = (int(depth.codec_context.width), int(depth.codec_context.height))
             self._depth_index = depth.index
-            self._depth_size = dsize
-            pts[depth.index] = []
-        try:
-            streams = [color] + ([depth] if depth is not None else [])
-            for packet in container.demux(*streams):
-                if packet.pts is None:
-                    continue
-                bucket = pts[packet.stream.index]
-                bucket.append(int(packet.pts))
-                if len(bucket) > limits.max_frames:
-                    check_frames(FORMAT, len(bucket), limits)
-        except _av_errors() as exc:
-            raise ClipError(f"{FORMAT}: {self.path.name} is corrupt or truncated ({_msg(exc)})") from exc
+            self._depth_size = (int(depth.codec_context.width), int(depth.codec_context.height))
+        pts = self._demux_pts(container, [color] + ([depth] if depth is not None else []))
         color_t = _stamps(pts[color.index], color.time_base, "colour")
         rate = color.average_rate or color.guessed_rate or color.base_rate
         declared = float(rate) if rate and math.isfinite(float(rate)) else None
 
         calibration_data = _calibration_attachment(container)
-        depth_mode_tag = None
+        use_depth = depth is not None
         if depth is not None:
-            depth_mode_tag = (depth.metadata or {}).get("K4A_DEPTH_MODE")
-            if depth_mode_tag is None:
-                depth_mode_tag = (container.metadata or {}).get("K4A_DEPTH_MODE")
-        if depth is not None and calibration_data is not None:
-            self._calibration = parse_calibration(
-                calibration_data, color_size=(width, height), depth_size=dsize, depth_mode=depth_mode_tag
-            )
-            notes.append(
-                f"depth ({self._calibration.depth_mode}, {dsize[0]}x{dsize[1]}) reprojected into the colour "
-                "image with calibration.json (pinhole; lens distortion not applied)"
-            )
-        elif depth is not None and dsize != (width, height):
-            use_depth = False
-            notes.append(
-                f"depth track ignored: its {dsize[0]}x{dsize[1]} frames differ from the {width}x{height} "
-                "colour frames and the recording has no calibration.json to align them"
-            )
-
+            use_depth = self._calibrate(container, depth, calibration_data, (width, height), notes)
         depth_pts: list[int] = []
         if use_depth and depth is not None:
-            depth_t = _stamps(pts[depth.index], depth.time_base, "depth")
-            tol = pairing_tolerance(color_t, depth_t)
-            idx, ok = associate_nearest(color_t, depth_t, tol)
-            if int(ok.sum()) < len(ok):
-                notes.append(
-                    f"{len(ok) - int(ok.sum())} colour frames had no depth frame within {tol * 1000:.0f} ms "
-                    "and were dropped"
-                )
-            sorted_depth_pts = sorted(pts[depth.index])
-            depth_pts = [sorted_depth_pts[i] for i in idx[ok]]
-            keep = np.nonzero(ok)[0]
+            keep, depth_pts = _pair_depth(color_t, pts[depth.index], depth.time_base, notes)
         else:
             keep = np.arange(len(color_t))
         sorted_color_pts = sorted(pts[color.index])
@@ -494,13 +475,7 @@ class K4aClip(ClosingReader):
         )
         self._depth_scale = overrides.depth_scale if overrides.depth_scale is not None else DEPTH_SCALE
         base = self._calibration.color if self._calibration is not None else None
-        streams = [f"COLOR:{self._color_codec} {width}x{height}"]
-        depth_source = None
-        if depth is not None:
-            depth_source = f"DEPTH track {depth.index} (b16g {dsize[0]}x{dsize[1]}, mm)"
-            streams.append(f"DEPTH:{_tag(depth) or depth.codec_context.name} {dsize[0]}x{dsize[1]}")
-        if calibration_data is not None:
-            streams.append("calibration.json")
+        streams, depth_source = self._stream_labels((width, height), depth, calibration_data is not None)
         self._info = ClipInfo(
             format=FORMAT,
             frames=count,
@@ -520,6 +495,101 @@ class K4aClip(ClosingReader):
             depth_source=depth_source if use_depth else None,
             notes=tuple(notes) + timing.notes,
         )
+
+    def _tracks(self, container: Any) -> tuple[Any, Any | None]:
+        """The colour and depth tracks (see :func:`find_tracks`); a recording without colour, or with a
+        track FFmpeg cannot decode, is a :class:`ClipError`."""
+        color, depth = find_tracks(container)
+        if color is None:
+            raise ClipError(
+                f"{FORMAT}: {self.path.name} has a depth track but no colour track; record with the colour "
+                "camera on (k4arecorder --color-mode)"
+            )
+        for stream, what in ((color, "colour"), (depth, "depth")):
+            if stream is not None and stream.codec_context is None:  # FFmpeg has no decoder for it
+                raise ClipError(
+                    f"{FORMAT}: {self.path.name}'s {what} track is in a codec FFmpeg cannot decode "
+                    f"({_tag(stream) or 'unknown'}); record with k4arecorder's standard formats"
+                )
+        return color, depth
+
+    def _demux_pts(self, container: Any, streams: list[Any]) -> dict[int, list[int]]:
+        """The presentation times of each of ``streams``' packets in file order, by stream index."""
+        limits = self._limits
+        pts: dict[int, list[int]] = {stream.index: [] for stream in streams}
+        try:
+            for packet in container.demux(*streams):
+                if packet.pts is None:
+                    continue
+                bucket = pts[packet.stream.index]
+                bucket.append(int(packet.pts))
+                if len(bucket) > limits.max_frames:
+                    check_frames(FORMAT, len(bucket), limits)
+        except _av_errors() as exc:
+            raise ClipError(f"{FORMAT}: {self.path.name} is corrupt or truncated ({_msg(exc)})") from exc
+        return pts
+
+    def _calibrate(
+        self,
+        container: Any,
+        depth: Any,
+        calibration_data: bytes | None,
+        color_size: tuple[int, int],
+        notes: list[str],
+    ) -> bool:
+        """Read the calibration that aligns depth to colour; returns whether the depth track is used.
+
+        Parameters
+        ----------
+        container : av.container.InputContainer
+        depth : PyAV video stream
+            The depth track (its size is ``self._depth_size``).
+        calibration_data : bytes or None
+            The ``calibration.json`` attachment.
+        color_size : (width, height)
+            Size of the colour frames.
+        notes : list of str
+            Appended to: how depth is aligned, or why it is ignored.
+
+        Returns
+        -------
+        bool
+            False when depth of another size than colour cannot be aligned (no calibration).
+        """
+        dsize = self._depth_size
+        depth_mode_tag = (depth.metadata or {}).get("K4A_DEPTH_MODE")
+        if depth_mode_tag is None:
+            depth_mode_tag = (container.metadata or {}).get("K4A_DEPTH_MODE")
+        if calibration_data is not None:
+            self._calibration = parse_calibration(
+                calibration_data, color_size=color_size, depth_size=dsize, depth_mode=depth_mode_tag
+            )
+            notes.append(
+                f"depth ({self._calibration.depth_mode}, {dsize[0]}x{dsize[1]}) reprojected into the colour "
+                "image with calibration.json (pinhole; lens distortion not applied)"
+            )
+        elif dsize != color_size:
+            notes.append(
+                f"depth track ignored: its {dsize[0]}x{dsize[1]} frames differ from the "
+                f"{color_size[0]}x{color_size[1]} colour frames and the recording has no calibration.json "
+                "to align them"
+            )
+            return False
+        return True
+
+    def _stream_labels(
+        self, color_size: tuple[int, int], depth: Any | None, has_calibration: bool
+    ) -> tuple[list[str], str | None]:
+        """What ``ClipInfo.streams`` lists, and the depth track's description (None without one)."""
+        streams = [f"COLOR:{self._color_codec} {color_size[0]}x{color_size[1]}"]
+        depth_source = None
+        if depth is not None:
+            dsize = self._depth_size
+            depth_source = f"DEPTH track {depth.index} (b16g {dsize[0]}x{dsize[1]}, mm)"
+            streams.append(f"DEPTH:{_tag(depth) or depth.codec_context.name} {dsize[0]}x{dsize[1]}")
+        if has_calibration:
+            streams.append("calibration.json")
+        return streams, depth_source
 
     @property
     def info(self) -> ClipInfo:

@@ -213,6 +213,60 @@ def _scalar(member: _Member, what: str) -> float:
     return float(arr.reshape(()))
 
 
+def _rgb_shape(rgb: _Member) -> tuple[int, int, int]:
+    """``(frames, height, width)`` of the ``rgb`` array, which must be (T, H, W, 3) uint8."""
+    if len(rgb.shape) != 4 or rgb.shape[3] != 3:
+        raise ClipError(f"npz: 'rgb' must have shape (T, H, W, 3), got {rgb.shape}")
+    if rgb.dtype != np.uint8:
+        raise ClipError(f"npz: 'rgb' must be uint8, got {rgb.dtype}; scale to 0..255 and cast to uint8")
+    frames, height, width = rgb.shape[:3]
+    return frames, height, width
+
+
+def _check_depth(depth: _Member, shape: tuple[int, int, int]) -> None:
+    """The ``depth`` array must be one map per colour frame, ``shape`` (T, H, W), uint16 or float."""
+    if depth.shape != shape:
+        raise ClipError(
+            f"npz: 'depth' has shape {depth.shape} but 'rgb' implies {shape}; "
+            "depth must be aligned to the colour frames, one map per frame"
+        )
+    if not (depth.dtype == np.uint16 or np.issubdtype(depth.dtype, np.floating)):
+        raise ClipError(f"npz: 'depth' must be uint16 (depth units) or float32 (metres), got {depth.dtype}")
+
+
+def _depth_scale(members: dict[str, _Member]) -> float:
+    """Metres per depth unit from ``depth_scale`` (a positive number), default 0.001."""
+    if "depth_scale" not in members:
+        return DEFAULT_DEPTH_SCALE
+    depth_scale = _scalar(members["depth_scale"], "metres per depth unit")
+    if not (math.isfinite(depth_scale) and depth_scale > 0):
+        raise ClipError(f"npz: depth_scale={depth_scale} must be a positive number of metres per unit")
+    return depth_scale
+
+
+def _timestamps(members: dict[str, _Member], frames: int) -> NDArray[np.float64] | None:
+    """The ``timestamps`` array (one finite value per frame) as seconds from the first; None without it."""
+    if "timestamps" not in members:
+        return None
+    ts = members["timestamps"].small(limit_bytes=64 * frames + 1024).astype(np.float64).ravel()
+    if ts.shape != (frames,):
+        raise ClipError(f"npz: 'timestamps' has {ts.size} values for {frames} frames")
+    if not np.all(np.isfinite(ts)):
+        raise ClipError("npz: 'timestamps' contains NaN or infinite values")
+    timestamps: NDArray[np.float64] = ts - ts[0]
+    return timestamps
+
+
+def _intrinsics(members: dict[str, _Member]) -> Intrinsics | None:
+    """The ``intrinsics`` array ``[fx, fy, cx, cy]``; None without it."""
+    if "intrinsics" not in members:
+        return None
+    k = members["intrinsics"].small().astype(np.float64).ravel()
+    if k.shape != (4,):
+        raise ClipError(f"npz: 'intrinsics' must be [fx, fy, cx, cy], got {k.size} values")
+    return Intrinsics(fx=float(k[0]), fy=float(k[1]), cx=float(k[2]), cy=float(k[3]))
+
+
 class NpzClip(ClosingReader):
     """Reader of the native ``.npz`` bundle. See the module docstring for the layout."""
 
@@ -239,6 +293,61 @@ class NpzClip(ClosingReader):
     def _validate(
         self, overrides: ClipOverrides, limits: ReadLimits
     ) -> tuple[ClipInfo, _Member, _Member | None]:
+        members = self._members()
+        rgb = members["rgb"]
+        frames, height, width = _rgb_shape(rgb)
+        check_frames("npz", frames, limits)
+        check_size("npz", width, height, limits)
+        check_decoded("npz", frames, width, height, "depth" in members, limits)
+        for member in members.values():
+            member.check_bounds(limits)
+        for streamed in (rgb, members.get("depth")):
+            if streamed is not None and streamed.fortran:
+                raise ClipError(
+                    f"npz: '{streamed.key}' is stored in Fortran order, which cannot be streamed; "
+                    "save it with np.ascontiguousarray"
+                )
+        depth = members.get("depth")
+        if depth is not None:
+            _check_depth(depth, (frames, height, width))
+        depth_scale = _depth_scale(members)
+        if overrides.depth_scale is not None:
+            depth_scale = overrides.depth_scale
+        timestamps = _timestamps(members, frames)
+        declared: float | None = None
+        if "fps" in members:
+            declared = _scalar(members["fps"], "frames per second")
+        timing = resolve_timing(
+            "npz",
+            user_fps=overrides.fps,
+            declared_fps=declared,
+            declared_source="bundle",
+            timestamps_s=timestamps,
+        )
+        intrinsics = overrides.intrinsics_over(_intrinsics(members), width, height)
+        info = ClipInfo(
+            format="npz",
+            frames=frames,
+            width=width,
+            height=height,
+            fps=timing.fps,
+            fps_source=timing.fps_source,
+            has_depth=depth is not None,
+            depth_scale=depth_scale if depth is not None else None,
+            intrinsics=intrinsics,
+            timestamps_s=timing.timestamps_s if timestamps is not None else None,
+            dropped_frames=timing.dropped_frames,
+            streams=tuple(sorted(members)),
+            measured_fps=timing.measured_fps,
+            container_fps=declared,
+            size_bytes=self.path.stat().st_size,
+            depth_source="depth" if depth is not None else None,
+            notes=timing.notes,
+        )
+        return info, rgb, depth
+
+    def _members(self) -> dict[str, _Member]:
+        """The bundle's known arrays by key (their headers read); ``rgb`` must be among them."""
         members: dict[str, _Member] = {}
         names = self._zip.namelist()
         if len(names) > 64:
@@ -254,95 +363,7 @@ class NpzClip(ClosingReader):
             raise ClipError(
                 f"npz: missing key 'rgb' (found: {found}); save the colour frames as rgb=(T, H, W, 3) uint8"
             )
-        rgb = members["rgb"]
-        if len(rgb.shape) != 4 or rgb.shape[3] != 3:
-            raise ClipError(f"npz: 'rgb' must have shape (T, H, W, 3), got {rgb.shape}")
-        if rgb.dtype != np.uint8:
-            raise ClipError(f"npz: 'rgb' must be uint8, got {rgb.dtype}; scale to 0..255 and cast to uint8")
-        frames, height, width = rgb.shape[:3]
-        check_frames("npz", frames, limits)
-        check_size("npz", width, height, limits)
-        check_decoded("npz", frames, width, height, "depth" in members, limits)
-        for member in members.values():
-            member.check_bounds(limits)
-        for streamed in (rgb, members.get("depth")):
-            if streamed is not None and streamed.fortran:
-                raise ClipError(
-                    f"npz: '{streamed.key}' is stored in Fortran order, which cannot be streamed; "
-                    "save it with np.ascontiguousarray"
-                )
-
-        depth = members.get("depth")
-        if depth is not None:
-            if depth.shape != (frames, height, width):
-                raise ClipError(
-                    f"npz: 'depth' has shape {depth.shape} but 'rgb' implies {(frames, height, width)}; "
-                    "depth must be aligned to the colour frames, one map per frame"
-                )
-            if not (depth.dtype == np.uint16 or np.issubdtype(depth.dtype, np.floating)):
-                raise ClipError(
-                    f"npz: 'depth' must be uint16 (depth units) or float32 (metres), got {depth.dtype}"
-                )
-
-        depth_scale = DEFAULT_DEPTH_SCALE
-        if "depth_scale" in members:
-            depth_scale = _scalar(members["depth_scale"], "metres per depth unit")
-            if not (math.isfinite(depth_scale) and depth_scale > 0):
-                raise ClipError(
-                    f"npz: depth_scale={depth_scale} must be a positive number of metres per unit"
-                )
-        if overrides.depth_scale is not None:
-            depth_scale = overrides.depth_scale
-
-        timestamps: NDArray[np.float64] | None = None
-        if "timestamps" in members:
-            ts = members["timestamps"].small(limit_bytes=64 * frames + 1024).astype(np.float64).ravel()
-            if ts.shape != (frames,):
-                raise ClipError(f"npz: 'timestamps' has {ts.size} values for {frames} frames")
-            if not np.all(np.isfinite(ts)):
-                raise ClipError("npz: 'timestamps' contains NaN or infinite values")
-            timestamps = ts - ts[0]
-
-        declared: float | None = None
-        if "fps" in members:
-            declared = _scalar(members["fps"], "frames per second")
-        timing = resolve_timing(
-            "npz",
-            user_fps=overrides.fps,
-            declared_fps=declared,
-            declared_source="bundle",
-            timestamps_s=timestamps,
-        )
-
-        base: Intrinsics | None = None
-        if "intrinsics" in members:
-            k = members["intrinsics"].small().astype(np.float64).ravel()
-            if k.shape != (4,):
-                raise ClipError(f"npz: 'intrinsics' must be [fx, fy, cx, cy], got {k.size} values")
-            base = Intrinsics(fx=float(k[0]), fy=float(k[1]), cx=float(k[2]), cy=float(k[3]))
-        intrinsics = overrides.intrinsics_over(base, width, height)
-
-        streams = tuple(sorted(members))
-        info = ClipInfo(
-            format="npz",
-            frames=frames,
-            width=width,
-            height=height,
-            fps=timing.fps,
-            fps_source=timing.fps_source,
-            has_depth=depth is not None,
-            depth_scale=depth_scale if depth is not None else None,
-            intrinsics=intrinsics,
-            timestamps_s=timing.timestamps_s if timestamps is not None else None,
-            dropped_frames=timing.dropped_frames,
-            streams=streams,
-            measured_fps=timing.measured_fps,
-            container_fps=declared,
-            size_bytes=self.path.stat().st_size,
-            depth_source="depth" if depth is not None else None,
-            notes=timing.notes,
-        )
-        return info, rgb, depth
+        return members
 
     @property
     def info(self) -> ClipInfo:

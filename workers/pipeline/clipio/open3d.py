@@ -86,6 +86,111 @@ def read_intrinsic(data: dict[str, Any], name: str, width: int, height: int) -> 
     return Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy)
 
 
+def _dataset_frames(rel: dict[str, str]) -> tuple[list[str], list[str]]:
+    """The ``color/`` and ``depth/`` frame files (depth empty without ``depth/``), each in natural name
+    order; ``rel`` keys archive names by their name relative to the dataset's root."""
+    color = sorted(
+        (n for r, n in rel.items() if r.startswith("color/") and r.lower().endswith(COLOR_EXTS)),
+        key=natural_key,
+    )
+    depth = sorted(
+        (n for r, n in rel.items() if r.startswith("depth/") and r.lower().endswith(".png")),
+        key=natural_key,
+    )
+    if not color:
+        raise ClipError(f"{FORMAT}: no colour frames under color/ (color/*.jpg or color/*.png)")
+    if depth and len(depth) != len(color):
+        raise ClipError(
+            f"{FORMAT}: {len(color)} colour frames but {len(depth)} depth frames; color/ and depth/ must "
+            "hold one frame each per time step (or remove depth/)"
+        )
+    return color, depth
+
+
+def _first_frames_size(
+    archive: Archive, color: list[str], depth: list[str], limits: ReadLimits
+) -> tuple[int, int]:
+    """The frame size (width, height) from the first colour frame's header, once the first depth frame
+    (if any) is a 16-bit single-channel PNG of that size."""
+    head = image_header(archive.read(color[0], head=_HEADER_BYTES), f"{FORMAT}: {color[0]}")
+    width, height = head.width, head.height
+    check_size(FORMAT, width, height, limits)
+    if depth:
+        dh = image_header(archive.read(depth[0], head=_HEADER_BYTES), f"{FORMAT}: {depth[0]}")
+        if dh.kind != "png" or dh.bit_depth != 16 or dh.channels != 1:
+            raise ClipError(
+                f"{FORMAT}: depth frame {depth[0]!r} must be a 16-bit single-channel PNG "
+                f"(got {dh.kind}, {dh.bit_depth}-bit, {dh.channels} channel(s))"
+            )
+        if (dh.width, dh.height) != (width, height):
+            raise ClipError(
+                f"{FORMAT}: depth frames are {dh.width}x{dh.height} but colour frames are "
+                f"{width}x{height}; Open3D datasets hold depth aligned to colour, same size"
+            )
+    return width, height
+
+
+def _read_metadata(
+    archive: Archive, rel: dict[str, str], width: int, height: int
+) -> tuple[Intrinsics | None, dict[str, Any], list[str]]:
+    """The dataset's intrinsics file and ``config.json``, where present.
+
+    Parameters
+    ----------
+    archive : Archive
+    rel : dict
+        Archive names keyed by their name relative to the dataset's root.
+    width, height : int
+        Frame size, pixels (an intrinsics file for another size is scaled to it).
+
+    Returns
+    -------
+    (intrinsics, config, files)
+        Intrinsics from the first of :data:`INTRINSIC_FILES` present (else None), the ``config.json``
+        object (else empty) and the names of the files read, in that order.
+    """
+    files: list[str] = []
+    intrinsics: Intrinsics | None = None
+    for name in INTRINSIC_FILES:
+        if name in rel:
+            intrinsics = read_intrinsic(read_json_object(archive, rel[name], FORMAT), name, width, height)
+            files.append(name)
+            break
+    config: dict[str, Any] = {}
+    if "config.json" in rel:
+        config = read_json_object(archive, rel["config.json"], FORMAT)
+        files.append("config.json")
+    return intrinsics, config, files
+
+
+def _config_values(
+    config: dict[str, Any], overrides: ClipOverrides, notes: list[str]
+) -> tuple[float | None, float]:
+    """The frame rate ``config.json`` declares (None if it declares none) and the depth scale in metres
+    per unit (the user's, else from ``config.json``'s units per metre, else Open3D's millimetres).
+
+    A ``depth_scale`` of at most 1 is read as metres per unit, noted in ``notes``.
+    """
+    file_fps = _number(config, "fps", "config.json")
+    if file_fps is not None and file_fps <= 0:
+        raise ClipError(f"{FORMAT}: config.json fps={file_fps} must be positive; fix it or pass --fps")
+    units = _number(config, "depth_scale", "config.json")
+    if units is not None and units <= 0:
+        raise ClipError(f"{FORMAT}: config.json depth_scale={units} must be positive (depth units per metre)")
+    if overrides.depth_scale is not None:
+        scale = overrides.depth_scale
+    elif units is None:
+        scale = 1.0 / DEFAULT_UNITS_PER_METRE
+    elif units <= 1.0:
+        scale = units
+        notes.append(
+            f"config.json depth_scale={units:g} read as metres per unit (Open3D uses units per metre)"
+        )
+    else:
+        scale = 1.0 / units
+    return file_fps, scale
+
+
 class Open3dClip(FramesClip):
     """Reader of Open3D RGB-D datasets; see the module docstring."""
 
@@ -105,71 +210,13 @@ class Open3dClip(FramesClip):
         root = common_root(names)
         rel = {n[len(root) :]: n for n in names if n.startswith(root)}
         self._fmt = self._archive.fmt = FORMAT
-        color = sorted(
-            (n for r, n in rel.items() if r.startswith("color/") and r.lower().endswith(COLOR_EXTS)),
-            key=natural_key,
-        )
-        depth = sorted(
-            (n for r, n in rel.items() if r.startswith("depth/") and r.lower().endswith(".png")),
-            key=natural_key,
-        )
-        if not color:
-            raise ClipError(f"{FORMAT}: no colour frames under color/ (color/*.jpg or color/*.png)")
-        if depth and len(depth) != len(color):
-            raise ClipError(
-                f"{FORMAT}: {len(color)} colour frames but {len(depth)} depth frames; color/ and depth/ must "
-                "hold one frame each per time step (or remove depth/)"
-            )
+        color, depth = _dataset_frames(rel)
         check_frames(FORMAT, len(color), limits)
-        head = image_header(self._archive.read(color[0], head=_HEADER_BYTES), f"{FORMAT}: {color[0]}")
-        width, height = head.width, head.height
-        check_size(FORMAT, width, height, limits)
-        if depth:
-            dh = image_header(self._archive.read(depth[0], head=_HEADER_BYTES), f"{FORMAT}: {depth[0]}")
-            if dh.kind != "png" or dh.bit_depth != 16 or dh.channels != 1:
-                raise ClipError(
-                    f"{FORMAT}: depth frame {depth[0]!r} must be a 16-bit single-channel PNG "
-                    f"(got {dh.kind}, {dh.bit_depth}-bit, {dh.channels} channel(s))"
-                )
-            if (dh.width, dh.height) != (width, height):
-                raise ClipError(
-                    f"{FORMAT}: depth frames are {dh.width}x{dh.height} but colour frames are "
-                    f"{width}x{height}; Open3D datasets hold depth aligned to colour, same size"
-                )
-
+        width, height = _first_frames_size(self._archive, color, depth, limits)
         notes: list[str] = []
-        streams = ["color/"] + (["depth/"] if depth else [])
-        intrinsics: Intrinsics | None = None
-        for name in INTRINSIC_FILES:
-            if name in rel:
-                intrinsics = read_intrinsic(
-                    read_json_object(self._archive, rel[name], FORMAT), name, width, height
-                )
-                streams.append(name)
-                break
-        config: dict[str, Any] = {}
-        if "config.json" in rel:
-            config = read_json_object(self._archive, rel["config.json"], FORMAT)
-            streams.append("config.json")
-        file_fps = _number(config, "fps", "config.json")
-        if file_fps is not None and file_fps <= 0:
-            raise ClipError(f"{FORMAT}: config.json fps={file_fps} must be positive; fix it or pass --fps")
-        units = _number(config, "depth_scale", "config.json")
-        if units is not None and units <= 0:
-            raise ClipError(
-                f"{FORMAT}: config.json depth_scale={units} must be positive (depth units per metre)"
-            )
-        if overrides.depth_scale is not None:
-            scale = overrides.depth_scale
-        elif units is None:
-            scale = 1.0 / DEFAULT_UNITS_PER_METRE
-        elif units <= 1.0:
-            scale = units
-            notes.append(
-                f"config.json depth_scale={units:g} read as metres per unit (Open3D uses units per metre)"
-            )
-        else:
-            scale = 1.0 / units
+        intrinsics, config, metadata_files = _read_metadata(self._archive, rel, width, height)
+        streams = ["color/"] + (["depth/"] if depth else []) + metadata_files
+        file_fps, scale = _config_values(config, overrides, notes)
         timing = resolve_timing(
             FORMAT, user_fps=overrides.fps, declared_fps=file_fps, declared_source="bundle", timestamps_s=None
         )

@@ -90,6 +90,28 @@ class _Topic:
     height: int = 0
 
 
+@dataclass
+class _Timeline:
+    """The clip's colour frames in time order, and the depth frame paired with each.
+
+    Attributes
+    ----------
+    c_order : ndarray of int
+        Bag-order index (among the colour messages) of each frame.
+    c_t : ndarray of float64
+        Each frame's time, seconds from the first.
+    d_order : ndarray of int, optional
+        Bag-order index (among the depth messages) of each depth message in time order; None without depth.
+    d_pos : ndarray of int, optional
+        Time-order position of each frame's depth message; None without depth.
+    """
+
+    c_order: NDArray[np.int64]
+    c_t: NDArray[np.float64]
+    d_order: NDArray[np.int64] | None = None
+    d_pos: NDArray[np.int64] | None = None
+
+
 class _Source:
     """Uniform access to a ROS 1 or ROS 2 bag: connections, raw messages, deserialisation, stamps."""
 
@@ -311,71 +333,15 @@ class BagClip(ClosingReader):
     def _setup(self) -> None:
         fmt, ov = self._fmt, self._overrides
         topics = self._topics()
-        if sum(t.count for t in topics.values()) == 0:
-            raise ClipError(f"{fmt}: {self.path.name} holds no messages; record the camera topics into it")
-        images = [t for t in topics.values() if t.msgtype in (IMAGE, COMPRESSED)]
-        if not images:
-            listing = ", ".join(f"{t.name} [{t.msgtype.rsplit('/', 1)[-1]}]" for t in topics.values())
-            raise ClipError(
-                f"{fmt}: no sensor_msgs/Image or CompressedImage topic in the bag (topics: {listing[:300]}); "
-                "record the camera's image topics"
-            )
-        for t in images:
-            self._classify(t)
-
-        color = self._pick(images, ov.color_topic, "color", topics)
-        depth: _Topic | None
-        if ov.depth_topic is not None and ov.depth_topic.lower() == "none":
-            depth = None
-        else:
-            depth = self._pick(images, ov.depth_topic, "depth", topics, required=False)
-        assert color is not None
+        images = self._image_topics(topics)
+        color, depth = self._choose_topics(images, topics)
         infos = [t for t in topics.values() if t.msgtype == CAMERA_INFO]
         notes: list[str] = []
         layout = "realsense-sdk" if color.name.startswith("/device_") else "ros"
         notes.append(f"layout: {layout}")
-
-        # Colour and depth timelines from header stamps, in one pass over the two topics.
-        conns = color.conns + (depth.conns if depth else [])
-        depth_ids = {id(c) for c in depth.conns} if depth else set()
-        c_stamps: list[int] = []
-        d_stamps: list[int] = []
-        for conn, logtime, raw in self._src.messages(conns):
-            stamp = self._src.stamp_ns(raw) or logtime
-            (d_stamps if id(conn) in depth_ids else c_stamps).append(stamp)
-            if len(c_stamps) > self._limits.max_frames:
-                check_frames(fmt, len(c_stamps), self._limits)
-        cs = np.asarray(c_stamps, dtype=np.int64)
-        c_order = np.argsort(cs, kind="stable")
-        cs_sorted = cs[c_order]
-        keep = np.ones(len(cs_sorted), bool)
-        keep[1:] = np.diff(cs_sorted) > 0
-        if not keep.all():
-            notes.append(f"{int((~keep).sum())} colour messages repeat an earlier stamp and were skipped")
-        c_order, cs_sorted = c_order[keep], cs_sorted[keep]
-        t0 = int(cs_sorted[0]) if len(cs_sorted) else 0
-        c_t = (cs_sorted - t0).astype(np.float64) * 1e-9
-        d_pos: NDArray[np.int64] | None = None
-        d_order: NDArray[np.int64] | None = None
-        if depth is not None:
-            if not d_stamps:
-                raise ClipError(f"{fmt}: depth topic {depth.name} holds no messages; pick another or none")
-            ds = np.asarray(d_stamps, dtype=np.int64)
-            d_order = np.argsort(ds, kind="stable")
-            d_t = (ds[d_order] - t0).astype(np.float64) * 1e-9
-            tol = pairing_tolerance(c_t, d_t)
-            idx, ok = associate_nearest(c_t, d_t, tol)
-            if not ok.all():
-                notes.append(
-                    f"{int((~ok).sum())} colour frames had no depth frame within {tol * 1000:.0f} ms and "
-                    "were dropped"
-                )
-            c_order, c_t, d_pos = c_order[ok], c_t[ok], idx[ok]
-            if len(c_t) == 0:
-                raise ClipError(
-                    f"{fmt}: colour ({color.name}) and depth ({depth.name}) frames never overlap in time; "
-                    "pick matching topics or depth_topic=none"
-                )
+        c_stamps, d_stamps = self._read_stamps(color, depth)
+        timeline = self._timeline(color, depth, c_stamps, d_stamps, notes)
+        c_order = timeline.c_order
         check_frames(fmt, len(c_order), self._limits)
         check_size(fmt, color.width, color.height, self._limits)
         check_decoded(fmt, len(c_order), color.width, color.height, depth is not None, self._limits)
@@ -387,43 +353,20 @@ class BagClip(ClosingReader):
         self._align: tuple[Any, ...] | None = None
         depth_scale: float | None = None
         if depth is not None:
-            same_size = (depth.width, depth.height) == (color.width, color.height)
-            same_k = depth_k is None or color_k is None or np.allclose(depth_k, color_k, rtol=0.01)
-            if "aligned" in depth.name.lower() or (same_size and same_k):
-                notes.append(f"depth topic {depth.name} is aligned to colour")
-            else:
-                if depth_k is None or color_k is None:
-                    raise ClipError(
-                        f"{fmt}: depth ({depth.width}x{depth.height}) is not aligned to colour "
-                        f"({color.width}x{color.height}) and a CameraInfo is missing to reproject it; record "
-                        "aligned depth (align_depth:=true) or the camera_info topics"
-                    )
-                rot, trans = self._extrinsics(topics, color, depth)
-                if rot is None:
-                    notes.append(
-                        "depth reprojected onto colour with intrinsics only (no extrinsics in the bag)"
-                    )
-                else:
-                    notes.append("depth reprojected onto colour with the recorded extrinsics")
-                self._align = (depth_k, color_k, rot, trans)
-            if depth.encoding == "32fc1":
-                depth_scale = 1.0
-            elif ov.depth_scale is not None:
-                depth_scale = ov.depth_scale
-            else:
-                depth_scale = self._depth_units(topics, depth)
+            self._align = self._alignment(topics, (color, color_k), (depth, depth_k), notes)
+            depth_scale = self._depth_scale_of(topics, depth)
         intr = ov.intrinsics_over(
             Intrinsics(*color_k) if color_k is not None else None, color.width, color.height
         )
         timing = resolve_timing(
-            fmt, user_fps=ov.fps, declared_fps=None, declared_source="container", timestamps_s=c_t
+            fmt, user_fps=ov.fps, declared_fps=None, declared_source="container", timestamps_s=timeline.c_t
         )
         self._color, self._depth = color, depth
         self._c_frame_of: dict[int, int] = {int(k): i for i, k in enumerate(c_order)}
         self._d_sorted_of: dict[int, int] = {}
-        if depth is not None and d_order is not None and d_pos is not None:
-            self._d_sorted_of = {int(k): i for i, k in enumerate(d_order)}
-            self._d_pos = d_pos
+        if depth is not None and timeline.d_order is not None and timeline.d_pos is not None:
+            self._d_sorted_of = {int(k): i for i, k in enumerate(timeline.d_order)}
+            self._d_pos = timeline.d_pos
         self._depth_scale = depth_scale or DEFAULT_DEPTH_SCALE
         streams = [color.name, *([depth.name] if depth else [])]
         streams += self._info_names
@@ -446,6 +389,152 @@ class BagClip(ClosingReader):
             depth_source=depth.name if depth else None,
             notes=tuple(notes) + timing.notes,
         )
+
+    def _image_topics(self, topics: dict[str, _Topic]) -> list[_Topic]:
+        """The bag's image topics, each classified (colour, depth, infrared or other) from its first
+        message; a bag with no messages or no image topic is a :class:`ClipError`."""
+        fmt = self._fmt
+        if sum(t.count for t in topics.values()) == 0:
+            raise ClipError(f"{fmt}: {self.path.name} holds no messages; record the camera topics into it")
+        images = [t for t in topics.values() if t.msgtype in (IMAGE, COMPRESSED)]
+        if not images:
+            listing = ", ".join(f"{t.name} [{t.msgtype.rsplit('/', 1)[-1]}]" for t in topics.values())
+            raise ClipError(
+                f"{fmt}: no sensor_msgs/Image or CompressedImage topic in the bag (topics: {listing[:300]}); "
+                "record the camera's image topics"
+            )
+        for t in images:
+            self._classify(t)
+        return images
+
+    def _choose_topics(self, images: list[_Topic], topics: dict[str, _Topic]) -> tuple[_Topic, _Topic | None]:
+        """The colour topic and the depth topic (None without one, or with ``depth_topic="none"``)."""
+        ov = self._overrides
+        color = self._pick(images, ov.color_topic, "color", topics)
+        depth: _Topic | None
+        if ov.depth_topic is not None and ov.depth_topic.lower() == "none":
+            depth = None
+        else:
+            depth = self._pick(images, ov.depth_topic, "depth", topics, required=False)
+        assert color is not None
+        return color, depth
+
+    def _read_stamps(self, color: _Topic, depth: _Topic | None) -> tuple[list[int], list[int]]:
+        """Header stamps (the receive time where a stamp is zero) of the colour and depth messages, in
+        bag order, read in one pass over the two topics."""
+        conns = color.conns + (depth.conns if depth else [])
+        depth_ids = {id(c) for c in depth.conns} if depth else set()
+        c_stamps: list[int] = []
+        d_stamps: list[int] = []
+        for conn, logtime, raw in self._src.messages(conns):
+            stamp = self._src.stamp_ns(raw) or logtime
+            (d_stamps if id(conn) in depth_ids else c_stamps).append(stamp)
+            if len(c_stamps) > self._limits.max_frames:
+                check_frames(self._fmt, len(c_stamps), self._limits)
+        return c_stamps, d_stamps
+
+    def _timeline(
+        self,
+        color: _Topic,
+        depth: _Topic | None,
+        c_stamps: list[int],
+        d_stamps: list[int],
+        notes: list[str],
+    ) -> _Timeline:
+        """Order the colour frames by stamp (dropping repeated stamps) and pair each with the nearest
+        depth frame (dropping colour frames with none close enough); what is dropped is noted.
+
+        Parameters
+        ----------
+        color, depth : _Topic
+            The chosen topics (``depth`` None without depth).
+        c_stamps, d_stamps : list of int
+            Their messages' stamps in bag order, nanoseconds.
+        notes : list of str
+            Appended to.
+
+        Returns
+        -------
+        _Timeline
+        """
+        fmt = self._fmt
+        cs = np.asarray(c_stamps, dtype=np.int64)
+        c_order = np.argsort(cs, kind="stable")
+        cs_sorted = cs[c_order]
+        keep = np.ones(len(cs_sorted), bool)
+        keep[1:] = np.diff(cs_sorted) > 0
+        if not keep.all():
+            notes.append(f"{int((~keep).sum())} colour messages repeat an earlier stamp and were skipped")
+        c_order, cs_sorted = c_order[keep], cs_sorted[keep]
+        t0 = int(cs_sorted[0]) if len(cs_sorted) else 0
+        c_t = (cs_sorted - t0).astype(np.float64) * 1e-9
+        if depth is None:
+            return _Timeline(c_order, c_t)
+        if not d_stamps:
+            raise ClipError(f"{fmt}: depth topic {depth.name} holds no messages; pick another or none")
+        ds = np.asarray(d_stamps, dtype=np.int64)
+        d_order = np.argsort(ds, kind="stable")
+        d_t = (ds[d_order] - t0).astype(np.float64) * 1e-9
+        tol = pairing_tolerance(c_t, d_t)
+        idx, ok = associate_nearest(c_t, d_t, tol)
+        if not ok.all():
+            notes.append(
+                f"{int((~ok).sum())} colour frames had no depth frame within {tol * 1000:.0f} ms and "
+                "were dropped"
+            )
+        c_order, c_t, d_pos = c_order[ok], c_t[ok], idx[ok]
+        if len(c_t) == 0:
+            raise ClipError(
+                f"{fmt}: colour ({color.name}) and depth ({depth.name}) frames never overlap in time; "
+                "pick matching topics or depth_topic=none"
+            )
+        return _Timeline(c_order, c_t, d_order, d_pos)
+
+    def _alignment(
+        self,
+        topics: dict[str, _Topic],
+        color: tuple[_Topic, tuple[float, float, float, float] | None],
+        depth: tuple[_Topic, tuple[float, float, float, float] | None],
+        notes: list[str],
+    ) -> tuple[Any, ...] | None:
+        """How depth maps are reprojected onto colour: None when the depth topic is already aligned,
+        else ``(depth_k, color_k, rotation, translation)`` (what is done is noted).
+
+        Parameters
+        ----------
+        topics : dict
+            Every topic of the bag (for the RealSense SDK extrinsics).
+        color, depth : (topic, intrinsics or None)
+            The chosen topics with their ``CameraInfo`` intrinsics (fx, fy, cx, cy).
+        notes : list of str
+            Appended to.
+        """
+        (color_t, color_k), (depth_t, depth_k) = color, depth
+        same_size = (depth_t.width, depth_t.height) == (color_t.width, color_t.height)
+        same_k = depth_k is None or color_k is None or np.allclose(depth_k, color_k, rtol=0.01)
+        if "aligned" in depth_t.name.lower() or (same_size and same_k):
+            notes.append(f"depth topic {depth_t.name} is aligned to colour")
+            return None
+        if depth_k is None or color_k is None:
+            raise ClipError(
+                f"{self._fmt}: depth ({depth_t.width}x{depth_t.height}) is not aligned to colour "
+                f"({color_t.width}x{color_t.height}) and a CameraInfo is missing to reproject it; record "
+                "aligned depth (align_depth:=true) or the camera_info topics"
+            )
+        rot, trans = self._extrinsics(topics, color_t, depth_t)
+        if rot is None:
+            notes.append("depth reprojected onto colour with intrinsics only (no extrinsics in the bag)")
+        else:
+            notes.append("depth reprojected onto colour with the recorded extrinsics")
+        return (depth_k, color_k, rot, trans)
+
+    def _depth_scale_of(self, topics: dict[str, _Topic], depth: _Topic) -> float:
+        """Metres per depth unit: 1 for float depth, else the user's, else the bag's (or the default)."""
+        if depth.encoding == "32fc1":
+            return 1.0
+        if self._overrides.depth_scale is not None:
+            return self._overrides.depth_scale
+        return self._depth_units(topics, depth)
 
     def _pick(
         self,

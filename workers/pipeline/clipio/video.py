@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.clipio._archive import ZIP_ERRORS, Archive, common_root, visible
 from workers.pipeline.clipio._common import (
+    Timing,
     check_decoded,
     check_frames,
     check_image,
@@ -295,6 +296,83 @@ def _open_depth_companion(
         raise
 
 
+@dataclass
+class _Probe:
+    """What demuxing a video stream's packets (without decoding them) tells.
+
+    Attributes
+    ----------
+    width, height : int
+        Frame size, pixels.
+    codec : str
+        The stream's codec (FFmpeg's name).
+    frames : int
+        Packets holding a frame.
+    declared_fps : float or None
+        The container's rate (average, else guessed, else base).
+    capture_fps : float or None
+        A slow-motion video's capture rate from its metadata.
+    time_base : Fraction or None
+    pts : list of int
+        The packets' presentation times (those that have one), in ``time_base`` units.
+    """
+
+    width: int
+    height: int
+    codec: str
+    frames: int
+    declared_fps: float | None
+    capture_fps: float | None
+    time_base: Fraction | None
+    pts: list[int]
+
+
+def _pts_seconds(pts: list[int], time_base: Fraction | None, count: int) -> NDArray[np.float64] | None:
+    """Frame times in seconds from the first, sorted, when each of the ``count`` frames has its own
+    presentation time; else None."""
+    if time_base is None or len(pts) != count or len(set(pts)) != count:
+        return None
+    arr = np.sort(np.asarray(pts, dtype=np.int64))
+    stamps: NDArray[np.float64] = (arr - arr[0]).astype(np.float64) * float(time_base)
+    return stamps
+
+
+def _video_timing(
+    user_fps: float | None,
+    capture: float | None,
+    declared: float | None,
+    stamps: NDArray[np.float64] | None,
+) -> tuple[Timing, bool]:
+    """The video's timing, and whether the capture rate from its metadata was used.
+
+    A phone's slow motion records its capture rate beside a slower playback rate: the capture rate is
+    the physics' clock (the user's ``user_fps`` still wins).
+    """
+    use_capture = (
+        user_fps is None
+        and capture is not None
+        and declared is not None
+        and abs(capture / declared - 1) > 0.05
+    )
+    timing = resolve_timing(
+        "video",
+        user_fps=capture if use_capture else user_fps,
+        declared_fps=declared,
+        declared_source="container",
+        timestamps_s=stamps,
+    )
+    if use_capture:
+        timing = dataclasses.replace(timing, fps_source="metadata")
+    return timing, use_capture
+
+
+def _name_rate_notes(hint: float | None, declared: float | None) -> tuple[str, ...]:
+    """A note when the file name names a rate that differs from the container's by over 5 %."""
+    if hint is not None and declared is not None and abs(hint / declared - 1) > 0.05:
+        return (f"the file name says {hint:g} fps: if the clip was filmed at that rate, give --fps {hint:g}",)
+    return ()
+
+
 class VideoClip(ClosingReader):
     """Reader of video files (optionally with companion depth); see the module docstring."""
 
@@ -358,28 +436,72 @@ class VideoClip(ClosingReader):
         camera: dict[str, float] = {}
         layout = "file"
         if self._archive is not None:
-            names = visible(self._archive.names)
-            root = common_root(names)
-            videos = [n for n in names if n.lower().endswith(VIDEO_EXTS)]
-            if len(videos) != 1:
-                raise ClipError(f"video: the zip must hold exactly one video file, found {len(videos)}")
-            self._member = videos[0]
-            if root + "camera.json" in names:
-                camera = read_camera_json(self._archive, root + "camera.json", "video")
-            dpng = sorted(
-                (n for n in names if n.startswith(root + "depth/") and n.lower().endswith(".png")),
-                key=natural_key,
-            )
-            if dpng and depth is None:
-                scale = camera_depth_scale(camera, overrides, DEFAULT_DEPTH_SCALE, "video")
-                self._depth = _png_depth_source(
-                    self._archive, dpng, scale, root + "depth/", limits, owns_archive=False
-                )
+            camera = self._read_zip_layout(self._archive, depth)
             layout = "zip"
         if depth is not None:
             self._depth, cam2 = _open_depth_companion(Path(depth), overrides, limits)
             camera = {**cam2, **camera}
 
+        probe = self._probe()
+        count, width, height = probe.frames, probe.width, probe.height
+        check_frames("video", count, limits)
+        check_decoded("video", count, width, height, self._depth is not None, limits)
+        stamps = _pts_seconds(probe.pts, probe.time_base, count)
+        declared = probe.declared_fps
+        if declared is not None and not math.isfinite(declared):
+            declared = None
+        timing, use_capture = _video_timing(overrides.fps, probe.capture_fps, declared, stamps)
+        hint = None if use_capture else capture_rate_in_name(self._member or self.path.name)
+        self._check_depth_matches(count, width, height)
+        self._frames = count
+        self._info = ClipInfo(
+            format="video",
+            frames=count,
+            width=width,
+            height=height,
+            fps=timing.fps,
+            fps_source=timing.fps_source,
+            has_depth=self._depth is not None,
+            depth_scale=self._depth.scale if self._depth is not None else None,
+            intrinsics=camera_intrinsics(camera, overrides, width, height, "video"),
+            timestamps_s=timing.timestamps_s,
+            dropped_frames=timing.dropped_frames,
+            streams=(f"video:{probe.codec}", *((self._depth.label,) if self._depth is not None else ())),
+            measured_fps=timing.measured_fps,
+            container_fps=declared,
+            size_bytes=self.path.stat().st_size,
+            depth_source=self._depth.label if self._depth is not None else None,
+            notes=(f"layout: {layout}", *timing.notes, *_name_rate_notes(hint, declared)),
+            capture_fps_hint=hint,
+            capture_fps_hint_source="the file name" if hint is not None else None,
+        )
+
+    def _read_zip_layout(self, archive: Archive, depth: str | Path | None) -> dict[str, float]:
+        """Find the one video file of a zip (it becomes the member read) and its ``depth/*.png`` maps
+        (the depth source unless a ``depth`` companion is given); returns ``camera.json``'s values."""
+        names = visible(archive.names)
+        root = common_root(names)
+        videos = [n for n in names if n.lower().endswith(VIDEO_EXTS)]
+        if len(videos) != 1:
+            raise ClipError(f"video: the zip must hold exactly one video file, found {len(videos)}")
+        self._member = videos[0]
+        camera: dict[str, float] = {}
+        if root + "camera.json" in names:
+            camera = read_camera_json(archive, root + "camera.json", "video")
+        dpng = sorted(
+            (n for n in names if n.startswith(root + "depth/") and n.lower().endswith(".png")),
+            key=natural_key,
+        )
+        if dpng and depth is None:
+            scale = camera_depth_scale(camera, self._overrides, DEFAULT_DEPTH_SCALE, "video")
+            self._depth = _png_depth_source(
+                archive, dpng, scale, root + "depth/", self._limits, owns_archive=False
+            )
+        return camera
+
+    def _probe(self) -> _Probe:
+        """Demux the video stream's packets (no decoding) for its size, codec, rates and frame times."""
+        limits = self._limits
         opened = self._open_container()
         container = opened.container
         try:
@@ -412,77 +534,23 @@ class VideoClip(ClosingReader):
             ) from exc
         finally:
             opened.close()
-        check_frames("video", count, limits)
-        check_decoded("video", count, width, height, self._depth is not None, limits)
-        stamps: NDArray[np.float64] | None = None
-        if tb is not None and len(pts) == count and len(set(pts)) == count:
-            arr = np.sort(np.asarray(pts, dtype=np.int64))
-            stamps = (arr - arr[0]).astype(np.float64) * float(tb)
-        if declared is not None and not math.isfinite(declared):
-            declared = None
-        # A phone's slow motion records its capture rate beside a slower playback rate: the capture rate
-        # is the physics' clock (the user's --fps still wins).
-        use_capture = (
-            overrides.fps is None
-            and capture is not None
-            and declared is not None
-            and abs(capture / declared - 1) > 0.05
-        )
-        timing = resolve_timing(
-            "video",
-            user_fps=capture if use_capture else overrides.fps,
-            declared_fps=declared,
-            declared_source="container",
-            timestamps_s=stamps,
-        )
-        if use_capture:
-            timing = dataclasses.replace(timing, fps_source="metadata")
-        hint = None if use_capture else capture_rate_in_name(self._member or self.path.name)
-        if self._depth is not None:
-            d = self._depth
-            if d.frames != count:
-                raise ClipError(
-                    f"video: {count} video frames but {d.frames} depth maps in {d.label}; the depth "
-                    "companion must hold one map per video frame"
-                )
-            if (d.width, d.height) != (width, height):
-                raise ClipError(
-                    f"video: depth maps are {d.width}x{d.height} but the video is {width}x{height}; "
-                    "depth must be aligned to the video frames"
-                )
-        self._frames = count
-        self._info = ClipInfo(
-            format="video",
-            frames=count,
-            width=width,
-            height=height,
-            fps=timing.fps,
-            fps_source=timing.fps_source,
-            has_depth=self._depth is not None,
-            depth_scale=self._depth.scale if self._depth is not None else None,
-            intrinsics=camera_intrinsics(camera, overrides, width, height, "video"),
-            timestamps_s=timing.timestamps_s,
-            dropped_frames=timing.dropped_frames,
-            streams=(f"video:{codec}", *((self._depth.label,) if self._depth is not None else ())),
-            measured_fps=timing.measured_fps,
-            container_fps=declared,
-            size_bytes=self.path.stat().st_size,
-            depth_source=self._depth.label if self._depth is not None else None,
-            notes=(
-                f"layout: {layout}",
-                *timing.notes,
-                *(
-                    (
-                        f"the file name says {hint:g} fps: if the clip was filmed at that rate, "
-                        f"give --fps {hint:g}",
-                    )
-                    if hint is not None and declared is not None and abs(hint / declared - 1) > 0.05
-                    else ()
-                ),
-            ),
-            capture_fps_hint=hint,
-            capture_fps_hint_source="the file name" if hint is not None else None,
-        )
+        return _Probe(width, height, codec, count, declared, capture, tb, pts)
+
+    def _check_depth_matches(self, count: int, width: int, height: int) -> None:
+        """The depth source must hold one map of the video's size per video frame."""
+        if self._depth is None:
+            return
+        d = self._depth
+        if d.frames != count:
+            raise ClipError(
+                f"video: {count} video frames but {d.frames} depth maps in {d.label}; the depth "
+                "companion must hold one map per video frame"
+            )
+        if (d.width, d.height) != (width, height):
+            raise ClipError(
+                f"video: depth maps are {d.width}x{d.height} but the video is {width}x{height}; "
+                "depth must be aligned to the video frames"
+            )
 
     @property
     def info(self) -> ClipInfo:

@@ -13,6 +13,7 @@ import shutil
 import tempfile
 import zipfile
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -237,6 +238,25 @@ def write_compressed(
     return path
 
 
+@dataclass(frozen=True)
+class Open3dOptions:
+    """How :func:`write_open3d` names and places the dataset's files (the defaults are Open3D's).
+
+    Attributes
+    ----------
+    image_format : ``"png"`` or ``"jpg"``
+        Encoding of the colour frames.
+    intrinsic_name : str
+        File name of the intrinsics document (Open3D also reads ``intrinsic.json``).
+    root : str
+        Folder inside the dataset that holds everything (e.g. ``"clip/"``), default the top level.
+    """
+
+    image_format: Literal["png", "jpg"] = "jpg"
+    intrinsic_name: str = "camera_intrinsic.json"
+    root: str = ""
+
+
 def write_open3d(
     path: str | Path,
     rgb: NDArray[np.uint8],
@@ -245,9 +265,7 @@ def write_open3d(
     intrinsics: Intr | None = None,
     units_per_metre: float | None = None,
     fps: float | None = None,
-    image_format: Literal["png", "jpg"] = "jpg",
-    intrinsic_name: str = "camera_intrinsic.json",
-    root: str = "",
+    options: Open3dOptions | None = None,
 ) -> Path:
     """Write an Open3D RGB-D dataset: ``color/``, ``depth/``, ``camera_intrinsic.json``, ``config.json``.
 
@@ -262,18 +280,21 @@ def write_open3d(
         Written as Open3D's column-major ``intrinsic_matrix``.
     units_per_metre, fps : optional
         Written to ``config.json`` as ``depth_scale`` and ``fps`` when given.
+    options : Open3dOptions, optional
+        Colour frame encoding, intrinsics file name and root folder; default Open3D's layout.
     """
     path = Path(path)
+    opts = options or Open3dOptions()
     files: dict[str, bytes] = {}
     for i, frame in enumerate(rgb):
-        encoded = _png(_bgr(frame)) if image_format == "png" else _jpg(_bgr(frame))
-        files[f"color/{i:06d}.{image_format}"] = encoded
+        encoded = _png(_bgr(frame)) if opts.image_format == "png" else _jpg(_bgr(frame))
+        files[f"color/{i:06d}.{opts.image_format}"] = encoded
         if depth is not None:
             files[f"depth/{i:06d}.png"] = _png(depth[i])
     if intrinsics is not None:
         fx, fy, cx, cy = intrinsics
         doc = {"width": int(rgb.shape[2]), "height": int(rgb.shape[1])}
-        files[intrinsic_name] = json.dumps(
+        files[opts.intrinsic_name] = json.dumps(
             {**doc, "intrinsic_matrix": [fx, 0, 0, 0, fy, 0, cx, cy, 1]}
         ).encode()
     config: dict[str, float] = {}
@@ -286,13 +307,36 @@ def write_open3d(
     if path.suffix.lower() == ".zip":
         with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
             for name, data in files.items():
-                zf.writestr(root + name, data)
+                zf.writestr(opts.root + name, data)
         return path
     for name, data in files.items():
-        target = path / root / name
+        target = path / opts.root / name
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_bytes(data)
     return path
+
+
+@dataclass(frozen=True)
+class K4aOptions:
+    """The depth camera :func:`write_k4a_mkv` simulates (the defaults are an Azure Kinect's).
+
+    Attributes
+    ----------
+    depth_mode : str
+        K4A depth mode (a key of :data:`~workers.pipeline.clipio.mkv.DEPTH_MODES`): the depth frame size.
+    depth_intrinsics : (fx, fy, cx, cy), optional
+        The depth camera's, pixels; default the colour camera's focal length scaled to the mode's frame,
+        centred.
+    translation_m : (x, y, z)
+        Depth-camera to colour-camera translation, metres.
+    depth_delay_frames : float
+        Depth frames are stamped this many frame periods after their colour frame.
+    """
+
+    depth_mode: str = "NFOV_2X2BINNED"
+    depth_intrinsics: Intr | None = None
+    translation_m: tuple[float, float, float] = (-0.032, -0.002, 0.004)
+    depth_delay_frames: float = 0.0
 
 
 def write_k4a_mkv(
@@ -302,19 +346,15 @@ def write_k4a_mkv(
     depth: NDArray[np.uint16] | None,
     fps: float,
     intrinsics: Intr | None = None,
-    depth_mode: str = "NFOV_2X2BINNED",
-    depth_intrinsics: Intr | None = None,
-    translation_m: tuple[float, float, float] = (-0.032, -0.002, 0.004),
-    depth_delay_frames: float = 0.0,
+    options: K4aOptions | None = None,
 ) -> Path:
     """Write an Azure Kinect style recording: MJPEG ``COLOR`` track, ``b16g`` ``DEPTH`` track (millimetres),
     K4A tags and, with ``intrinsics``, a ``calibration.json`` attachment.
 
-    With ``intrinsics`` the depth track is what the K4A depth camera of ``depth_mode`` would see:
-    ``depth`` (aligned to colour) is reprojected into a depth camera of ``depth_intrinsics`` (default: the
-    colour camera's focal length scaled to the mode's frame, centred) placed ``translation_m`` from the
-    colour camera. Without ``intrinsics`` the depth track holds ``depth`` as it is (colour size) and there
-    is no attachment.
+    With ``intrinsics`` the depth track is what the K4A depth camera of ``options.depth_mode`` would see:
+    ``depth`` (aligned to colour) is reprojected into a depth camera of ``options.depth_intrinsics``
+    placed ``options.translation_m`` from the colour camera. Without ``intrinsics`` the depth track holds
+    ``depth`` as it is (colour size) and there is no attachment.
 
     FFmpeg's Matroska muxer writes raw 16-bit video without a FourCC; the header is patched to ``b16g``
     (big-endian 16-bit grey), which is what ``k4arecorder`` writes and how FFmpeg reads K4A files back.
@@ -327,97 +367,163 @@ def write_k4a_mkv(
     fps : float
     intrinsics : (fx, fy, cx, cy), optional
         The colour camera's, pixels.
-    depth_delay_frames : float
-        Depth frames are stamped this many frame periods after their colour frame.
+    options : K4aOptions, optional
+        Depth mode, depth camera intrinsics and pose, depth delay; default an Azure Kinect's.
     """
-    import struct
+    path = Path(path)
+    opts = options or K4aOptions()
+    maps, calibration = _k4a_depth_track(rgb, depth, intrinsics, opts)
+    _mux_k4a(path, rgb, maps, calibration, fps, opts)
+    if maps is not None:
+        _patch_b16g(path, maps)
+    return path
+
+
+def _k4a_depth_track(
+    rgb: NDArray[np.uint8], depth: NDArray[np.uint16] | None, intrinsics: Intr | None, opts: K4aOptions
+) -> tuple[NDArray[np.uint16] | None, dict[str, Any] | None]:
+    """The depth track's maps and the ``calibration.json`` document of a K4A recording.
+
+    Parameters
+    ----------
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    depth : ndarray of uint16, shape (T, H, W), or None
+        Millimetres, aligned to the colour frames.
+    intrinsics : (fx, fy, cx, cy), optional
+        The colour camera's, pixels.
+    opts : K4aOptions
+
+    Returns
+    -------
+    (maps, calibration)
+        With ``depth`` and ``intrinsics``: ``depth`` reprojected into the depth camera of
+        ``opts.depth_mode`` (uint16 millimetres) and the calibration that describes both cameras.
+        Otherwise ``depth`` as it is and None.
+    """
+    from workers.pipeline.clipio._common import align_depth_to_color
+    from workers.pipeline.clipio.mkv import DEPTH_MODES, calibration_json
+
+    frames, height, width = int(rgb.shape[0]), int(rgb.shape[1]), int(rgb.shape[2])
+    if depth is None or intrinsics is None:
+        return depth, None
+    dw, dh = DEPTH_MODES[opts.depth_mode][2]
+    depth_intrinsics = opts.depth_intrinsics
+    if depth_intrinsics is None:
+        f = intrinsics[0] * dw / width
+        depth_intrinsics = (f, f, (dw - 1) / 2, (dh - 1) / 2)
+    rot = np.eye(3)
+    trans = np.asarray(opts.translation_m, np.float64)
+    calibration = calibration_json(
+        color=intrinsics,
+        color_size=(width, height),
+        depth=depth_intrinsics,
+        depth_mode=opts.depth_mode,
+        rotation=rot,
+        translation_m=trans,
+    )
+    maps = np.zeros((frames, dh, dw), np.uint16)
+    for i in range(frames):  # the colour view into the depth camera: the inverse of depth -> colour
+        view = align_depth_to_color(
+            depth[i].astype(np.float32) * np.float32(0.001), intrinsics, depth_intrinsics, (dh, dw),
+            rot.T, -rot.T @ trans,
+        )  # fmt: skip
+        maps[i] = np.where(np.isfinite(view), np.rint(view * 1000.0), 0).astype(np.uint16)
+    return maps, calibration
+
+
+def _mux_k4a(
+    path: Path,
+    rgb: NDArray[np.uint8],
+    maps: NDArray[np.uint16] | None,
+    calibration: dict[str, Any] | None,
+    fps: float,
+    opts: K4aOptions,
+) -> None:
+    """Encode the colour frames (MJPEG) and depth ``maps`` (raw 16-bit) into a K4A-tagged Matroska file.
+
+    Parameters
+    ----------
+    path : Path
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    maps : ndarray of uint16, shape (T, h, w), or None
+        The depth track's frames, millimetres; None writes no depth track.
+    calibration : dict or None
+        Attached as ``calibration.json`` (and the depth track tagged with ``opts.depth_mode``) when given.
+    fps : float
+    opts : K4aOptions
+    """
     from fractions import Fraction
 
     import av
 
-    from workers.pipeline.clipio._common import align_depth_to_color
-    from workers.pipeline.clipio.mkv import DEPTH_MODES, calibration_json
-
-    path = Path(path)
-    frames, height, width = int(rgb.shape[0]), int(rgb.shape[1]), int(rgb.shape[2])
-    calibration: dict[str, Any] | None = None
-    maps: NDArray[np.uint16] | None = depth
-    if depth is not None and intrinsics is not None:
-        dw, dh = DEPTH_MODES[depth_mode][2]
-        if depth_intrinsics is None:
-            f = intrinsics[0] * dw / width
-            depth_intrinsics = (f, f, (dw - 1) / 2, (dh - 1) / 2)
-        rot = np.eye(3)
-        trans = np.asarray(translation_m, np.float64)
-        calibration = calibration_json(
-            color=intrinsics,
-            color_size=(width, height),
-            depth=depth_intrinsics,
-            depth_mode=depth_mode,
-            rotation=rot,
-            translation_m=trans,
-        )
-        maps = np.zeros((frames, dh, dw), np.uint16)
-        for i in range(frames):  # the colour view into the depth camera: the inverse of depth -> colour
-            view = align_depth_to_color(
-                depth[i].astype(np.float32) * np.float32(0.001), intrinsics, depth_intrinsics, (dh, dw),
-                rot.T, -rot.T @ trans,
-            )  # fmt: skip
-            maps[i] = np.where(np.isfinite(view), np.rint(view * 1000.0), 0).astype(np.uint16)
     tick = Fraction(1, 1_000_000)
     period_us = round(1_000_000 / fps)
     with av.open(str(path), mode="w", format="matroska", options={"allow_raw_vfw": "1"}) as out:
         out.metadata["title"] = "Azure Kinect"
-        out.metadata["K4A_DEPTH_DELAY_NS"] = str(round(depth_delay_frames * period_us * 1000))
-        color: Any = out.add_stream("mjpeg", rate=Fraction(fps).limit_denominator(1001))
-        color.width, color.height, color.pix_fmt = width, height, "yuvj422p"
-        color.options = {"qmin": "1", "qmax": "3"}
-        color.time_base = tick
-        color.metadata["title"] = "COLOR"
-        color.metadata["K4A_COLOR_TRACK"] = "1"
-        color.metadata["K4A_COLOR_MODE"] = f"MJPG_{height}P"
+        out.metadata["K4A_DEPTH_DELAY_NS"] = str(round(opts.depth_delay_frames * period_us * 1000))
+        rate = Fraction(fps).limit_denominator(1001)
+        color = _k4a_color_stream(out, rate, tick, (int(rgb.shape[2]), int(rgb.shape[1])))
         dstream: Any = None
         if maps is not None:
-            dstream = out.add_stream("rawvideo", rate=Fraction(fps).limit_denominator(1001))
-            dstream.width, dstream.height, dstream.pix_fmt = (
-                int(maps.shape[2]),
-                int(maps.shape[1]),
-                "gray16be",
-            )
-            dstream.time_base = tick
-            dstream.metadata["title"] = "DEPTH"
-            dstream.metadata["K4A_DEPTH_TRACK"] = "2"
-            if calibration is not None:
-                dstream.metadata["K4A_DEPTH_MODE"] = depth_mode
+            mode = opts.depth_mode if calibration is not None else None
+            dstream = _k4a_depth_stream(out, rate, tick, (int(maps.shape[2]), int(maps.shape[1])), mode)
         if calibration is not None:
             out.add_attachment(
                 "calibration.json", "application/octet-stream", json.dumps(calibration).encode()
             )
-        for i in range(frames):
+        for i in range(int(rgb.shape[0])):
             vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb[i]), format="rgb24")
             vf.pts, vf.time_base = i * period_us, tick
             for packet in color.encode(vf.reformat(format="yuvj422p")):
                 out.mux(packet)
             if dstream is not None and maps is not None:
                 df = av.VideoFrame.from_ndarray(np.ascontiguousarray(maps[i]), format="gray16be")
-                df.pts, df.time_base = i * period_us + round(depth_delay_frames * period_us), tick
+                df.pts, df.time_base = i * period_us + round(opts.depth_delay_frames * period_us), tick
                 for packet in dstream.encode(df):
                     out.mux(packet)
         for stream in (color, dstream):
             if stream is not None:
                 for packet in stream.encode():
                     out.mux(packet)
-    if maps is not None:
-        dh, dw = int(maps.shape[1]), int(maps.shape[2])
-        data = path.read_bytes()
-        ffmpeg_header = struct.pack("<IiiHHI", 40, dw, -dh, 1, 16, 0)
-        if data.count(ffmpeg_header) != 1:
-            raise OSError(
-                f"{path.name}: the depth track's BITMAPINFOHEADER was not found once; cannot patch it"
-            )
-        k4a_header = struct.pack("<IiiHH4s", 40, dw, dh, 1, 16, b"b16g")
-        path.write_bytes(data.replace(ffmpeg_header, k4a_header))
-    return path
+
+
+def _k4a_color_stream(out: Any, rate: Any, tick: Any, size: tuple[int, int]) -> Any:
+    """Add the MJPEG ``COLOR`` track of ``size`` (width, height), with its K4A tags, to ``out``."""
+    width, height = size
+    color: Any = out.add_stream("mjpeg", rate=rate)
+    color.width, color.height, color.pix_fmt = width, height, "yuvj422p"
+    color.options = {"qmin": "1", "qmax": "3"}
+    color.time_base = tick
+    color.metadata["title"] = "COLOR"
+    color.metadata["K4A_COLOR_TRACK"] = "1"
+    color.metadata["K4A_COLOR_MODE"] = f"MJPG_{height}P"
+    return color
+
+
+def _k4a_depth_stream(out: Any, rate: Any, tick: Any, size: tuple[int, int], depth_mode: str | None) -> Any:
+    """Add the raw 16-bit ``DEPTH`` track of ``size`` (width, height) to ``out``, tagged with
+    ``depth_mode`` when given."""
+    dstream: Any = out.add_stream("rawvideo", rate=rate)
+    dstream.width, dstream.height, dstream.pix_fmt = size[0], size[1], "gray16be"
+    dstream.time_base = tick
+    dstream.metadata["title"] = "DEPTH"
+    dstream.metadata["K4A_DEPTH_TRACK"] = "2"
+    if depth_mode is not None:
+        dstream.metadata["K4A_DEPTH_MODE"] = depth_mode
+    return dstream
+
+
+def _patch_b16g(path: Path, maps: NDArray[np.uint16]) -> None:
+    """Rewrite the depth track's BITMAPINFOHEADER in the file at ``path`` with the ``b16g`` FourCC."""
+    import struct
+
+    dh, dw = int(maps.shape[1]), int(maps.shape[2])
+    data = path.read_bytes()
+    ffmpeg_header = struct.pack("<IiiHHI", 40, dw, -dh, 1, 16, 0)
+    if data.count(ffmpeg_header) != 1:
+        raise OSError(f"{path.name}: the depth track's BITMAPINFOHEADER was not found once; cannot patch it")
+    k4a_header = struct.pack("<IiiHH4s", 40, dw, dh, 1, 16, b"b16g")
+    path.write_bytes(data.replace(ffmpeg_header, k4a_header))
 
 
 # ------------------------------------------------------------------------------------------------ bags
@@ -475,36 +581,12 @@ def _camera_info_msg(typestore: Any, header: Any, w: int, h: int, k: Intr, ros1:
     return CameraInfo(**fields)
 
 
-def write_ros_bag(
-    path: str | Path,
-    rgb: NDArray[np.uint8],
-    *,
-    stamps_ns: Sequence[int] | NDArray[np.int64],
-    intrinsics: Intr,
-    depth: NDArray[np.uint16] | None = None,
-    depth_stamps_ns: Sequence[int] | NDArray[np.int64] | None = None,
-    version: Literal[1, 2] = 1,
-    layout: Literal["ros", "realsense-sdk"] = "ros",
-    storage: Literal["mcap", "sqlite3"] = "mcap",
-    compressed: bool = False,
-    depth_scale: float = 0.001,
-    extra_topics: bool = True,
-) -> Path:
-    """Write colour (+ depth) frames as a ROS 1 or ROS 2 bag with the ``rosbags`` writers.
+@dataclass(frozen=True)
+class RosBagOptions:
+    """How :func:`write_ros_bag` lays the bag out (the defaults are a plain realsense-ros recording).
 
-    Parameters
+    Attributes
     ----------
-    path : path-like
-        ROS 1: the ``.bag`` file. ROS 2: the bag folder to create (holds ``metadata.yaml``).
-    rgb : ndarray of uint8, shape (T, H, W, 3)
-    stamps_ns : sequence of int, length T
-        Header stamps (and receive times) of the colour frames, nanoseconds.
-    intrinsics : (fx, fy, cx, cy)
-    depth : ndarray of uint16, shape (Td, H, W), optional
-        Aligned depth in units of ``depth_scale``.
-    depth_stamps_ns : sequence of int, length Td, optional
-        Defaults to ``stamps_ns``.
-    version : 1 or 2
     layout : ``"ros"`` or ``"realsense-sdk"``
         ``ros``: realsense-ros topic names (``/camera/color/image_raw``,
         ``/camera/aligned_depth_to_color/image_raw``). ``realsense-sdk``: the RealSense Viewer layout
@@ -518,24 +600,28 @@ def write_ros_bag(
     extra_topics : bool
         Also write unrelated topics (IMU-like floats, tf) as real recordings have.
     """
-    from rosbags.typesys import Stores, get_typestore
 
-    path = Path(path)
-    ros1 = version == 1
-    typestore = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    if ros1:
-        from rosbags.rosbag1 import Writer as Ros1Writer
+    layout: Literal["ros", "realsense-sdk"] = "ros"
+    storage: Literal["mcap", "sqlite3"] = "mcap"
+    compressed: bool = False
+    depth_scale: float = 0.001
+    extra_topics: bool = True
 
-        writer: Any = Ros1Writer(path)
-    else:
-        from rosbags.rosbag2 import StoragePlugin
-        from rosbags.rosbag2 import Writer as Ros2Writer
 
-        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-        writer = Ros2Writer(path, version=9, storage_plugin=plugin)
-    d_stamps = list(stamps_ns if depth_stamps_ns is None else depth_stamps_ns)
-    h, w = rgb.shape[1:3]
+@dataclass(frozen=True)
+class _BagTopics:
+    """Topic names of one bag layout, and the image message type and depth encoding they carry."""
 
+    color: str
+    color_info: str
+    depth: str
+    depth_info: str
+    depth_encoding: str
+    image_type: str
+
+
+def _bag_topics(layout: str, compressed: bool) -> _BagTopics:
+    """The colour, depth and camera-info topics of ``layout`` (``/compressed`` image topics if asked)."""
     if layout == "realsense-sdk":
         c_img, c_info = "/device_0/sensor_1/Color_0/image/data", "/device_0/sensor_1/Color_0/info/camera_info"
         d_img, d_info = "/device_0/sensor_0/Depth_0/image/data", "/device_0/sensor_0/Depth_0/info/camera_info"
@@ -549,74 +635,146 @@ def write_ros_bag(
         c_img += "/compressed"
         d_img += "/compressedDepth"
     img_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+    return _BagTopics(c_img, c_info, d_img, d_info, d_enc, img_type)
 
-    def ser(msg: Any, msgtype: str) -> bytes:
-        if ros1:
-            return bytes(typestore.serialize_ros1(msg, msgtype))
-        return bytes(typestore.serialize_cdr(msg, msgtype))
 
+def _open_bag_writer(path: Path, ros1: bool, storage: str) -> Any:
+    """A ``rosbags`` writer (not yet opened) of a ROS 1 bag file or a ROS 2 bag folder at ``path``."""
+    if ros1:
+        from rosbags.rosbag1 import Writer as Ros1Writer
+
+        return Ros1Writer(path)
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Ros2Writer
+
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    return Ros2Writer(path, version=9, storage_plugin=plugin)
+
+
+@dataclass
+class _BagOut:
+    """An open bag and what all its camera messages share: one connection per topic (made on the
+    topic's first message), messages serialised for the bag's ROS version."""
+
+    writer: Any
+    typestore: Any
+    ros1: bool
+    topics: _BagTopics
+    intrinsics: Intr
+    size: tuple[int, int]  # (width, height)
+    options: RosBagOptions
+    conns: dict[str, Any] = field(default_factory=dict)
+
+    def write(self, topic: str, msgtype: str, stamp: int, msg: Any) -> None:
+        """Write ``msg`` of ``msgtype`` on ``topic`` with receive time ``stamp`` (ns)."""
+        if topic not in self.conns:
+            self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
+        if self.ros1:
+            raw = bytes(self.typestore.serialize_ros1(msg, msgtype))
+        else:
+            raw = bytes(self.typestore.serialize_cdr(msg, msgtype))
+        self.writer.write(self.conns[topic], stamp, raw)
+
+    def sdk_options(self, t0: int) -> None:
+        """The RealSense SDK's depth units and per-stream (identity) extrinsics, stamped ``t0``."""
+        f32 = self.typestore.types["std_msgs/msg/Float32"]
+        self.write(
+            "/device_0/sensor_0/option/Depth_Units/value",
+            "std_msgs/msg/Float32",
+            t0,
+            f32(data=self.options.depth_scale),
+        )
+        tf = self.typestore.types["geometry_msgs/msg/Transform"]
+        vec = self.typestore.types["geometry_msgs/msg/Vector3"]
+        quat = self.typestore.types["geometry_msgs/msg/Quaternion"]
+        for stream in ("/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"):
+            msg = tf(translation=vec(x=0.0, y=0.0, z=0.0), rotation=quat(x=0.0, y=0.0, z=0.0, w=1.0))
+            self.write(stream + "/tf/0", "geometry_msgs/msg/Transform", t0, msg)
+
+    def color(self, stamp: int, index: int, frame: NDArray[np.uint8]) -> None:
+        """Colour frame ``index`` with its camera info (and, every 4th frame, an unrelated topic)."""
+        ts, topics = self.typestore, self.topics
+        header = _header(ts, stamp, "camera_color_optical_frame", self.ros1, index)
+        if self.options.compressed:
+            msg = _compressed_msg(ts, header, _jpg(_bgr(frame)), "rgb8; jpeg compressed bgr8")
+        else:
+            msg = _image_msg(ts, header, frame, "rgb8")
+        self.write(topics.color, topics.image_type, stamp, msg)
+        info = _camera_info_msg(ts, header, *self.size, self.intrinsics, self.ros1)
+        self.write(topics.color_info, "sensor_msgs/msg/CameraInfo", stamp, info)
+        if self.options.extra_topics and index % 4 == 0:
+            f32 = ts.types["std_msgs/msg/Float32"]
+            self.write("/imu/temperature", "std_msgs/msg/Float32", stamp, f32(data=21.5))
+
+    def depth(self, stamp: int, index: int, frame: NDArray[np.uint16]) -> None:
+        """Depth frame ``index`` with its camera info."""
+        ts, topics = self.typestore, self.topics
+        header = _header(ts, stamp, "camera_color_optical_frame", self.ros1, index)
+        if self.options.compressed:
+            data = bytes(12) + _png(frame)
+            msg = _compressed_msg(ts, header, data, "16UC1; compressedDepth png")
+        else:
+            msg = _image_msg(ts, header, frame, topics.depth_encoding)
+        self.write(topics.depth, topics.image_type, stamp, msg)
+        info = _camera_info_msg(ts, header, *self.size, self.intrinsics, self.ros1)
+        self.write(topics.depth_info, "sensor_msgs/msg/CameraInfo", stamp, info)
+
+
+def write_ros_bag(
+    path: str | Path,
+    rgb: NDArray[np.uint8],
+    *,
+    stamps_ns: Sequence[int] | NDArray[np.int64],
+    intrinsics: Intr,
+    depth: NDArray[np.uint16] | None = None,
+    depth_stamps_ns: Sequence[int] | NDArray[np.int64] | None = None,
+    version: Literal[1, 2] = 1,
+    options: RosBagOptions | None = None,
+) -> Path:
+    """Write colour (+ depth) frames as a ROS 1 or ROS 2 bag with the ``rosbags`` writers.
+
+    Parameters
+    ----------
+    path : path-like
+        ROS 1: the ``.bag`` file. ROS 2: the bag folder to create (holds ``metadata.yaml``).
+    rgb : ndarray of uint8, shape (T, H, W, 3)
+    stamps_ns : sequence of int, length T
+        Header stamps (and receive times) of the colour frames, nanoseconds.
+    intrinsics : (fx, fy, cx, cy)
+    depth : ndarray of uint16, shape (Td, H, W), optional
+        Aligned depth in units of ``options.depth_scale``.
+    depth_stamps_ns : sequence of int, length Td, optional
+        Defaults to ``stamps_ns``.
+    version : 1 or 2
+    options : RosBagOptions, optional
+        Topic layout, ROS 2 storage plugin, compression, depth scale and extra topics; see
+        :class:`RosBagOptions` for the defaults.
+    """
+    from rosbags.typesys import Stores, get_typestore
+
+    opts = options or RosBagOptions()
+    path = Path(path)
+    ros1 = version == 1
+    typestore = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    writer = _open_bag_writer(path, ros1, opts.storage)
+    d_stamps = list(stamps_ns if depth_stamps_ns is None else depth_stamps_ns)
+    h, w = rgb.shape[1:3]
+    topics = _bag_topics(opts.layout, opts.compressed)
     with writer:
-        conns: dict[str, Any] = {}
-
-        def conn(topic: str, msgtype: str) -> Any:
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=typestore)
-            return conns[topic]
-
+        out = _BagOut(writer, typestore, ros1, topics, intrinsics, (w, h), opts)
         t0 = int(min(stamps_ns[0], d_stamps[0] if depth is not None else stamps_ns[0]))
-        if layout == "realsense-sdk":
-            f32 = typestore.types["std_msgs/msg/Float32"]
-            writer.write(
-                conn("/device_0/sensor_0/option/Depth_Units/value", "std_msgs/msg/Float32"),
-                t0,
-                ser(f32(data=depth_scale), "std_msgs/msg/Float32"),
-            )
-            tf = typestore.types["geometry_msgs/msg/Transform"]
-            vec = typestore.types["geometry_msgs/msg/Vector3"]
-            quat = typestore.types["geometry_msgs/msg/Quaternion"]
-            for stream in ("/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"):
-                msg = tf(translation=vec(x=0.0, y=0.0, z=0.0), rotation=quat(x=0.0, y=0.0, z=0.0, w=1.0))
-                writer.write(
-                    conn(stream + "/tf/0", "geometry_msgs/msg/Transform"),
-                    t0,
-                    ser(msg, "geometry_msgs/msg/Transform"),
-                )
+        if opts.layout == "realsense-sdk":
+            out.sdk_options(t0)
         events: list[tuple[int, int, str, int]] = [(int(s), 0, "c", i) for i, s in enumerate(stamps_ns)]
         if depth is not None:
             events += [(int(s), 1, "d", i) for i, s in enumerate(d_stamps)]
         events.sort()
         for stamp, _, kind, i in events:
             if kind == "c":
-                header = _header(typestore, stamp, "camera_color_optical_frame", ros1, i)
-                if compressed:
-                    msg = _compressed_msg(typestore, header, _jpg(_bgr(rgb[i])), "rgb8; jpeg compressed bgr8")
-                else:
-                    msg = _image_msg(typestore, header, rgb[i], "rgb8")
-                writer.write(conn(c_img, img_type), stamp, ser(msg, img_type))
-                info = _camera_info_msg(typestore, header, w, h, intrinsics, ros1)
-                writer.write(
-                    conn(c_info, "sensor_msgs/msg/CameraInfo"), stamp, ser(info, "sensor_msgs/msg/CameraInfo")
-                )
-                if extra_topics and i % 4 == 0:
-                    f32 = typestore.types["std_msgs/msg/Float32"]
-                    writer.write(
-                        conn("/imu/temperature", "std_msgs/msg/Float32"),
-                        stamp,
-                        ser(f32(data=21.5), "std_msgs/msg/Float32"),
-                    )
+                out.color(stamp, i, rgb[i])
             else:
                 assert depth is not None
-                header = _header(typestore, stamp, "camera_color_optical_frame", ros1, i)
-                if compressed:
-                    data = bytes(12) + _png(depth[i])
-                    msg = _compressed_msg(typestore, header, data, "16UC1; compressedDepth png")
-                else:
-                    msg = _image_msg(typestore, header, depth[i], d_enc)
-                writer.write(conn(d_img, img_type), stamp, ser(msg, img_type))
-                info = _camera_info_msg(typestore, header, w, h, intrinsics, ros1)
-                writer.write(
-                    conn(d_info, "sensor_msgs/msg/CameraInfo"), stamp, ser(info, "sensor_msgs/msg/CameraInfo")
-                )
+                out.depth(stamp, i, depth[i])
     return path
 
 
