@@ -54,8 +54,10 @@ def scan_probabilities(reader) -> tuple[float, np.ndarray]:
     plan = plan_analysis(reader.info, config, reader=reader)
     source, first, last = plan.source(reader)
     look = look_at(source, first, last)
-    band = analysis_band(config, plan.fps, look.count)
-    scan = front_of_look(look, sample_rate_hz=plan.fps, band_hz=band, max_objects=config.max_objects).scan
+    band = analysis_band(config, plan.sample_rate_hz, look.count)
+    scan = front_of_look(
+        look, sample_rate_hz=plan.sample_rate_hz, band_hz=band, max_objects=config.max_objects
+    ).scan
     lines = significant_bins(scan, limit=1.0)
     smallest = float(scan.calibration.p_clip(scan.z[lines[0]])) if lines else 1.0
     return smallest, np.asarray(scan.calibration.p_frequency(scan.z), np.float64)

@@ -53,6 +53,7 @@ from workers.pipeline.model import (
     QualityNote,
     RejectedPeak,
     Stopwatch,
+    Survey,
 )
 from workers.pipeline.peaks import Peak
 from workers.pipeline.quality import (
@@ -74,7 +75,6 @@ from workers.pipeline.segmentation import (
 )
 from workers.pipeline.spectra import PixelSpectra, background_spectrum, pixel_spectra
 from workers.pipeline.stream import FrameBuffers
-from workers.pipeline.survey import Survey
 from workers.pipeline.tracking import CoarseView
 from workers.pipeline.window import Plan, analysis_band, plan_analysis, survey_notes
 
@@ -203,10 +203,10 @@ def _analyze_default(
     source, first, last = plan.source(reader)
     look = look_at(source, first, last, progress=progress)
     watch.stream_lap(look.decode_s)
-    band = analysis_band(config, plan.fps, look.count)
+    band = analysis_band(config, plan.sample_rate_hz, look.count)
     front = front_of_look(
         look,
-        sample_rate_hz=plan.fps,
+        sample_rate_hz=plan.sample_rate_hz,
         band_hz=band,
         max_objects=config.max_objects,
         asserted=len(excitations),
@@ -298,7 +298,9 @@ class _Spectra:
         a window's flow."""
         if self.flow is None:
             return self.pixels
-        return pixel_spectra(self.flow, fps=self.pixels.fps, mix=tensor_sqrt(self.confidence))
+        return pixel_spectra(
+            self.flow, sample_rate_hz=self.pixels.sample_rate_hz, mix=tensor_sqrt(self.confidence)
+        )
 
 
 def window_confidence(buffers: FrameBuffers) -> Confidence:
@@ -328,19 +330,19 @@ def _window_spectra(
     """Per-pixel spectra of the window's flow (resampled onto a uniform grid when frames were dropped)."""
     confidence = window_confidence(buffers)
     flow = buffers.flow
-    if needs_resampling(buffers.times_s, plan.fps):
-        flow, _ = resample_uniform(flow, buffers.times_s, plan.fps)
+    if needs_resampling(buffers.times_s, plan.sample_rate_hz):
+        flow, _ = resample_uniform(flow, buffers.times_s, plan.sample_rate_hz)
         quality.append(
             QualityNote(
                 "uneven_timing",
-                f"frame times deviate from a uniform {plan.fps:g} fps grid "
+                f"frame times deviate from a uniform {plan.sample_rate_hz:g} fps grid "
                 f"({info.dropped_frames} dropped frames): spectra were resampled and the ring-down "
                 "was fitted at the true frame times",
                 "info",
             )
         )
     flow = np.asarray(flow, np.float32)
-    spectra = pixel_spectra(flow, fps=plan.fps)
+    spectra = pixel_spectra(flow, sample_rate_hz=plan.sample_rate_hz)
     summed = spectra.power.sum(axis=1, dtype=np.float64)
     return _Spectra(spectra, summed, background_spectrum(spectra), confidence, flow)
 
@@ -439,7 +441,7 @@ def _measure(
     by_label = assign_excitations(list(excitations), regions.labels_full, len(regions.seg.peaks))
     context = WindowContext(
         buffers=buffers,
-        sample_rate_hz=plan.fps,
+        sample_rate_hz=plan.sample_rate_hz,
         pixel_scale=box.pixel_scale,
         intrinsics=info.intrinsics,
         depth_override_m=config.depth_m,
@@ -486,7 +488,7 @@ def _to_rest(objects: list[ObjectMeasurement], labels: NDArray[np.uint16]) -> No
 
 def plan_band(plan: Plan, config: AnalysisConfig, buffers: FrameBuffers) -> tuple[float, float]:
     """The analysis band of the window (see :func:`workers.pipeline.window.analysis_band`)."""
-    return analysis_band(config, plan.fps, buffers.count)
+    return analysis_band(config, plan.sample_rate_hz, buffers.count)
 
 
 def _artefacts(
@@ -626,10 +628,10 @@ def _whole_frame_front(
     """The whole picture's findings made from a window's whole-frame buffers (a live stream's), and the
     buffers cut to the box that moves, as the batch path's second pass covers it
     (:func:`~workers.pipeline.fine.crop_to_motion`)."""
-    band = analysis_band(config, plan.fps, buffers.count)
+    band = analysis_band(config, plan.sample_rate_hz, buffers.count)
     front = front_of_buffers(
         buffers,
-        sample_rate_hz=plan.fps,
+        sample_rate_hz=plan.sample_rate_hz,
         band_hz=band,
         max_objects=config.max_objects,
         asserted=asserted,
@@ -664,14 +666,16 @@ def _judge(
         regions.seg,
         scan=front.scan,
         band_hz=front.band_hz,
-        sample_rate_hz=plan.fps,
+        sample_rate_hz=plan.sample_rate_hz,
         bin_hz=front.scan.bin_hz,
         footings=[_footing(front, regions, o.id) for o in objects],
     )
-    verdicts |= folded_verdicts(objects, plan.survey, sample_rate_hz=plan.fps, frame_step=plan.step)
+    verdicts |= folded_verdicts(
+        objects, plan.survey, sample_rate_hz=plan.sample_rate_hz, frame_step=plan.step
+    )
     # Artefact evidence is asked of what stands out of the noise only (what does not is just that).
     significant = [o for o in objects if o.id not in verdicts or verdicts[o.id].evidence != "not_significant"]
-    artefacts = _artefacts(significant, regions, front, sample_rate_hz=plan.fps)
+    artefacts = _artefacts(significant, regions, front, sample_rate_hz=plan.sample_rate_hz)
     dropped = {i: v for i, v in verdicts.items() if i not in by_label} | artefacts
     quality.extend(
         QualityNote(
@@ -686,7 +690,7 @@ def _judge(
     kept, labels = drop_objects(objects, regions.labels_full, dropped, quality)
     if plan.survey is not None:
         for obj in kept:
-            clip_regime(obj, plan.survey, clip_s=plan.survey.frames / plan.clip_fps)
+            clip_regime(obj, plan.survey, clip_s=plan.survey.frames / plan.fps)
     return kept, labels, rejected
 
 
@@ -704,9 +708,13 @@ def _notes(
         notes.append(NO_MOTION)
     if not info.has_depth and config.depth_m is None:
         notes.append(NO_DEPTH)
-    band = analysis_band(config, plan.fps, buffers.count)
+    band = analysis_band(config, plan.sample_rate_hz, buffers.count)
     window_s = float(buffers.times_s[-1])
-    notes.extend(object_quality_notes(objects, fps=plan.fps, band=band, bin_hz=plan.fps / buffers.count))
+    notes.extend(
+        object_quality_notes(
+            objects, sample_rate_hz=plan.sample_rate_hz, band=band, bin_hz=plan.sample_rate_hz / buffers.count
+        )
+    )
     notes.extend(resolution_notes(objects, bin_hz=spectra.pixels.bin_hz, window_s=window_s))
     notes.extend(frame_rate_notes(objects, info, window_s=window_s))
     notes.extend(survey_notes(plan, objects))
@@ -746,7 +754,7 @@ def _analysis(
         frequency_map_hz=fmap,
         frequency_map_valid=fvalid,
         frame_rgb=buffers.first_rgb,
-        fps=plan.clip_fps,
+        fps=plan.fps,
         fps_source=window.info.fps_source or "unknown",
         frames_used=(plan.start, plan.start + buffers.count * plan.step + 1),
         band_hz=front.band_hz,

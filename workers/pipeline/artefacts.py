@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.light import FLICKER_ROWS, FLICKER_SNR, flickering_rows, floor_of
 from workers.pipeline.model import RejectedPeak
-from workers.pipeline.peaks import Peak, find_peaks
+from workers.pipeline.peaks import Peak, PeakCriteria, find_peaks
 from workers.pipeline.segmentation import band_mask
 
 #: Keyframe evidence: pulses every K frames stand this many robust deviations above the typical change
@@ -208,7 +208,7 @@ class WindowEvidence:
         found = self._cache["pattern"]
         return found if isinstance(found, int) and found > 0 else None
 
-    def keyframes(self, frequency_hz: float, sd_hz: float, fps: float) -> Finding | None:
+    def keyframes(self, frequency_hz: float, sd_hz: float, sample_rate_hz: float) -> Finding | None:
         """Why a peak is a codec's pulse, or None: the whole picture changes every K frames (keyframes,
         :meth:`keyframe_period`) or its flow's noise follows a pattern of m frames (the types of frames a
         codec cycles through, :meth:`frame_pattern`), and the peak lies at n fps / (g K) (g:
@@ -226,7 +226,7 @@ class WindowEvidence:
                 )
                 combs.append(
                     (
-                        fps / (groups * period),
+                        sample_rate_hz / (groups * period),
                         f"the whole picture changes every {every}",
                         {"keyframe_period_frames": float(period), "pattern_frames": float(groups * period)},
                     )
@@ -235,7 +235,7 @@ class WindowEvidence:
         if pattern is not None:
             combs.append(
                 (
-                    fps / pattern,
+                    sample_rate_hz / pattern,
                     f"the picture's flow noise follows a pattern of {pattern} frames "
                     "(the codec's frame types)",
                     {"pattern_frames": float(pattern)},
@@ -283,7 +283,11 @@ class WindowEvidence:
         if "camera_peaks" not in self._cache:
             band = (self.frequencies_hz[1], self.frequencies_hz[-1])
             found = find_peaks(
-                self.frequencies_hz, power, band_hz=band, noise=floor_of(power), min_snr_db=10.0
+                self.frequencies_hz,
+                power,
+                band_hz=band,
+                noise=floor_of(power),
+                criteria=PeakCriteria(min_snr_db=10.0),
             )
             self._cache["camera_peaks"] = [
                 (p.frequency_hz, float(power[self._near(p.frequency_hz, p.width_bins)].sum())) for p in found
@@ -299,7 +303,7 @@ class WindowEvidence:
         *,
         region_power: float,
         ring_power: NDArray[np.float32] | None,
-        fps: float,
+        sample_rate_hz: float,
         sd_hz: float | None = None,
     ) -> Finding | None:
         """Why a peak is the camera's own motion, or None.
@@ -319,7 +323,7 @@ class WindowEvidence:
         ring_power : ndarray of float32, shape (R,), or None
             Band power of each border pixel at the peak (before removal it shows whether the border
             moved as a whole; after removal it is what is left).
-        fps : float
+        sample_rate_hz : float
             Rate of the samples, Hz.
         """
         power = self._border_power()
@@ -329,7 +333,9 @@ class WindowEvidence:
         camera = float(power[near].sum())
         floor = float(floor_of(power)[near].max()) * max(int(near.sum()), 1)
         if camera < CAMERA_SNR * floor:
-            return self._camera_overtone(frequency_hz, region_power=region_power, fps=fps, sd_hz=sd_hz)
+            return self._camera_overtone(
+                frequency_hz, region_power=region_power, sample_rate_hz=sample_rate_hz, sd_hz=sd_hz
+            )
         if not self.camera_removed:
             # The border's median moved at the peak; did the whole border move, or an object in it?
             if ring_power is None or self.ring_textured is None:
@@ -353,7 +359,7 @@ class WindowEvidence:
         )
 
     def _camera_overtone(
-        self, frequency_hz: float, *, region_power: float, fps: float, sd_hz: float | None
+        self, frequency_hz: float, *, region_power: float, sample_rate_hz: float, sd_hz: float | None
     ) -> Finding | None:
         """An overtone of the camera's shake (also folded back) left where the shake was removed: at its
         frequency within ``KEYFRAME_SD`` of the peak's standard uncertainty (a bin when not known)."""
@@ -363,7 +369,7 @@ class WindowEvidence:
         for shake_hz, shake_power in self.camera_frequencies():
             for order in range(2, 4):
                 multiple = order * shake_hz
-                image = abs(multiple - fps * round(multiple / fps))
+                image = abs(multiple - sample_rate_hz * round(multiple / sample_rate_hz))
                 if abs(image - frequency_hz) <= slack and region_power < CAMERA_OVERTONE_POWER * shake_power:
                     folded = "" if image == multiple else f" (folded back from {multiple:.4g} Hz)"
                     return Finding(
@@ -631,7 +637,7 @@ def artefact_verdict(
         width_bins,
         region_power=suspect.region_power,
         ring_power=suspect.ring_power,
-        fps=sample_rate_hz,
+        sample_rate_hz=sample_rate_hz,
         sd_hz=sd_hz,
     )
     if found is None:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.spectra import median_rows
+from workers.pipeline.fft import median_rows
 
 #: RMS per-frame motion of the picture's border (grid pixels) above which it may be camera motion.
 CAMERA_MOTION_MIN_PX = 0.05

@@ -30,20 +30,16 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.model import ObjectMeasurement, QualityNote, RejectedPeak
+from workers.pipeline.model import ObjectMeasurement, QualityNote, RejectedPeak, Survey
 from workers.pipeline.peaks import Peak, PeakPolicy, interpolate_peak
 from workers.pipeline.ringdown import Ringdown
 from workers.pipeline.segmentation import Segmentation
 from workers.pipeline.significance import MAX_FALSE_ALARM, MotionScan
-
-if TYPE_CHECKING:
-    from workers.pipeline.survey import Survey
 
 #: The evidence that a peak is an artefact of the camera or the light (rather than no object).
 ARTEFACT_EVIDENCE = ("camera_motion", "illumination_flicker", "codec_keyframes")

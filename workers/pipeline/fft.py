@@ -1,19 +1,17 @@
-"""FFT plumbing: FFTW plans built once per shape and reused, the fast transform length, and the FFT
-library's import.
+"""FFT plumbing: FFTW plans built once per shape and reused, the fast transform length, the FFT
+library's import, and the per-pixel band summaries (median, maximum) the transforms fill block by block.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.confidence import mixed_pair
-
-if TYPE_CHECKING:
-    from workers.pipeline.spectra import BandSummary
 
 
 @functools.cache
@@ -30,6 +28,65 @@ def _fftw() -> Any:
 def warm_up() -> None:
     """Import what the spectra need, so a thread can do it while frames are still being decoded."""
     _fftw()
+
+
+@dataclass(frozen=True)
+class BandSummary:
+    """Per-pixel summaries of the power in a band's bins, filled block by block by :meth:`RfftPlans.power`.
+
+    Attributes
+    ----------
+    bins : slice
+        The band's bins.
+    median, peak : ndarray of float32, shape (P,)
+        Median and maximum power over the bins.
+    argmax : ndarray of int64, shape (P,)
+        Position of the maximum, counted from ``bins.start``.
+    """
+
+    bins: slice
+    median: NDArray[np.float32]
+    peak: NDArray[np.float32]
+    argmax: NDArray[np.int64]
+
+    @classmethod
+    def empty(cls, bins: slice, pixels: int) -> BandSummary:
+        return cls(
+            bins=bins,
+            median=np.empty(pixels, np.float32),
+            peak=np.empty(pixels, np.float32),
+            argmax=np.empty(pixels, np.int64),
+        )
+
+    def fill(self, rows: NDArray[np.float32], first: int) -> None:
+        """Summarise ``rows`` (pixels ``first, first + 1, ...``; the band's bins along axis 1)."""
+        end = first + len(rows)
+        self.median[first:end] = median_rows(rows)
+        k = np.argmax(rows, axis=1)
+        self.argmax[first:end] = k
+        self.peak[first:end] = np.take_along_axis(rows, k[:, None], axis=1)[:, 0]
+
+
+def median_rows(rows: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``np.median(rows, axis=1)``, about four times faster: one partition along the contiguous axis
+    (numpy's median partitions for both middle elements), the lower middle taken as the maximum below it.
+
+    Parameters
+    ----------
+    rows : ndarray of float32, shape (P, B), C-contiguous, B >= 1
+
+    Returns
+    -------
+    ndarray of float32, shape (P,)
+    """
+    b = rows.shape[1]
+    k = b // 2
+    parted = np.partition(rows, k, axis=1)
+    upper = parted[:, k]
+    if b % 2:
+        return np.asarray(upper, np.float32)
+    lower = parted[:, :k].max(axis=1)
+    return np.asarray((lower.astype(np.float64) + upper) / 2, np.float32)
 
 
 #: A symmetric 2x2 matrix per pixel, (a, b, c) = [[a, b], [b, c]], each of shape (P,).
@@ -186,4 +243,4 @@ def fast_length(n: int) -> int:
         m += 1
 
 
-__all__ = ["RfftPlans", "fast_length", "shared_plans", "warm_up"]
+__all__ = ["BandSummary", "RfftPlans", "fast_length", "median_rows", "shared_plans", "warm_up"]

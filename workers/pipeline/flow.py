@@ -236,17 +236,19 @@ def flow_magnitude(flow: NDArray[np.float32]) -> NDArray[np.float32]:
     return np.asarray(mag, dtype=np.float32)
 
 
-def needs_resampling(timestamps_s: NDArray[np.float64], fps: float, *, tolerance: float = 0.05) -> bool:
+def needs_resampling(
+    timestamps_s: NDArray[np.float64], sample_rate_hz: float, *, tolerance: float = 0.05
+) -> bool:
     """Whether frame times stray from a uniform grid at ``fps`` by more than ``tolerance`` of a period."""
     if len(timestamps_s) < 2:
         return False
-    period = 1.0 / fps
+    period = 1.0 / sample_rate_hz
     dt = np.diff(timestamps_s)
     return bool(np.any(np.abs(dt - period) > tolerance * period))
 
 
 def resample_uniform(
-    steps: NDArray[np.floating[Any]], timestamps_s: NDArray[np.float64], fps: float
+    steps: NDArray[np.floating[Any]], timestamps_s: NDArray[np.float64], sample_rate_hz: float
 ) -> tuple[NDArray[np.float32], int]:
     """Per-interval motion measured between unevenly timed frames, resampled onto a uniform grid.
 
@@ -261,7 +263,7 @@ def resample_uniform(
         Motion from frame k to frame k + 1 (for example flow maps (N, h, w, 2), or a 1-D signal).
     timestamps_s : ndarray of float64, shape (N + 1,)
         Capture times of the N + 1 frames, strictly increasing.
-    fps : float
+    sample_rate_hz : float
         Nominal frame rate of the uniform grid.
 
     Returns
@@ -275,8 +277,8 @@ def resample_uniform(
     n = steps.shape[0]
     if t.shape != (n + 1,):
         raise ParameterError(f"resample: {n} motion steps need {n + 1} timestamps, got {t.shape[0]}")
-    m = round(t[-1] * fps)
-    grid = np.arange(m + 1, dtype=np.float64) / fps
+    m = round(t[-1] * sample_rate_hz)
+    grid = np.arange(m + 1, dtype=np.float64) / sample_rate_hz
     grid[-1] = min(grid[-1], t[-1])
     idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, n - 1)
     weight = ((grid - t[idx]) / (t[idx + 1] - t[idx])).astype(np.float32)

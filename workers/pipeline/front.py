@@ -78,7 +78,7 @@ class Front:
         needs the powers of a few pixels only, :meth:`band_powers`)."""
         if self.ring_flow is not None:
             raise ValueError("Front.spectra: the whole picture's flow was let go (keeping_flow_of)")
-        return pixel_spectra(np.asarray(self.flow, np.float32), fps=self.scan.sample_rate_hz)
+        return pixel_spectra(np.asarray(self.flow, np.float32), sample_rate_hz=self.scan.sample_rate_hz)
 
     def keeping_flow_of(self, roi: Roi) -> Front:
         """This front with its flow kept over ``roi``'s box only (rounded out to the grid): once the region

@@ -38,9 +38,9 @@ from workers.pipeline.clipio.types import ClipInfo, Intrinsics
 from workers.pipeline.errors import AnalysisError, ClipError, ParameterError
 from workers.pipeline.flow import FlowConfig, flow_stream, prepare_gray
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
-from workers.pipeline.measure import FREQUENCY_REL_FLOOR, damping_sd, frequency_sd_hz
-from workers.pipeline.mechanics import detect_release, release_amplitude, release_instant, stiffness_and_mass
-from workers.pipeline.metric import DEPTH_OVERRIDE_REL_SD, DEPTH_REL_SD
+from workers.pipeline.measure import FREQUENCY_REL_FLOOR, damping_sd, frequency_sd_hz, object_mechanics
+from workers.pipeline.mechanics import detect_release, release_amplitude, release_instant
+from workers.pipeline.metric import DepthContext, ImageAmplitude, MetricAmplitude, metric_amplitude
 from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, QualityNote, Stopwatch
 from workers.pipeline.ringdown import RingdownFit, fit_ringdown
 from workers.pipeline.stream import FrameBuffers
@@ -55,9 +55,6 @@ _T975 = (
 #: Relative frequency floor of a live estimate: the live signal is the mean flow of the moving region
 #: (no registration), whose residual errors correlate with the motion more than the full analysis's.
 LIVE_FREQUENCY_REL_FLOOR = 1e-3
-#: Relative standard uncertainty of a live amplitude: mean dense flow over the moving region, which DIS
-#: smooths at the object's edges (5-10 % low on ground truth; the full analysis registers the texture).
-LIVE_AMPLITUDE_REL_SD = 0.08
 #: Pixels sampled from the moving region for the live signal.
 _SIGNAL_PIXELS = 4000
 #: Pixels whose motion energy is at least this fraction of the strongest (99.5th percentile) form the region.
@@ -181,6 +178,18 @@ class LiveEstimate:
             self.eigenfrequency_hz - z * self.eigenfrequency_sd_hz,
             self.eigenfrequency_hz + z * self.eigenfrequency_sd_hz,
         )
+
+
+@dataclass(frozen=True)
+class _Signal:
+    """The moving region's mean flow along its motion axis (input px per sample), the frame times (N + 1,),
+    the region on the grid, the number of flow samples N and the axis (x, y)."""
+
+    velocity_px: NDArray[np.float64]
+    times_s: NDArray[np.float64]
+    region: NDArray[np.bool_]
+    samples: int
+    axis_px: tuple[float, float]
 
 
 class LiveAnalysis:
@@ -477,9 +486,8 @@ class LiveAnalysis:
 
         return uniform_fps_from_timestamps(times)[0]
 
-    def _signal(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], int] | None:
-        """The moving region's mean flow along its motion axis (input px/frame), frame times, the region
-        and the number of flow samples; None before there is motion to follow."""
+    def _signal(self) -> _Signal | None:
+        """The moving region's mean flow along its motion axis; None before there is motion to follow."""
         import cv2
 
         with self._lock:
@@ -509,7 +517,7 @@ class LiveAnalysis:
         _, vecs = np.linalg.eigh(centred.T @ centred)
         axis = vecs[:, -1]
         velocity = (mean @ axis) * self.pixel_scale
-        return velocity, times, mask, n
+        return _Signal(velocity, times, mask, n, (float(axis[0]), float(axis[1])))
 
     def estimate(self) -> LiveEstimate | None:
         """The main object's figures from the frames so far; None until a ring-down can be fitted.
@@ -522,33 +530,25 @@ class LiveAnalysis:
         signal = self._signal()
         if signal is None:
             return None
-        velocity, times, mask, n = signal
+        velocity, n = signal.velocity_px, signal.samples
         fps = self.fps
         onset = detect_release(velocity)
-        samples = n - onset
-        if samples < 6:
+        if n - onset < 6:
             return None
         try:
-            fit = fit_ringdown(velocity, fps=fps, start_index=onset, frame_times_s=times)
+            fit = fit_ringdown(velocity, sample_rate_hz=fps, start_index=onset, frame_times_s=signal.times_s)
         except AnalysisError:
             return None
         if not (math.isfinite(fit.frequency_hz) and fit.frequency_hz > 0):
             return None
-        est = self._figures(fit, velocity=velocity, times=times, mask=mask, onset=onset, n=n, fps=fps)
+        est = self._figures(fit, signal, onset=onset, fps=fps)
         self._judge(est)
         return self._previous
 
-    def _figures(
-        self,
-        fit: RingdownFit,
-        *,
-        velocity: NDArray[np.float64],
-        times: NDArray[np.float64],
-        mask: NDArray[np.bool_],
-        onset: int,
-        n: int,
-        fps: float,
-    ) -> LiveEstimate:
+    def _figures(self, fit: RingdownFit, signal: _Signal, *, onset: int, fps: float) -> LiveEstimate:
+        """The estimate from ``fit`` of ``signal``'s motion after ``onset``: uncertainties, metric
+        amplitude, stiffness and mass as a batch analysis gives them, with the live systematics."""
+        times, mask, n, axis = signal.times_s, signal.region, signal.samples, signal.axis_px
         samples = n - onset
         f = fit.frequency_hz
         # The fit's standard error assumes many samples; an early estimate has few degrees of freedom.
@@ -559,40 +559,21 @@ class LiveAnalysis:
         )
         zeta_sd = damping_sd(fit, t_factor=t_factor)
         kind = self.excitation.kind if self.excitation else None
-        t_rel = release_instant(fit, fps=fps, excitation=kind)
+        t_rel = release_instant(fit, sample_rate_hz=fps, excitation=kind)
         amp_px = release_amplitude(fit, t_release_s=t_rel, excitation=kind)
-        amp_rel = (
-            fit.amplitude_sd * math.exp(-fit.decay_per_s * t_rel) / amp_px
-            if amp_px > 0 and math.isfinite(fit.amplitude_sd)
-            else float("inf")
+        amp_sd_px = fit.amplitude_sd * math.exp(-fit.decay_per_s * t_rel)
+        image = ImageAmplitude(
+            fit=fit,
+            amplitude_px=amp_px,
+            amplitude_sd_px=amp_sd_px if math.isfinite(amp_sd_px) else math.inf,
+            axis_px=axis,
+            source="mean_flow",
         )
-        reasons: list[str] = []
-        depth, depth_rel = self._region_depth(mask)
-        amp_m = amp_sd_m = None
-        if depth is None:
-            reasons.append("no depth: send depth frames, or give depth_m with the intrinsics")
-        elif self.intrinsics is None:
-            reasons.append("no camera intrinsics: give fx, fy (and cx, cy) for metric amplitude")
-        elif amp_px > 0:
-            focal = math.sqrt(self.intrinsics.fx * self.intrinsics.fy)
-            amp_m = amp_px * depth / focal
-            amp_sd_m = amp_m * math.sqrt(amp_rel**2 + LIVE_AMPLITUDE_REL_SD**2 + depth_rel**2)
-        k = k_sd = m = m_sd = None
-        if self.excitation is None:
-            reasons.append("no excitation given: stiffness and mass need a held force or an impulse")
-        elif amp_m is not None and amp_sd_m is not None and math.isfinite(amp_sd_m):
-            mech = stiffness_and_mass(
-                kind=self.excitation.kind,
-                value=self.excitation.value,
-                value_sd=self.excitation.uncertainty,
-                amplitude_m=amp_m,
-                amplitude_sd_m=amp_sd_m,
-                natural_frequency_hz=fit.natural_frequency_hz,
-                damped_frequency_hz=f,
-                frequency_sd_hz=f_sd,
-            )
-            k, k_sd, m, m_sd = mech.stiffness_n_per_m, mech.stiffness_sd, mech.mass_kg, mech.mass_sd
-            reasons.extend(mech.null_reasons)
+        metric = self._metric(image, mask=mask, times=times, onset=onset, n=n)
+        reasons = list(metric.null_reasons)
+        amp_m, amp_sd_m, depth = metric.amplitude_m, metric.amplitude_sd_m, metric.depth_m
+        mech = object_mechanics(fit, metric, self.excitation, frequency_sd_hz=f_sd)
+        reasons.extend(mech.null_reasons)
         duration = float(times[n] - times[onset])
         base = self._base
         return LiveEstimate(
@@ -610,29 +591,44 @@ class LiveAnalysis:
             amplitude_m=amp_m,
             amplitude_sd_m=amp_sd_m,
             depth_m=depth,
-            stiffness_n_per_m=k,
-            stiffness_sd=k_sd,
-            mass_kg=m,
-            mass_sd=m_sd,
+            stiffness_n_per_m=mech.stiffness_n_per_m,
+            stiffness_sd=mech.stiffness_sd,
+            mass_kg=mech.mass_kg,
+            mass_sd=mech.mass_sd,
             snr_db=fit.snr_db,
             relative_uncertainty=f_sd / f,
             converged=False,
             null_reasons=tuple(reasons),
         )
 
-    def _region_depth(self, mask: NDArray[np.bool_]) -> tuple[float | None, float]:
-        """Median depth of the moving region and its relative uncertainty."""
+    def _metric(
+        self,
+        image: ImageAmplitude,
+        *,
+        mask: NDArray[np.bool_],
+        times: NDArray[np.float64],
+        onset: int,
+        n: int,
+    ) -> MetricAmplitude:
+        """The amplitude in metres as a batch analysis measures it
+        (:func:`~workers.pipeline.metric.metric_amplitude`), from the window's depth over the moving
+        region (grid ``mask``) or the configured distance."""
+        import cv2
+
         with self._lock:
-            depth = None if self._depth is None else self._depth[: self._stored][:, mask]
-        if depth is not None:
-            values = depth[np.isfinite(depth)]
-            if values.size:
-                d = float(np.median(values))
-                spread = float(np.median(np.abs(values - d))) * 1.4826 / math.sqrt(values.size)
-                return d, math.hypot(spread / d, DEPTH_REL_SD)
-        if self.config.depth_m is not None:
-            return self.config.depth_m, DEPTH_OVERRIDE_REL_SD
-        return None, 0.0
+            depth = None if self._depth is None else self._depth[: n + 1].copy()
+        full_mask = (
+            cv2.resize(mask.astype(np.uint8), (self.width, self.height), interpolation=cv2.INTER_NEAREST) > 0
+        )
+        where = DepthContext(
+            depth=depth,
+            region=mask,
+            shifts_grid_px=None,
+            times_from_onset_s=times[: n + 1] - times[onset],
+            onset=onset,
+            override_m=self.config.depth_m,
+        )
+        return metric_amplitude(image, where, full_mask=full_mask, intrinsics=self.intrinsics)
 
     def _judge(self, est: LiveEstimate) -> None:
         """Apply the convergence rule; remember ``est`` (with its verdict) as the latest estimate."""
@@ -703,8 +699,8 @@ class LiveAnalysis:
         buffers = self._window_buffers(n)
         first, stop = self._base, self._base + n + 1
         plan = Plan(
+            sample_rate_hz=self.fps,
             fps=self.fps,
-            clip_fps=self.fps,
             start=first,
             stop=stop,
             step=1,

@@ -149,7 +149,7 @@ def measure_object(
     track = track_object(
         window.buffers,
         region.mask,
-        fps=window.sample_rate_hz,
+        sample_rate_hz=window.sample_rate_hz,
         pixel_scale=window.pixel_scale,
         frequency_guess_hz=region.peak.frequency_hz,
         band_hz=window.band_hz,
@@ -159,7 +159,7 @@ def measure_object(
     fit = track.fit
     release = _release(track, window, excitation)
     metric = _metric(track, release, region, window)
-    mech = _mechanics(fit, metric, excitation)
+    mech = object_mechanics(fit, metric, excitation, frequency_sd_hz=frequency_sd_hz(fit))
     ringdown = _ringdown(track, window)
     # Whether it decays is judged on the fit's own (statistical) uncertainty, before systematic floors.
     decay_sd = fit.damping_sd * 2 * math.pi * fit.natural_frequency_hz * fit.duration_s
@@ -191,7 +191,10 @@ def measure_object(
         detection_db=fit.detection_db,
         concentration=fit.concentration,
         second_motion=second_motion(
-            window.buffers.flow, region.mask, frequency_hz=fit.frequency_hz, fps=window.sample_rate_hz
+            window.buffers.flow,
+            region.mask,
+            frequency_hz=fit.frequency_hz,
+            sample_rate_hz=window.sample_rate_hz,
         ),
         null_reasons=[*_regime_reasons(fit, regime), *metric.null_reasons, *mech.null_reasons],
         amplitude_source=track.source,
@@ -212,7 +215,7 @@ def _release(track: Track, window: WindowContext, excitation: Excitation | None)
     """The release (or strike) instant and the amplitude then, from the fitted model."""
     fit, buffers = track.fit, window.buffers
     kind = excitation.kind if excitation else None
-    t_rel = release_instant(fit, fps=window.sample_rate_hz, excitation=kind)
+    t_rel = release_instant(fit, sample_rate_hz=window.sample_rate_hz, excitation=kind)
     return _Release(
         t_rel=t_rel,
         amp_px=release_amplitude(fit, t_release_s=t_rel, excitation=kind),
@@ -250,8 +253,11 @@ def _metric(track: Track, release: _Release, region: Region, window: WindowConte
     return metric
 
 
-def _mechanics(fit: RingdownFit, metric: MetricAmplitude, excitation: Excitation | None) -> Mechanics:
-    """Stiffness and mass from the excitation and the metric amplitude, or why they are not measured."""
+def object_mechanics(
+    fit: RingdownFit, metric: MetricAmplitude, excitation: Excitation | None, *, frequency_sd_hz: float
+) -> Mechanics:
+    """Stiffness and mass from the excitation, the metric amplitude and the fitted frequency (with its
+    standard uncertainty ``frequency_sd_hz``), or why they are not measured."""
     if excitation is None:
         return Mechanics(
             null_reasons=["no excitation given: stiffness and mass need a held force or an impulse"]
@@ -266,7 +272,7 @@ def _mechanics(fit: RingdownFit, metric: MetricAmplitude, excitation: Excitation
         amplitude_sd_m=metric.amplitude_sd_m,
         natural_frequency_hz=fit.natural_frequency_hz,
         damped_frequency_hz=fit.frequency_hz,
-        frequency_sd_hz=frequency_sd_hz(fit),
+        frequency_sd_hz=frequency_sd_hz,
     )
 
 
@@ -276,7 +282,7 @@ def _ringdown(track: Track, window: WindowContext) -> Ringdown | None:
     if len(velocity) - onset < 16:
         return None
     ringdown = sliding_ringdown(
-        velocity[onset:], fps=window.sample_rate_hz, frequency_hz=track.fit.frequency_hz
+        velocity[onset:], sample_rate_hz=window.sample_rate_hz, frequency_hz=track.fit.frequency_hz
     )
     return Ringdown(
         times_s=ringdown.times_s + float(window.buffers.times_s[onset]),
@@ -375,4 +381,5 @@ __all__ = [
     "damping_sd",
     "frequency_sd_hz",
     "measure_object",
+    "object_mechanics",
 ]

@@ -50,7 +50,7 @@ def detect_release(
     return first
 
 
-def release_instant(fit: RingdownFit, *, fps: float, excitation: str | None) -> float:
+def release_instant(fit: RingdownFit, *, sample_rate_hz: float, excitation: str | None) -> float:
     """Release time from the fitted model, seconds relative to the fit's first sample.
 
     Flow sample j spans frames j -> j+1, so a release first seen in sample j happened in [0, 1/fps) of the
@@ -69,7 +69,7 @@ def release_instant(fit: RingdownFit, *, fps: float, excitation: str | None) -> 
     sigma = fit.decay_per_s
     # x ∝ e^{-σt} cos(ωt + φ); dx/dt = 0 where ωt + φ + atan(σ/ω) = nπ; x = 0 where ωt + φ = π/2 + nπ.
     offset = fit.phase_rad + (math.atan2(sigma, omega) if excitation == "step_release" else -math.pi / 2)
-    t_max = 1.0 / fps
+    t_max = 1.0 / sample_rate_hz
     n = math.floor((omega * t_max + offset) / math.pi)
     return (n * math.pi - offset) / omega
 

@@ -17,6 +17,16 @@ from workers.pipeline.ringdown import RingdownFit
 FLOW_AMPLITUDE_REL_SD = 0.03
 #: ... of registration-measured amplitudes (texture interpolation, residual non-rigidity).
 REGISTRATION_REL_SD = 0.004
+#: ... of a live estimate's amplitude: the mean dense flow over the moving region, which DIS smooths at
+#: the object's edges (5-10 % low on ground truth; the full analysis registers the texture).
+MEAN_FLOW_AMPLITUDE_REL_SD = 0.08
+#: The systematic uncertainty of each source of an image amplitude (:attr:`ImageAmplitude.source`).
+SOURCE_REL_SD = {
+    "registration": REGISTRATION_REL_SD,
+    "tracked": FLOW_AMPLITUDE_REL_SD,
+    "flow": FLOW_AMPLITUDE_REL_SD,
+    "mean_flow": MEAN_FLOW_AMPLITUDE_REL_SD,
+}
 #: Relative systematic uncertainty of a depth sensor's distance (calibration, plane fit).
 DEPTH_REL_SD = 0.004
 #: Relative uncertainty per unit of line-of-sight motion (|z| / amplitude), measured on ground truth.
@@ -177,36 +187,38 @@ class MetricAmplitude:
     notes: list[str] = field(default_factory=list)
 
 
-def metric_amplitude(
-    *,
-    fit: RingdownFit,
-    amplitude_px: float,
-    amplitude_sd_px: float,
-    axis_px: tuple[float, float],
-    source: str,
-    depth: NDArray[np.float32] | None,
-    region: NDArray[np.bool_],
-    shifts_grid_px: NDArray[np.float64] | None,
-    times_from_onset_s: NDArray[np.float64],
-    onset: int,
-    full_mask: NDArray[np.bool_],
-    intrinsics: Intrinsics | None,
-    depth_override_m: float | None,
-) -> MetricAmplitude:
-    """Amplitude at release in metres, from the image amplitude, the depth track and the intrinsics.
+@dataclass(frozen=True)
+class ImageAmplitude:
+    """An object's motion as the image shows it: the ring-down fitted to it and its amplitude at release.
 
-    Pinhole: u = fx X / Z + cx, so dX = du Z / fx + (u - cx) dZ / fx (likewise for y); the motion along
-    the line of sight (dZ) is the depth track's component that rings with ``fit``.
-
-    Parameters
+    Attributes
     ----------
     fit : RingdownFit
         The object's fitted ring-down (image pixels).
     amplitude_px, amplitude_sd_px : float
         Amplitude at release and its uncertainty, input pixels.
     axis_px : (float, float)
-    source : ``"registration"`` or ``"flow"``
-        What measured the motion (sets the systematic uncertainty).
+        Unit vector of the motion axis in the image (x right, y down).
+    source : ``"registration"``, ``"tracked"``, ``"flow"`` or ``"mean_flow"``
+        What measured the motion (sets the systematic uncertainty, :data:`SOURCE_REL_SD`): registration of
+        its texture, its pixels followed through the flow, the flow where it is, or (a live estimate) the
+        mean flow of the moving region.
+    """
+
+    fit: RingdownFit
+    amplitude_px: float
+    amplitude_sd_px: float
+    axis_px: tuple[float, float]
+    source: str
+
+
+@dataclass(frozen=True)
+class DepthContext:
+    """What the window knows of the object's distance: its depth maps and where the object is on them,
+    or a user-given constant distance.
+
+    Attributes
+    ----------
     depth : ndarray of float32, shape (N + 1, h, w), or None
         Depth on the flow grid, metres, NaN invalid.
     region : ndarray of bool, shape (h, w)
@@ -214,61 +226,72 @@ def metric_amplitude(
     shifts_grid_px : ndarray of float64, shape (N + 1, 2), or None
         The object's displacement per frame, grid pixels (the region follows it over the depth maps).
     times_from_onset_s : ndarray of float64, shape (N + 1,)
+        Frame times relative to the fit's first sample.
     onset : int
+        First frame of the motion (the release).
+    override_m : float or None
+        A user-given constant distance for clips without depth.
+    """
+
+    depth: NDArray[np.float32] | None
+    region: NDArray[np.bool_]
+    shifts_grid_px: NDArray[np.float64] | None
+    times_from_onset_s: NDArray[np.float64]
+    onset: int
+    override_m: float | None = None
+
+
+def metric_amplitude(
+    image: ImageAmplitude,
+    depth: DepthContext,
+    *,
+    full_mask: NDArray[np.bool_],
+    intrinsics: Intrinsics | None,
+) -> MetricAmplitude:
+    """Amplitude at release in metres, from the image amplitude, the depth track and the intrinsics.
+
+    Pinhole: u = fx X / Z + cx, so dX = du Z / fx + (u - cx) dZ / fx (likewise for y); the motion along
+    the line of sight (dZ) is the depth track's component that rings with ``image.fit``.
+
+    Parameters
+    ----------
+    image : ImageAmplitude
+        The object's fitted ring-down, amplitude at release (input pixels), axis and source.
+    depth : DepthContext
+        The depth maps and the object's region and shifts on them, or a constant distance.
     full_mask : ndarray of bool, shape (H, W)
         The object's mask at input resolution (its centroid).
     intrinsics : Intrinsics or None
-    depth_override_m : float or None
-        A user-given constant distance for clips without depth.
 
     Returns
     -------
     MetricAmplitude
     """
     out = MetricAmplitude()
-    depth_m: float | None = None
-    depth_rel_sd = 0.0
-    z_amp = z_sd = 0.0
-    if depth is not None:
-        z_track = depth_track(depth, region, shifts_px=shifts_grid_px)
-        finite = z_track[np.isfinite(z_track)]
-        if finite.size:
-            depth_m = float(np.median(finite))
-            spread = float(np.median(np.abs(finite - depth_m))) * 1.4826 / math.sqrt(finite.size)
-            depth_rel_sd = math.hypot(spread / depth_m, DEPTH_REL_SD)
-            z_amp, z_sd, _ = fit_component(z_track, times_from_onset_s, fit, start_index=onset)
-            if not (math.isfinite(z_sd) and abs(z_amp) > 2.5 * z_sd):
-                z_amp, z_sd = 0.0, 0.0
-    if depth_m is None and depth_override_m is not None:
-        depth_m = depth_override_m
-        depth_rel_sd = DEPTH_OVERRIDE_REL_SD
-    out.depth_m = depth_m
-    if depth_m is None:
+    distance = _distance(depth, image.fit)
+    out.depth_m = distance.depth_m
+    if distance.depth_m is None:
         out.null_reasons.append("no depth: give a clip with depth, or depth_m with the intrinsics")
         return out
     if intrinsics is None:
         out.null_reasons.append("no camera intrinsics: give fx, fy (and cx, cy) for metric amplitude")
         return out
-    # Envelope amplitudes at the fit start: image (px, along the axis) and depth (m, signed).
-    a_img = fit.amplitude
-    ax, ay = axis_px
-    ys, xs = np.nonzero(full_mask)
-    u = float(xs.mean()) if len(xs) else intrinsics.cx
-    v = float(ys.mean()) if len(ys) else intrinsics.cy
-    dx = a_img * ax * depth_m / intrinsics.fx + (u - intrinsics.cx) * z_amp / intrinsics.fx
-    dy = a_img * ay * depth_m / intrinsics.fy + (v - intrinsics.cy) * z_amp / intrinsics.fy
-    vec = np.array([dx, dy, z_amp])
+    motion = _camera_motion(image, distance, full_mask=full_mask, intrinsics=intrinsics)
+    a_img, z_amp, z_sd = image.fit.amplitude, distance.z_amp, distance.z_sd
+    vec = np.array([motion.dx, motion.dy, z_amp])
     a3 = float(np.linalg.norm(vec))
     if not (a3 > 0 and a_img > 0):
         out.null_reasons.append("amplitude is zero: the object did not move measurably")
         return out
-    amp_m = amplitude_px * a3 / a_img
+    amp_m = image.amplitude_px * a3 / a_img
     # An oscillation's axis has no sign: report it with its largest component positive.
     unit = vec / a3 * (1.0 if vec[int(np.argmax(np.abs(vec)))] >= 0 else -1.0)
     direction = (float(unit[0]), float(unit[1]), float(unit[2]))
-    sys_rel = REGISTRATION_REL_SD if source == "registration" else FLOW_AMPLITUDE_REL_SD
-    a_xy = math.hypot(dx, dy)
-    rel_xy = math.sqrt((amplitude_sd_px / max(amplitude_px, 1e-12)) ** 2 + sys_rel**2 + depth_rel_sd**2)
+    sys_rel = SOURCE_REL_SD.get(image.source, FLOW_AMPLITUDE_REL_SD)
+    a_xy = math.hypot(motion.dx, motion.dy)
+    rel_xy = math.sqrt(
+        (image.amplitude_sd_px / max(image.amplitude_px, 1e-12)) ** 2 + sys_rel**2 + distance.rel_sd**2
+    )
     var = (a_xy / a3) ** 2 * (a_xy * rel_xy) ** 2 + (abs(z_amp) / a3) ** 2 * z_sd**2
     # Motion along the line of sight also scales the image; the residual coupling of scale into the
     # registered displacement is not modelled, so it is carried as uncertainty.
@@ -284,4 +307,77 @@ def metric_amplitude(
     return out
 
 
-__all__ = ["MetricAmplitude", "depth_track", "fit_component", "metric_amplitude", "object_depth"]
+@dataclass(frozen=True)
+class _Distance:
+    """The object's distance and its motion along the line of sight.
+
+    Attributes
+    ----------
+    depth_m : float or None
+        Median distance over the window (or the user's), metres; None when unknown.
+    rel_sd : float
+        Its relative standard uncertainty.
+    z_amp, z_sd : float
+        Signed amplitude of the motion along the line of sight at the fit start and its uncertainty,
+        metres (both 0 when not significant or without depth maps).
+    """
+
+    depth_m: float | None
+    rel_sd: float = 0.0
+    z_amp: float = 0.0
+    z_sd: float = 0.0
+
+
+def _distance(depth: DepthContext, fit: RingdownFit) -> _Distance:
+    """The object's distance from its depth track (the override's without one) and the track's
+    component that rings with ``fit``."""
+    if depth.depth is not None:
+        z_track = depth_track(depth.depth, depth.region, shifts_px=depth.shifts_grid_px)
+        finite = z_track[np.isfinite(z_track)]
+        if finite.size:
+            depth_m = float(np.median(finite))
+            spread = float(np.median(np.abs(finite - depth_m))) * 1.4826 / math.sqrt(finite.size)
+            depth_rel_sd = math.hypot(spread / depth_m, DEPTH_REL_SD)
+            z_amp, z_sd, _ = fit_component(z_track, depth.times_from_onset_s, fit, start_index=depth.onset)
+            if not (math.isfinite(z_sd) and abs(z_amp) > 2.5 * z_sd):
+                z_amp, z_sd = 0.0, 0.0
+            return _Distance(depth_m=depth_m, rel_sd=depth_rel_sd, z_amp=z_amp, z_sd=z_sd)
+    if depth.override_m is not None:
+        return _Distance(depth_m=depth.override_m, rel_sd=DEPTH_OVERRIDE_REL_SD)
+    return _Distance(depth_m=None)
+
+
+@dataclass(frozen=True)
+class _CameraMotion:
+    """The in-plane components (camera x and y, metres) of the envelope amplitude at the fit start."""
+
+    dx: float
+    dy: float
+
+
+def _camera_motion(
+    image: ImageAmplitude, distance: _Distance, *, full_mask: NDArray[np.bool_], intrinsics: Intrinsics
+) -> _CameraMotion:
+    """The pinhole's dX and dY of the image amplitude (along the axis) and the line-of-sight motion, at
+    the mask's centroid (the principal point for an empty mask)."""
+    assert distance.depth_m is not None
+    depth_m, z_amp = distance.depth_m, distance.z_amp
+    a_img = image.fit.amplitude
+    ax, ay = image.axis_px
+    ys, xs = np.nonzero(full_mask)
+    u = float(xs.mean()) if len(xs) else intrinsics.cx
+    v = float(ys.mean()) if len(ys) else intrinsics.cy
+    dx = a_img * ax * depth_m / intrinsics.fx + (u - intrinsics.cx) * z_amp / intrinsics.fx
+    dy = a_img * ay * depth_m / intrinsics.fy + (v - intrinsics.cy) * z_amp / intrinsics.fy
+    return _CameraMotion(dx=dx, dy=dy)
+
+
+__all__ = [
+    "DepthContext",
+    "ImageAmplitude",
+    "MetricAmplitude",
+    "depth_track",
+    "fit_component",
+    "metric_amplitude",
+    "object_depth",
+]

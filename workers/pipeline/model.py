@@ -9,7 +9,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,9 +19,6 @@ from workers.pipeline.flow import FlowConfig
 from workers.pipeline.peaks import Peak
 from workers.pipeline.ringdown import Ringdown
 from workers.pipeline.segmentation import SegmentationConfig
-
-if TYPE_CHECKING:
-    from workers.pipeline.survey import Survey
 
 Method = Literal["default", "paper"]
 #: progress(stage, fraction of the whole analysis in [0, 1])
@@ -256,6 +253,132 @@ class ObjectMeasurement:
         return 2 * math.pi * self.natural_frequency_hz
 
 
+@dataclass(frozen=True)
+class Survey:
+    """What :func:`~workers.pipeline.survey.survey_motion` saw in a whole clip.
+
+    Attributes
+    ----------
+    fps : float
+        Frame rate of the surveyed frames, Hz.
+    first_frame : int
+        Clip index of the first surveyed frame.
+    frames : int
+        Frames surveyed (flow maps + 1).
+    grid_shape : (h, w)
+        Survey grid; ``grid_scale`` survey pixels per input pixel.
+    grid_scale : float
+    segment_frames : int
+        Welch segment length, flow samples (hop: half of it).
+    frequencies_hz : ndarray of float64, shape (F,)
+    power : ndarray of float64, shape (F,)
+        Welch average of the summed per-pixel power (survey pixels² / frame²).
+    whitened : ndarray of float64, shape (F,)
+        Welch average of the per-pixel power over each pixel's median power in the band, summed.
+    median_snr : ndarray of float64, shape (F,)
+        Welch average of the median pixel's whitened power: about 1 for noise, high for a frequency seen
+        all over the picture.
+    segments : int
+        Welch segments averaged.
+    segment_starts : ndarray of int64, shape (S,)
+        Clip index of the first frame of each stored segment (each covers ``segment_span`` frames).
+    segment_span : int
+    segment_power : ndarray of float32, shape (S, F)
+        Summed per-pixel power of each stored segment (merged segments are added).
+    block_frames : int
+        Frames per entry of ``block_energy``.
+    block_energy : ndarray of float64, shape (B,)
+        Mean squared motion per frame, input px², of block b, which starts at clip frame
+        ``first_frame + b * block_frames``.
+    max_step_px : float
+        Per-frame motion of the fastest moving pixels (99th percentile over the pixels), input pixels, in
+        the frames where it is largest (90th percentile over the frames, robust to a few glitches).
+    peaks : list of Peak
+        Confident peaks, strongest first, harmonics folded in (``snr_db`` over the whitened floor).
+    global_peaks_hz : list of float
+        The peaks (among ``peaks``) that are seen over the whole picture.
+    flicker_hz : list of float
+        The peaks (among ``peaks``) at which the picture's brightness oscillates: lighting flicker.
+    """
+
+    fps: float
+    first_frame: int
+    frames: int
+    grid_shape: tuple[int, int]
+    grid_scale: float
+    segment_frames: int
+    frequencies_hz: NDArray[np.float64]
+    power: NDArray[np.float64]
+    whitened: NDArray[np.float64]
+    median_snr: NDArray[np.float64]
+    segments: int
+    segment_starts: NDArray[np.int64]
+    segment_span: int
+    segment_power: NDArray[np.float32]
+    block_frames: int
+    block_energy: NDArray[np.float64]
+    max_step_px: float
+    peaks: list[Peak]
+    global_peaks_hz: list[float]
+    flicker_hz: list[float] = field(default_factory=list)
+
+    @property
+    def bin_hz(self) -> float:
+        """Width of one Welch bin, Hz."""
+        return self.fps / self.segment_frames
+
+    @property
+    def object_peaks(self) -> list[Peak]:
+        """Confident peaks that are not seen over the whole picture, strongest first."""
+        return [p for p in self.peaks if p.frequency_hz not in self.global_peaks_hz]
+
+    def band_energy(self, frequency_hz: float, *, half_width_bins: float = 1.5) -> NDArray[np.float64]:
+        """Power of each stored segment near ``frequency_hz`` (within ``half_width_bins``).
+
+        Returns
+        -------
+        ndarray of float64, shape (S,)
+        """
+        sel = np.abs(self.frequencies_hz - frequency_hz) <= half_width_bins * self.bin_hz
+        if not sel.any():
+            sel[int(np.argmin(np.abs(self.frequencies_hz - frequency_hz)))] = True
+        return np.asarray(self.segment_power[:, sel].sum(axis=1), np.float64)
+
+    def decay_at(self, frequency_hz: float, *, isolation_bins: float = 3.0) -> tuple[float, float] | None:
+        """The envelope's decay rate at ``frequency_hz`` over the whole clip, from the stored segments'
+        energy after its strongest one: (σ, its standard uncertainty), 1/s; None when fewer than three
+        segments follow it, or another peak lies within ``isolation_bins`` (their energies would mix).
+        """
+        if any(
+            self.bin_hz < abs(p.frequency_hz - frequency_hz) <= isolation_bins * self.bin_hz
+            for p in self.peaks
+        ):
+            return None
+        energy = self.band_energy(frequency_hz)
+        first = int(np.argmax(energy))
+        energy = energy[first:]
+        if energy.size < 3 or not np.all(energy > 0):
+            return None
+        t = (self.segment_starts[first:] + self.segment_span / 2) / self.fps
+        design = np.stack([np.ones_like(t, dtype=np.float64), t.astype(np.float64)], axis=1)
+        coef, *_ = np.linalg.lstsq(design, np.log(energy), rcond=None)
+        res = np.log(energy) - design @ coef
+        dof = max(len(t) - 2, 1)
+        cov = np.linalg.inv(design.T @ design) * float(res @ res) / dof
+        # Energy falls as exp(-2 sigma t).
+        return -float(coef[1]) / 2, math.sqrt(max(float(cov[1, 1]), 0.0)) / 2
+
+    def explains(self, frequency_hz: float, *, tolerance: float = 0.02) -> bool:
+        """Whether ``frequency_hz`` is one of the survey's peaks, or a harmonic of one, within
+        ``tolerance`` (relative) or one and a half Welch bins, whichever is wider."""
+        slack = max(tolerance * frequency_hz, 1.5 * self.bin_hz)
+        for peak in self.peaks:
+            for f in (peak.frequency_hz, *peak.harmonics_hz):
+                if abs(f - frequency_hz) <= slack:
+                    return True
+        return False
+
+
 @dataclass
 class Analysis:
     """The outcome of :func:`analyze`.
@@ -383,5 +506,6 @@ __all__ = [
     "QualityNote",
     "RejectedPeak",
     "Stopwatch",
+    "Survey",
     "finite_or_none",
 ]

@@ -126,23 +126,15 @@ def noise_floor(power: NDArray[np.floating[Any]], *, width: int = 9) -> NDArray[
     return np.asarray(np.median(windows, axis=1), np.float64)
 
 
-def detect_peaks(
-    frequencies_hz: NDArray[np.float64],
-    *,
-    summed: NDArray[np.float64],
-    background: NDArray[np.float64],
-    whitened: NDArray[np.float64],
-    median_snr: NDArray[np.float64] | None = None,
-    band_hz: tuple[float, float],
-    bin_hz: float,
-    max_objects: int = 8,
-    policy: PeakPolicy,
-) -> list[Peak]:
-    """Peaks of a motion spectrum that may be objects, strongest first, harmonics folded in.
+@dataclass(frozen=True)
+class PeakSpectra:
+    """The spectra of one motion that :func:`detect_peaks`'s detectors look at.
 
-    Parameters
+    Attributes
     ----------
     frequencies_hz : ndarray of float64, shape (F,)
+    bin_hz : float
+        Spectral resolution.
     summed : ndarray of float64, shape (F,)
         Power summed over pixels.
     background : ndarray of float64, shape (F,)
@@ -150,11 +142,32 @@ def detect_peaks(
     whitened : ndarray of float64, shape (F,)
         Mean over pixels of each pixel's power over its own noise.
     median_snr : ndarray of float64, shape (F,), optional
-        The median pixel's power over its noise (for ``policy.median_pixel``).
+        The median pixel's power over its noise (for ``PeakPolicy.median_pixel``).
+    """
+
+    frequencies_hz: NDArray[np.float64]
+    bin_hz: float
+    summed: NDArray[np.float64]
+    background: NDArray[np.float64]
+    whitened: NDArray[np.float64]
+    median_snr: NDArray[np.float64] | None = None
+
+
+def detect_peaks(
+    spectra: PeakSpectra,
+    *,
+    band_hz: tuple[float, float],
+    max_objects: int = 8,
+    policy: PeakPolicy,
+) -> list[Peak]:
+    """Peaks of a motion spectrum that may be objects, strongest first, harmonics folded in.
+
+    Parameters
+    ----------
+    spectra : PeakSpectra
+        The summed, background, whitened (and median pixel's) spectra and their resolution.
     band_hz : (float, float)
         Band searched.
-    bin_hz : float
-        Spectral resolution.
     max_objects : int
         Objects sought (``policy.peaks_per_object`` candidates each, at most 8 per detector when 1).
     policy : PeakPolicy
@@ -162,35 +175,19 @@ def detect_peaks(
         :data:`~workers.pipeline.detection.SURVEY_PEAKS`).
     """
     cap = policy.peaks_per_object * max_objects
+    freqs, bin_hz, median_snr = spectra.frequencies_hz, spectra.bin_hz, spectra.median_snr
 
     def floor(power: NDArray[np.float64]) -> NDArray[np.float64]:
         return noise_floor(power, width=max(policy.weak_floor_bins, len(power) // policy.weak_floor_fraction))
 
-    strong = find_peaks(
-        frequencies_hz,
-        summed,
-        band_hz=band_hz,
-        noise=background,
-        min_snr_db=policy.strong_min_snr_db,
-        max_peaks=cap,
-    )
-    others = find_peaks(
-        frequencies_hz,
-        whitened,
-        band_hz=band_hz,
-        noise=floor(whitened),
-        min_snr_db=policy.weak_min_snr_db,
-        max_peaks=cap,
-    )
+    def found(power: NDArray[np.float64], noise: NDArray[np.float64], min_snr_db: float) -> list[Peak]:
+        criteria = PeakCriteria(min_snr_db=min_snr_db)
+        return find_peaks(freqs, power, band_hz=band_hz, noise=noise, criteria=criteria, max_peaks=cap)
+
+    strong = found(spectra.summed, spectra.background, policy.strong_min_snr_db)
+    others = found(spectra.whitened, floor(spectra.whitened), policy.weak_min_snr_db)
     if policy.median_pixel and median_snr is not None:
-        others += find_peaks(
-            frequencies_hz,
-            median_snr,
-            band_hz=band_hz,
-            noise=np.maximum(floor(median_snr), 1.0),
-            min_snr_db=policy.weak_min_snr_db,
-            max_peaks=cap,
-        )
+        others += found(median_snr, np.maximum(floor(median_snr), 1.0), policy.weak_min_snr_db)
     candidates = [*strong, *(Peak(**{**vars(p), "harmonics_hz": []}) for p in others)]
     candidates = [p for p in candidates if p.frequency_hz >= policy.min_bins * bin_hz]
     return fold_harmonics(
@@ -252,29 +249,50 @@ def _half_width(power: NDArray[np.float64], k: int) -> float:
     return float(max(hi - lo, 1.0) / 2)
 
 
+@dataclass(frozen=True)
+class PeakCriteria:
+    """What makes a local maximum of a spectrum a peak of its own (:func:`find_peaks`).
+
+    Attributes
+    ----------
+    min_prominence_db : float
+        Height above the key saddle inside the band (topographic prominence), dB.
+    min_snr_db : float
+        Height above the noise spectrum, when one is given, dB.
+    resolved_snr_db, resolved_prominence_db : float
+        A peak that stands ``resolved_snr_db`` above the noise needs only ``resolved_prominence_db`` of
+        prominence (two oscillations a few lines apart share a high saddle).
+    harmonic_tolerance : float
+        Relative error within which (or one bin) a peak at an integer multiple of a stronger peak is that
+        peak's harmonic.
+    """
+
+    min_prominence_db: float = 6.0
+    min_snr_db: float = 10.0
+    resolved_snr_db: float = 20.0
+    resolved_prominence_db: float = 3.0
+    harmonic_tolerance: float = 0.04
+
+
 def find_peaks(
     frequencies_hz: NDArray[np.float64],
     power: NDArray[np.floating[Any]],
     *,
     band_hz: tuple[float, float],
     noise: NDArray[np.floating[Any]] | None = None,
-    min_prominence_db: float = 6.0,
-    min_snr_db: float = 10.0,
+    criteria: PeakCriteria = PeakCriteria(),
     max_peaks: int = 8,
-    harmonic_tolerance: float = 0.04,
-    resolved_snr_db: float = 20.0,
-    resolved_prominence_db: float = 3.0,
 ) -> list[Peak]:
     """Peaks of a summed spectrum inside ``band_hz``, strongest first, harmonics folded in.
 
-    A peak must stand ``min_prominence_db`` above its key saddle inside the band (topographic
+    A peak must stand ``criteria.min_prominence_db`` above its key saddle inside the band (topographic
     prominence: a broad, heavily damped peak on a sloping background still counts, a wiggle on a
-    plateau does not) and ``min_snr_db`` above the ``noise`` spectrum when one is given (the spectrum
-    a frame of static background would sum to). Two oscillations a few lines apart share a high
-    saddle: a peak that stands ``resolved_snr_db`` above the noise needs only
-    ``resolved_prominence_db`` of prominence. A peak at an integer multiple (2, 3, ...) of a stronger
-    peak, within ``harmonic_tolerance`` relative error (or one bin), is recorded as that peak's harmonic
-    instead of a peak of its own.
+    plateau does not) and ``criteria.min_snr_db`` above the ``noise`` spectrum when one is given (the
+    spectrum a frame of static background would sum to). Two oscillations a few lines apart share a
+    high saddle: a peak that stands ``criteria.resolved_snr_db`` above the noise needs only
+    ``criteria.resolved_prominence_db`` of prominence. A peak at an integer multiple (2, 3, ...) of a
+    stronger peak, within ``criteria.harmonic_tolerance`` relative error (or one bin), is recorded as
+    that peak's harmonic instead of a peak of its own.
 
     Parameters
     ----------
@@ -282,17 +300,14 @@ def find_peaks(
     power : ndarray, shape (F,)
     band_hz : (low, high)
     noise : ndarray, shape (F,), optional
-    min_prominence_db, min_snr_db : float
+    criteria : PeakCriteria
     max_peaks : int
-    harmonic_tolerance : float
-    resolved_snr_db, resolved_prominence_db : float
 
     Returns
     -------
     list of Peak
     """
     values: NDArray[np.float64] = np.asarray(power, np.float64)
-    power = values
     bin_hz = float(frequencies_hz[1] - frequencies_hz[0]) if len(frequencies_hz) > 1 else 1.0
     lo, hi = band_hz
     inside = (frequencies_hz >= lo) & (frequencies_hz <= hi)
@@ -301,8 +316,8 @@ def find_peaks(
         return []
     # A peak must lie in the band, but it is judged with its neighbours outside it (one bin each side):
     # a vibration in the band's last line is a peak when the line beyond it is lower.
-    first, last = max(int(band[0]) - 1, 0), min(int(band[-1]) + 1, len(power) - 1)
-    sub = power[first : last + 1]
+    first, last = max(int(band[0]) - 1, 0), min(int(band[-1]) + 1, len(values) - 1)
+    sub = values[first : last + 1]
     padded = np.concatenate(([-np.inf], sub, [-np.inf]))
     local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
     candidates: list[Peak] = []
@@ -310,30 +325,61 @@ def find_peaks(
         k = first + int(j)
         if not inside[k]:
             continue
-        if not power[k] > 0:  # a flat, motionless spectrum has no peaks
-            continue
-        prom = 10 * math.log10(topographic_prominence(np.asarray(sub, np.float64), int(j)))
-        snr = float("inf")
-        if noise is not None:
-            snr = 10 * math.log10(power[k] / max(float(noise[k]), 1e-30))
-            if snr < min_snr_db:
-                continue
-        if prom < min_prominence_db and not (prom >= resolved_prominence_db and snr >= resolved_snr_db):
-            continue
-        fk = interpolate_peak(power, k) * bin_hz
-        candidates.append(
-            Peak(
-                frequency_hz=fk,
-                bin=k,
-                power=float(power[k]),
-                prominence_db=prom,
-                snr_db=snr,
-                width_bins=_half_width(values, k),
-            )
-        )
+        peak = _judged_peak(values, k, window=(first, last), noise=noise, criteria=criteria, bin_hz=bin_hz)
+        if peak is not None:
+            candidates.append(peak)
     candidates.sort(key=lambda p: -p.power)
     return fold_harmonics(
-        candidates, bin_hz=bin_hz, max_peaks=max_peaks, harmonic_tolerance=harmonic_tolerance
+        candidates, bin_hz=bin_hz, max_peaks=max_peaks, harmonic_tolerance=criteria.harmonic_tolerance
+    )
+
+
+def _judged_peak(
+    power: NDArray[np.float64],
+    k: int,
+    *,
+    window: tuple[int, int],
+    noise: NDArray[np.floating[Any]] | None,
+    criteria: PeakCriteria,
+    bin_hz: float,
+) -> Peak | None:
+    """The peak at the local maximum ``k`` of ``power``, or None when it fails ``criteria``.
+
+    Parameters
+    ----------
+    power : ndarray of float64, shape (F,)
+    k : int
+        Index of a local maximum.
+    window : (int, int)
+        First and last bin (inclusive) its prominence is judged in: the band and a bin each side.
+    noise : ndarray, shape (F,), optional
+    criteria : PeakCriteria
+    bin_hz : float
+
+    Returns
+    -------
+    Peak or None
+    """
+    if not power[k] > 0:  # a flat, motionless spectrum has no peaks
+        return None
+    first, last = window
+    prom = 10 * math.log10(topographic_prominence(np.asarray(power[first : last + 1], np.float64), k - first))
+    snr = float("inf")
+    if noise is not None:
+        snr = 10 * math.log10(power[k] / max(float(noise[k]), 1e-30))
+        if snr < criteria.min_snr_db:
+            return None
+    if prom < criteria.min_prominence_db and not (
+        prom >= criteria.resolved_prominence_db and snr >= criteria.resolved_snr_db
+    ):
+        return None
+    return Peak(
+        frequency_hz=interpolate_peak(power, k) * bin_hz,
+        bin=k,
+        power=float(power[k]),
+        prominence_db=prom,
+        snr_db=snr,
+        width_bins=_half_width(power, k),
     )
 
 
@@ -391,7 +437,7 @@ def fold_harmonics(
 
 
 def fold_aliased_harmonics(
-    peaks: list[Peak], *, fps: float, bin_hz: float, tolerance: float = 0.01, max_order: int = 5
+    peaks: list[Peak], *, sample_rate_hz: float, bin_hz: float, tolerance: float = 0.01, max_order: int = 5
 ) -> list[Peak]:
     """Fold peaks that are overtones of a stronger peak seen through aliasing into that peak.
 
@@ -404,7 +450,7 @@ def fold_aliased_harmonics(
     ----------
     peaks : list of Peak
         Strongest first.
-    fps : float
+    sample_rate_hz : float
         Sampling rate of the spectra, Hz.
     bin_hz : float
     tolerance : float
@@ -423,7 +469,7 @@ def fold_aliased_harmonics(
         for i, base in enumerate(kept):
             for order in range(2, max_order + 1):
                 multiple = order * base.frequency_hz
-                folded = abs(multiple - fps * round(multiple / fps))
+                folded = abs(multiple - sample_rate_hz * round(multiple / sample_rate_hz))
                 if folded != multiple and abs(f - folded) <= max(tolerance * f, 1.01 * bin_hz):
                     parent = i
                     break
@@ -437,7 +483,9 @@ def fold_aliased_harmonics(
     return kept
 
 
-def explained(frequency_hz: float, peaks: list[Peak], *, bin_hz: float, tolerance: float, fps: float) -> bool:
+def explained(
+    frequency_hz: float, peaks: list[Peak], *, bin_hz: float, tolerance: float, sample_rate_hz: float
+) -> bool:
     """Whether a frequency is one of ``peaks``, one of their harmonics, or an integer multiple of one,
     possibly folded back below the Nyquist rate (an overtone above fps / 2 shows at |n f - m fps|)."""
     for peak in peaks:
@@ -447,7 +495,7 @@ def explained(frequency_hz: float, peaks: list[Peak], *, bin_hz: float, toleranc
         slack = max(tolerance * frequency_hz, 1.01 * bin_hz)
         for order in range(2, 33):
             multiple = order * peak.frequency_hz
-            folded = abs(multiple - fps * round(multiple / fps))
+            folded = abs(multiple - sample_rate_hz * round(multiple / sample_rate_hz))
             if abs(frequency_hz - folded) <= slack:
                 return True
     return False
@@ -455,7 +503,9 @@ def explained(frequency_hz: float, peaks: list[Peak], *, bin_hz: float, toleranc
 
 __all__ = [
     "Peak",
+    "PeakCriteria",
     "PeakPolicy",
+    "PeakSpectra",
     "detect_peaks",
     "explained",
     "find_peaks",

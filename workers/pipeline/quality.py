@@ -168,19 +168,20 @@ def frame_rate_notes(
 
 
 def object_quality_notes(
-    objects: list[ObjectMeasurement], *, fps: float, band: tuple[float, float], bin_hz: float
+    objects: list[ObjectMeasurement], *, sample_rate_hz: float, band: tuple[float, float], bin_hz: float
 ) -> list[QualityNote]:
     """Reasons why an object's figures may be unreliable."""
     notes: list[QualityNote] = []
     for obj in objects:
         f = obj.eigenfrequency_hz
         name = f"object {obj.id} ({f:.4g} Hz)"
-        if f >= 0.4 * fps:
+        if f >= 0.4 * sample_rate_hz:
             notes.append(
                 QualityNote(
                     "possibly_aliased",
-                    f"{name} is near the Nyquist rate ({fps / 2:g} Hz): the true frequency may be "
-                    f"{fps - f:.4g} Hz or higher; record at a higher frame rate or give the true fps",
+                    f"{name} is near the Nyquist rate ({sample_rate_hz / 2:g} Hz): the true frequency may be "
+                    f"{sample_rate_hz - f:.4g} Hz or higher; record at a higher frame rate or give the true "
+                    "fps",
                 )
             )
         if obj.snr_db is not None and obj.snr_db < 6:

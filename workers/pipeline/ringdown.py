@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.lstsq import least_squares
+from workers.pipeline.lstsq import Solution, least_squares
 from workers.pipeline.peaks import interpolate_peak
 
 
@@ -123,7 +123,7 @@ def _spectral_guess(v: NDArray[np.float64], f_guess_cycles: float | None) -> flo
 def fit_ringdown(
     velocity: NDArray[np.floating[Any]],
     *,
-    fps: float,
+    sample_rate_hz: float,
     frequency_guess_hz: float | None = None,
     start_index: int = 0,
     frame_times_s: NDArray[np.float64] | None = None,
@@ -138,7 +138,7 @@ def fit_ringdown(
     ----------
     velocity : ndarray, shape (N,)
         Per-frame displacement differences (e.g. the flow of the object projected on its motion axis).
-    fps : float
+    sample_rate_hz : float
     frequency_guess_hz : float, optional
         Start value (e.g. the summed spectrum's peak); found from the signal's own spectrum otherwise.
     start_index : int
@@ -155,92 +155,164 @@ def fit_ringdown(
     -------
     RingdownFit
     """
-    v = np.asarray(velocity, np.float64)[start_index:]
+    v, k_pos = _fitted_samples(
+        velocity, sample_rate_hz=sample_rate_hz, start_index=start_index, frame_times_s=frame_times_s
+    )
     n = len(v)
-    if frame_times_s is None:
-        k_pos = np.arange(n + 1, dtype=np.float64)
-    else:
-        times = np.asarray(frame_times_s, np.float64)
-        k_pos = (times[start_index : start_index + n + 1] - times[start_index]) * fps
     if n < 6:
         from workers.pipeline.errors import AnalysisError
 
         raise AnalysisError(f"only {n} moving frames after release; record at least 16 frames of motion")
-    guess = None if frequency_guess_hz is None else frequency_guess_hz / fps
+    guess = None if frequency_guess_hz is None else frequency_guess_hz / sample_rate_hz
     omega0 = _spectral_guess(v, guess)
-    # Decay start value: from the envelope of the signal's two halves.
+    sigma0 = _decay_guess(v)
+    w_lo, w_hi = _angular_bounds(sample_rate_hz, band_hz)
+    best = _best_solution(v, k_pos, omega0=min(max(omega0, w_lo), w_hi), sigma0=sigma0, bounds=(w_lo, w_hi))
+    omega, sigma = float(best.x[0]), float(best.x[1])
+    res, coef = _profile(best.x, v, k_pos)
+    a_c, a_s = float(coef[0]), float(coef[1])
+    spread = _spread(res, best.jac, _basis(omega, sigma, k_pos))
+    wn = math.hypot(omega, sigma)
+    model = v - res - coef[2] * np.diff(k_pos)
+    signal_power = float(np.mean(model**2))
+    return RingdownFit(
+        frequency_hz=omega * sample_rate_hz / (2 * math.pi),
+        natural_frequency_hz=wn * sample_rate_hz / (2 * math.pi),
+        damping_ratio=sigma / wn,
+        amplitude=math.hypot(a_c, a_s),
+        phase_rad=math.atan2(-a_s, a_c),
+        decay_per_s=sigma * sample_rate_hz,
+        start_index=start_index,
+        frequency_sd_hz=spread.omega_sd * sample_rate_hz / (2 * math.pi),
+        damping_sd=spread.sigma_sd / wn,
+        amplitude_sd=spread.amplitude_sd,
+        residual_rms=math.sqrt(spread.variance),
+        snr_db=10 * math.log10(max(signal_power, 1e-30) / max(spread.variance, 1e-30)),
+        samples=n,
+        duration_s=float(k_pos[-1] - k_pos[0]) / sample_rate_hz,
+        concentration=_concentration(v, model, omega=omega, sigma=sigma),
+    )
+
+
+def _fitted_samples(
+    velocity: NDArray[np.floating[Any]],
+    *,
+    sample_rate_hz: float,
+    start_index: int,
+    frame_times_s: NDArray[np.float64] | None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The samples fitted and the positions of the frames that bound them.
+
+    Returns
+    -------
+    v : ndarray of float64, shape (n,)
+        ``velocity`` from ``start_index``.
+    k_pos : ndarray of float64, shape (n + 1,)
+        Frame positions in periods of ``fps`` from the fit start (uniform without ``frame_times_s``).
+    """
+    v = np.asarray(velocity, np.float64)[start_index:]
+    n = len(v)
+    if frame_times_s is None:
+        return v, np.arange(n + 1, dtype=np.float64)
+    times = np.asarray(frame_times_s, np.float64)
+    return v, (times[start_index : start_index + n + 1] - times[start_index]) * sample_rate_hz
+
+
+def _decay_guess(v: NDArray[np.float64]) -> float:
+    """Decay start value (per sample), from the envelope of the signal's two halves."""
+    n = len(v)
     half = n // 2
     e1 = np.sqrt(np.mean(v[:half] ** 2)) + 1e-12
     e2 = np.sqrt(np.mean(v[half:] ** 2)) + 1e-12
-    sigma0 = max(1e-4, math.log(e1 / e2) / max(half, 1)) if e1 > e2 else 1e-3
+    return max(1e-4, math.log(e1 / e2) / max(half, 1)) if e1 > e2 else 1e-3
+
+
+def _angular_bounds(sample_rate_hz: float, band_hz: tuple[float, float] | None) -> tuple[float, float]:
+    """The range (rad/sample) the frequency is sought in: below the Nyquist rate, inside ``band_hz``.
+
+    Raises
+    ------
+    ValueError
+        When the band holds no frequency at ``fps``.
+    """
+    w_lo, w_hi = 1e-4, math.pi
+    if band_hz is not None:
+        w_lo = max(w_lo, 2 * math.pi * band_hz[0] / sample_rate_hz)
+        w_hi = min(w_hi, 2 * math.pi * band_hz[1] / sample_rate_hz)
+        if w_lo >= w_hi:
+            raise ValueError(f"fit_ringdown: band {band_hz} Hz holds no frequency at {sample_rate_hz:g} fps")
+    return w_lo, w_hi
+
+
+def _best_solution(
+    v: NDArray[np.float64],
+    k_pos: NDArray[np.float64],
+    *,
+    omega0: float,
+    sigma0: float,
+    bounds: tuple[float, float],
+) -> Solution:
+    """The least-squares solution of (ω, σ) with the lowest cost, from three decay start values
+    (``sigma0`` and 0.3 and 3 times it); ω within ``bounds`` (rad/sample), σ within [0, 1]."""
 
     def residual(p: NDArray[np.float64]) -> NDArray[np.float64]:
         return _profile(p, v, k_pos)[0]
 
-    w_lo, w_hi = 1e-4, math.pi
-    if band_hz is not None:
-        w_lo = max(w_lo, 2 * math.pi * band_hz[0] / fps)
-        w_hi = min(w_hi, 2 * math.pi * band_hz[1] / fps)
-        if w_lo >= w_hi:
-            raise ValueError(f"fit_ringdown: band {band_hz} Hz holds no frequency at {fps:g} fps")
-    omega0 = min(max(omega0, w_lo), w_hi)
     best = None
     for s0 in (sigma0, sigma0 * 0.3, sigma0 * 3):
         sol = least_squares(
             residual,
             np.array([omega0, min(max(s0, 1e-5), 0.5)]),
-            lower=np.array([w_lo, 0.0]),
-            upper=np.array([w_hi, 1.0]),
+            lower=np.array([bounds[0], 0.0]),
+            upper=np.array([bounds[1], 1.0]),
         )
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
-    omega, sigma = float(best.x[0]), float(best.x[1])
-    res, coef = _profile(best.x, v, k_pos)
-    a_c, a_s = float(coef[0]), float(coef[1])
-    amplitude = math.hypot(a_c, a_s)
-    phase = math.atan2(-a_s, a_c)
+    return best
+
+
+@dataclass(frozen=True)
+class _Spread:
+    """The fit's residual variance and the standard uncertainties of its parameters.
+
+    Attributes
+    ----------
+    variance : float
+        Residual variance per sample, inflated for correlated residuals.
+    omega_sd, sigma_sd : float
+        Of ω and σ, per sample (NaN when the Jacobian is singular).
+    amplitude_sd : float
+        Of the amplitude (NaN when the basis is singular).
+    """
+
+    variance: float
+    omega_sd: float
+    sigma_sd: float
+    amplitude_sd: float
+
+
+def _spread(res: NDArray[np.float64], jac: NDArray[np.float64], basis: NDArray[np.float64]) -> _Spread:
+    """Uncertainties from the residuals ``res`` (n,), the Jacobian ``jac`` (n, 2) of (ω, σ) and the
+    linear ``basis`` (n, 3) at the solution."""
+    n = len(res)
     dof = max(n - 5, 1)
     # Residuals of real flow are not white: neighbouring samples share errors. Inflate the variance by
     # the effective-sample-size factor (1 + ρ) / (1 - ρ) of the lag-1 autocorrelation ρ.
     rho = float(res[1:] @ res[:-1]) / max(float(res @ res), 1e-30) if n > 2 else 0.0
     rho = min(max(rho, 0.0), 0.9)
     s2 = float(res @ res) / dof * (1 + rho) / (1 - rho)
-    jac = best.jac
     try:
         cov = np.linalg.inv(jac.T @ jac) * s2
         omega_sd, sigma_sd = (math.sqrt(max(float(x), 0.0)) for x in np.diag(cov))
     except np.linalg.LinAlgError:
         omega_sd, sigma_sd = float("nan"), float("nan")
-    basis = _basis(omega, sigma, k_pos)
     try:
         cov_lin = np.linalg.inv(basis.T @ basis) * s2
         amp_sd = math.sqrt(max(float(cov_lin[0, 0] + cov_lin[1, 1]) / 2, 0.0))
     except np.linalg.LinAlgError:
         amp_sd = float("nan")
-    wn = math.hypot(omega, sigma)
-    zeta = sigma / wn
-    zeta_sd = sigma_sd / wn
-    model = v - res - coef[2] * np.diff(k_pos)
-    signal_power = float(np.mean(model**2))
-    snr_db = 10 * math.log10(max(signal_power, 1e-30) / max(s2, 1e-30))
-    return RingdownFit(
-        frequency_hz=omega * fps / (2 * math.pi),
-        natural_frequency_hz=wn * fps / (2 * math.pi),
-        damping_ratio=zeta,
-        amplitude=amplitude,
-        phase_rad=phase,
-        decay_per_s=sigma * fps,
-        start_index=start_index,
-        frequency_sd_hz=omega_sd * fps / (2 * math.pi),
-        damping_sd=zeta_sd,
-        amplitude_sd=amp_sd,
-        residual_rms=math.sqrt(s2),
-        snr_db=snr_db,
-        samples=n,
-        duration_s=float(k_pos[-1] - k_pos[0]) / fps,
-        concentration=_concentration(v, model, omega=omega, sigma=sigma),
-    )
+    return _Spread(variance=s2, omega_sd=omega_sd, sigma_sd=sigma_sd, amplitude_sd=amp_sd)
 
 
 def _concentration(
@@ -289,7 +361,7 @@ class Ringdown:
 def sliding_ringdown(
     velocity: NDArray[np.floating[Any]],
     *,
-    fps: float,
+    sample_rate_hz: float,
     frequency_hz: float,
     window: int | None = None,
 ) -> Ringdown:
@@ -299,7 +371,7 @@ def sliding_ringdown(
     ----------
     velocity : ndarray, shape (N,)
         Per-frame displacement of the object.
-    fps : float
+    sample_rate_hz : float
     frequency_hz : float
         The object's frequency; each window's amplitude is measured there.
     window : int, optional
@@ -311,15 +383,15 @@ def sliding_ringdown(
     """
     v = np.asarray(velocity, np.float64)
     n = len(v)
-    period = fps / max(frequency_hz, 1e-9)
+    period = sample_rate_hz / max(frequency_hz, 1e-9)
     length = window or round(4 * period)
     length = int(min(max(length, 8), max(n // 2, 8), n))
     hop = max(1, length // 4)
     starts = np.arange(0, n - length + 1, hop)
     taper = np.hanning(length + 2)[1:-1]
     nfft = max(64, 1 << math.ceil(math.log2(4 * length)))
-    freqs = np.fft.rfftfreq(nfft, d=1.0 / fps)
-    omega = 2 * math.pi * frequency_hz / fps
+    freqs = np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz)
+    omega = 2 * math.pi * frequency_hz / sample_rate_hz
     k = np.arange(length)
     probe = np.exp(-1j * omega * k) * taper
     gain = 2 * math.sin(omega / 2)  # per-frame difference of a unit sine
@@ -332,9 +404,9 @@ def sliding_ringdown(
         spec = np.abs(np.fft.rfft(seg * taper, n=nfft)) ** 2
         power[i] = spec
         kk = int(np.argmax(spec[1:])) + 1
-        freq[i] = interpolate_peak(spec, kk) * fps / nfft
+        freq[i] = interpolate_peak(spec, kk) * sample_rate_hz / nfft
         amp[i] = abs(complex(seg @ probe)) / norm / max(gain, 1e-9)
-    times = (starts + length / 2) / fps
+    times = (starts + length / 2) / sample_rate_hz
     return Ringdown(
         times_s=times.astype(np.float64),
         amplitude=amp,

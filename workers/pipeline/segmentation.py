@@ -191,7 +191,7 @@ def segment(
     Segmentation
     """
     cfg = config or SegmentationConfig()
-    peaks = fold_aliased_harmonics(peaks, fps=spectra.fps, bin_hz=spectra.bin_hz)
+    peaks = fold_aliased_harmonics(peaks, sample_rate_hz=spectra.sample_rate_hz, bin_hz=spectra.bin_hz)
     seg = _label(spectra, peaks, grid_shape=grid_shape, band_hz=band_hz, cfg=cfg)
     if cfg.local_snr is None:
         return seg
@@ -201,12 +201,33 @@ def segment(
         band_hz=band_hz,
         exclude=seg.labels > 0,
         known=peaks,
-        min_ratio=cfg.local_snr,
-        scales_px=cfg.local_scales_px,
+        scan=LocalScan(min_ratio=cfg.local_snr, scales_px=cfg.local_scales_px),
     )
     if not extra:
         return seg
     return _label(spectra, [*peaks, *extra], grid_shape=grid_shape, band_hz=band_hz, cfg=cfg)
+
+
+@dataclass(frozen=True, kw_only=True)
+class LocalScan:
+    """How :func:`local_peaks` scans neighbourhoods for weak motion.
+
+    Attributes
+    ----------
+    min_ratio : float
+        Height of a peak over the chance level.
+    scales_px : tuple of int
+        Neighbourhood sides, grid pixels (clipped to half the grid's smaller side).
+    max_peaks : int
+        Peaks reported at most.
+    harmonic_tolerance : float
+        Relative tolerance of a multiple of a known peak.
+    """
+
+    min_ratio: float = 3.0
+    scales_px: tuple[int, ...] = (7, 15, 31)
+    max_peaks: int = 3
+    harmonic_tolerance: float = 0.04
 
 
 def local_peaks(
@@ -216,20 +237,17 @@ def local_peaks(
     band_hz: tuple[float, float],
     exclude: NDArray[np.bool_] | None = None,
     known: list[Peak] | None = None,
-    min_ratio: float = 3.0,
-    scales_px: tuple[int, ...] = (7, 15, 31),
-    max_peaks: int = 3,
-    harmonic_tolerance: float = 0.04,
+    scan: LocalScan = LocalScan(),
 ) -> list[Peak]:
     """Frequencies at which some region of the picture moves, too weakly for any whole-picture spectrum.
 
     Each pixel's power is divided by its own noise (its median power in the band), so every pixel
     votes with its signal-to-noise ratio, and these ratios are averaged over square neighbourhoods of
-    each size in ``scales_px``. Averaging power, not signed flow, keeps parts moving in anti-phase from
-    cancelling; averaging over a neighbourhood rather than the whole picture keeps the static background
-    from diluting a small object's motion. At each frequency the best neighbourhood's value is compared
-    with its running median over frequency (what the best neighbourhood reaches by chance); a peak
-    ``min_ratio`` times above it, with 6 dB of topographic prominence, is reported.
+    each size in ``scan.scales_px``. Averaging power, not signed flow, keeps parts moving in anti-phase
+    from cancelling; averaging over a neighbourhood rather than the whole picture keeps the static
+    background from diluting a small object's motion. At each frequency the best neighbourhood's value is
+    compared with its running median over frequency (what the best neighbourhood reaches by chance); a
+    peak ``scan.min_ratio`` times above it, with 6 dB of topographic prominence, is reported.
 
     Parameters
     ----------
@@ -242,13 +260,8 @@ def local_peaks(
     known : list of Peak, optional
         Peaks already found: their frequencies, harmonics and integer multiples (also when folded back
         below the Nyquist rate) are not reported again.
-    min_ratio : float
-        Height over the chance level.
-    scales_px : tuple of int
-        Neighbourhood sides, grid pixels (clipped to half the grid's smaller side).
-    max_peaks : int
-    harmonic_tolerance : float
-        Relative tolerance of a multiple of a known peak.
+    scan : LocalScan
+        Neighbourhood sizes and thresholds.
 
     Returns
     -------
@@ -269,6 +282,59 @@ def local_peaks(
     idx = np.flatnonzero((freqs >= band_hz[0]) & (freqs <= band_hz[1]))
     if len(idx) < 8:
         return []
+    ratio = _neighbourhood_ratio(
+        spectra, idx, grid_shape=grid_shape, band_hz=band_hz, exclude=exclude, scales_px=scan.scales_px
+    )
+    padded = np.concatenate(([-np.inf], ratio, [-np.inf]))
+    local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
+    found: list[Peak] = []
+    for j in sorted(local.tolist(), key=lambda j: -ratio[j]):
+        if ratio[j] < scan.min_ratio or len(found) >= scan.max_peaks:
+            break
+        peak = _local_peak(ratio, j, first_bin=int(idx[0]), peak_bin=int(idx[j]), bin_hz=spectra.bin_hz)
+        if peak is None or explained(
+            peak.frequency_hz,
+            [*(known or []), *found],
+            bin_hz=spectra.bin_hz,
+            tolerance=scan.harmonic_tolerance,
+            sample_rate_hz=spectra.sample_rate_hz,
+        ):
+            continue
+        found.append(peak)
+    return found
+
+
+def _neighbourhood_ratio(
+    spectra: PixelSpectra,
+    idx: NDArray[np.intp],
+    *,
+    grid_shape: tuple[int, int],
+    band_hz: tuple[float, float],
+    exclude: NDArray[np.bool_] | None,
+    scales_px: tuple[int, ...],
+) -> NDArray[np.float64]:
+    """The best neighbourhood's pooled signal-to-noise ratio at each bin of ``idx`` over its running
+    median over frequency, the highest over the neighbourhood sizes (see :func:`local_peaks`).
+
+    Parameters
+    ----------
+    spectra : PixelSpectra
+        Per-pixel power, shape (F, h * w).
+    idx : ndarray of intp, shape (B,)
+        The band's bins.
+    grid_shape : (h, w)
+    band_hz : (low, high)
+        The band of ``idx``: each pixel's noise is its median power in it.
+    exclude : ndarray of bool, shape (h, w), optional
+        Pixels that do not vote.
+    scales_px : tuple of int
+        Neighbourhood sides, grid pixels.
+
+    Returns
+    -------
+    ndarray of float64, shape (B,)
+    """
+    h, w = grid_shape
     limit = max(3, min(h, w) // 2)
     scales = sorted({min(s, limit) | 1 for s in scales_px if s >= 1})
     noise = spectra.band_median(band_hz) + np.float32(1e-20)
@@ -282,32 +348,24 @@ def local_peaks(
             best[i, j] = float(cv2.blur(snr, (side, side)).max())
     width = max(15, len(idx) // 6)
     ratios = np.stack([row / np.maximum(noise_floor(row, width=width), 1e-30) for row in best])
-    ratio = ratios.max(axis=0)
-    bin_hz = spectra.bin_hz
-    known = known or []
-    padded = np.concatenate(([-np.inf], ratio, [-np.inf]))
-    local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]))
-    found: list[Peak] = []
-    for j in sorted(local.tolist(), key=lambda j: -ratio[j]):
-        if ratio[j] < min_ratio or len(found) >= max_peaks:
-            break
-        prominence = topographic_prominence(ratio, j)
-        if 10 * np.log10(prominence) < 6.0:
-            continue
-        peak_bin = int(idx[j])
-        f = (int(idx[0]) + interpolate_peak(ratio, j)) * bin_hz
-        if explained(f, [*known, *found], bin_hz=bin_hz, tolerance=harmonic_tolerance, fps=spectra.fps):
-            continue
-        found.append(
-            Peak(
-                frequency_hz=f,
-                bin=peak_bin,
-                power=float(ratio[j]),
-                prominence_db=float(10 * np.log10(prominence)),
-                snr_db=float(10 * np.log10(ratio[j])),
-            )
-        )
-    return found
+    return np.asarray(ratios.max(axis=0), np.float64)
+
+
+def _local_peak(
+    ratio: NDArray[np.float64], j: int, *, first_bin: int, peak_bin: int, bin_hz: float
+) -> Peak | None:
+    """The peak at the local maximum ``j`` of ``ratio`` (B,) over the band starting at ``first_bin``, or
+    None when it stands less than 6 dB above its key saddle."""
+    prominence = topographic_prominence(ratio, j)
+    if 10 * np.log10(prominence) < 6.0:
+        return None
+    return Peak(
+        frequency_hz=(first_bin + interpolate_peak(ratio, j)) * bin_hz,
+        bin=peak_bin,
+        power=float(ratio[j]),
+        prominence_db=float(10 * np.log10(prominence)),
+        snr_db=float(10 * np.log10(ratio[j])),
+    )
 
 
 def _label(
@@ -320,9 +378,6 @@ def _label(
 ) -> Segmentation:
     """Label the pixels of each of ``peaks`` (see :func:`segment`)."""
     h, w = grid_shape
-    freqs = spectra.frequencies_hz
-    in_band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
-    total = spectra.power[in_band].sum(axis=0) + np.float32(1e-20)
     if not peaks:
         return Segmentation(
             labels=np.zeros(grid_shape, np.int32),
@@ -330,6 +385,68 @@ def _label(
             band_power=np.zeros((0, h, w), np.float32),
             noise_power=np.zeros(0),
         )
+    bands = _bands(spectra, peaks, grid_shape=grid_shape, band_hz=band_hz, cfg=cfg)
+    min_area = max(4, int(cfg.min_area_fraction * h * w))
+    labels = np.zeros(h * w, np.int32)
+    kept: list[Peak] = []
+    kept_rows: list[int] = []
+    for i, peak in enumerate(peaks):
+        region = _object_region(bands, i, labels=labels, grid_shape=grid_shape, min_area=min_area, cfg=cfg)
+        if not region.any():
+            continue
+        kept.append(peak)
+        kept_rows.append(i)
+        labels[region] = len(kept)
+    return Segmentation(
+        labels=labels.reshape(h, w),
+        peaks=kept,
+        band_power=bands.power[kept_rows].reshape(len(kept_rows), h, w),
+        noise_power=bands.noise[kept_rows],
+    )
+
+
+@dataclass(frozen=True)
+class _Bands:
+    """Each peak's band power at every pixel, and what it is judged against.
+
+    Attributes
+    ----------
+    power : ndarray of float32, shape (K, h * w)
+        Power in each peak's band (fundamental and harmonics).
+    bins : ndarray of float64, shape (K,)
+        Bins in each band (at least 1).
+    total : ndarray of float32, shape (h * w,)
+        Each pixel's power in the whole analysis band.
+    pixel_noise : ndarray of float32, shape (h * w,)
+        Each pixel's own noise level (median power per bin in the analysis band).
+    noise : ndarray of float64, shape (K,)
+        Band power of the background (median pixel).
+    owner : ndarray of intp, shape (h * w,)
+        The peak whose band is strongest at each pixel.
+    """
+
+    power: NDArray[np.float32]
+    bins: NDArray[np.float64]
+    total: NDArray[np.float32]
+    pixel_noise: NDArray[np.float32]
+    noise: NDArray[np.float64]
+    owner: NDArray[np.intp]
+
+
+def _bands(
+    spectra: PixelSpectra,
+    peaks: list[Peak],
+    *,
+    grid_shape: tuple[int, int],
+    band_hz: tuple[float, float],
+    cfg: SegmentationConfig,
+) -> _Bands:
+    """The band powers of ``peaks`` (not empty) over the ``grid_shape`` pixels of ``spectra`` (see
+    :class:`_Bands`)."""
+    h, w = grid_shape
+    freqs = spectra.frequencies_hz
+    in_band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
+    total = spectra.power[in_band].sum(axis=0) + np.float32(1e-20)
     band_power = np.empty((len(peaks), h * w), np.float32)
     band_bins = np.empty(len(peaks))
     for i, peak in enumerate(peaks):
@@ -342,59 +459,101 @@ def _label(
     pixel_noise = spectra.band_median(band_hz) + np.float32(1e-20)
     noise = np.median(band_power, axis=1).astype(np.float64) + 1e-20
     owner = np.argmax(band_power, axis=0)
-    min_area = max(4, int(cfg.min_area_fraction * h * w))
-    labels = np.zeros(h * w, np.int32)
-    kept: list[Peak] = []
-    kept_rows: list[int] = []
-    for i, peak in enumerate(peaks):
-        bp = band_power[i]
-        snr = bp / (pixel_noise * band_bins[i])
-        candidate = (bp > cfg.noise_factor * noise[i]) & (owner == i) & (bp > cfg.purity * total)
-        moving = candidate.copy()
-        region = np.zeros(h * w, bool)
-        if candidate.any():
-            # The object's typical level: occlusion edges carry erratic, strong flow, so a high
-            # percentile would be set by them rather than by the object's interior.
-            level = float(np.median(bp[candidate]))
-            candidate &= bp >= cfg.relative_level * level
-            if cfg.edge_level is not None:
-                candidate &= _within_edge(bp.reshape(h, w), candidate.reshape(h, w), cfg).ravel()
-            region = _clean(candidate.reshape(h, w), min_area).ravel() & (labels == 0)
-        if not region.any() or float(np.median(snr[region])) < cfg.weak_snr:
-            # Weak (sub-pixel) motion: each pixel is only a few dB above its own noise, too little for
-            # the purity test. Pool the per-pixel signal-to-noise ratio over small neighbourhoods,
-            # which move together (parts in anti-phase are pooled as power, so they do not cancel),
-            # keep what stands out and grow it into neighbours that stand out less (hysteresis).
-            pooled = cv2.blur(snr.reshape(h, w).astype(np.float32), (cfg.pool_px, cfg.pool_px))
-            mine = (owner == i).reshape(h, w)
-            mostly_mine = cv2.blur(mine.astype(np.float32), (cfg.pool_px, cfg.pool_px)) > 0.5
-            weak = (pooled > cfg.pooled_snr) & mostly_mine
-            if weak.any():
-                low = (pooled > cfg.pooled_grow * cfg.pooled_snr) & mostly_mine
-                count, comp = cv2.connectedComponents(low.astype(np.uint8), connectivity=8)
-                seeded = np.zeros(count, bool)
-                seeded[np.unique(comp[weak])] = True
-                seeded[0] = False
-                weak = seeded[comp]
-            if region.any():
-                # ... as strong as the pixels the purity test kept: strong motion on noisy flow also
-                # lights up the swept, leaking background around it, far weaker than the object.
-                weak &= (bp >= cfg.relative_level * float(np.median(bp[region]))).reshape(h, w)
-            region |= _clean(weak, min_area).ravel() & (labels == 0)
-        if not region.any():
-            continue
-        core = region & (bp >= float(np.median(bp[region])))
-        region |= _bridged(region.reshape(h, w), moving.reshape(h, w), cfg, core=core.reshape(h, w)).ravel()
-        region &= labels == 0
-        kept.append(peak)
-        kept_rows.append(i)
-        labels[region] = len(kept)
-    return Segmentation(
-        labels=labels.reshape(h, w),
-        peaks=kept,
-        band_power=band_power[kept_rows].reshape(len(kept_rows), h, w),
-        noise_power=noise[kept_rows],
+    return _Bands(
+        power=band_power, bins=band_bins, total=total, pixel_noise=pixel_noise, noise=noise, owner=owner
     )
+
+
+def _object_region(
+    bands: _Bands,
+    i: int,
+    *,
+    labels: NDArray[np.int32],
+    grid_shape: tuple[int, int],
+    min_area: int,
+    cfg: SegmentationConfig,
+) -> NDArray[np.bool_]:
+    """The pixels of peak ``i``'s object not yet labelled: those the purity test keeps, or pooled weak
+    motion, then bridged over its gaps (see :func:`_bridged`).
+
+    Parameters
+    ----------
+    bands : _Bands
+    i : int
+        The peak's row of ``bands``.
+    labels : ndarray of int32, shape (h * w,)
+        The labels so far (0: free).
+    grid_shape : (h, w)
+    min_area : int
+        Smallest connected part kept, grid pixels.
+    cfg : SegmentationConfig
+
+    Returns
+    -------
+    ndarray of bool, shape (h * w,)
+    """
+    h, w = grid_shape
+    bp = bands.power[i]
+    snr = bp / (bands.pixel_noise * bands.bins[i])
+    candidate = (
+        (bp > cfg.noise_factor * bands.noise[i]) & (bands.owner == i) & (bp > cfg.purity * bands.total)
+    )
+    moving = candidate.copy()
+    region = np.zeros(h * w, bool)
+    if candidate.any():
+        # The object's typical level: occlusion edges carry erratic, strong flow, so a high
+        # percentile would be set by them rather than by the object's interior.
+        level = float(np.median(bp[candidate]))
+        candidate &= bp >= cfg.relative_level * level
+        if cfg.edge_level is not None:
+            candidate &= _within_edge(bp.reshape(h, w), candidate.reshape(h, w), cfg).ravel()
+        region = _clean(candidate.reshape(h, w), min_area).ravel() & (labels == 0)
+    if not region.any() or float(np.median(snr[region])) < cfg.weak_snr:
+        weak = _weak_motion(snr.reshape(h, w), (bands.owner == i).reshape(h, w), cfg)
+        if region.any():
+            # ... as strong as the pixels the purity test kept: strong motion on noisy flow also
+            # lights up the swept, leaking background around it, far weaker than the object.
+            weak &= (bp >= cfg.relative_level * float(np.median(bp[region]))).reshape(h, w)
+        region |= _clean(weak, min_area).ravel() & (labels == 0)
+    if not region.any():
+        return region
+    core = region & (bp >= float(np.median(bp[region])))
+    region |= _bridged(region.reshape(h, w), moving.reshape(h, w), cfg, core=core.reshape(h, w)).ravel()
+    region &= labels == 0
+    return region
+
+
+def _weak_motion(
+    snr: NDArray[np.floating[Any]], mine: NDArray[np.bool_], cfg: SegmentationConfig
+) -> NDArray[np.bool_]:
+    """Weak (sub-pixel) motion: each pixel is only a few dB above its own noise, too little for the
+    purity test. The per-pixel signal-to-noise ratio is pooled over small neighbourhoods, which move
+    together (parts in anti-phase are pooled as power, so they do not cancel); what stands out is kept
+    and grown into neighbours that stand out less (hysteresis).
+
+    Parameters
+    ----------
+    snr : ndarray of float, shape (h, w)
+        Each pixel's band power over its own noise (per bin) in the band.
+    mine : ndarray of bool, shape (h, w)
+        Pixels whose strongest band is the object's.
+    cfg : SegmentationConfig
+
+    Returns
+    -------
+    ndarray of bool, shape (h, w)
+    """
+    pooled = cv2.blur(snr.astype(np.float32), (cfg.pool_px, cfg.pool_px))
+    mostly_mine = cv2.blur(mine.astype(np.float32), (cfg.pool_px, cfg.pool_px)) > 0.5
+    weak = (pooled > cfg.pooled_snr) & mostly_mine
+    if weak.any():
+        low = (pooled > cfg.pooled_grow * cfg.pooled_snr) & mostly_mine
+        count, comp = cv2.connectedComponents(low.astype(np.uint8), connectivity=8)
+        seeded = np.zeros(count, bool)
+        seeded[np.unique(comp[weak])] = True
+        seeded[0] = False
+        weak = seeded[comp]
+    return np.asarray(weak, bool)
 
 
 def _bridged(

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.fft import RfftPlans, fast_length, shared_plans
+from workers.pipeline.fft import BandSummary, RfftPlans, fast_length, shared_plans
 
 
 @dataclass(frozen=True)
@@ -25,19 +25,19 @@ class PixelSpectra:
     frequencies_hz : ndarray of float64, shape (F,)
     power : ndarray of float32, shape (F, P)
         |U|² + |V|² per frequency and pixel (P = h * w on the flow grid).
-    fps : float
+    sample_rate_hz : float
     n : int
         Transform length (flow samples, zero-padded to a fast length).
     """
 
     frequencies_hz: NDArray[np.float64]
     power: NDArray[np.float32]
-    fps: float
+    sample_rate_hz: float
     n: int
 
     @property
     def bin_hz(self) -> float:
-        return self.fps / self.n
+        return self.sample_rate_hz / self.n
 
     def band_median(self, band_hz: tuple[float, float]) -> NDArray[np.float32]:
         """Each pixel's median power over the bins of ``band_hz`` (its own noise level), computed once.
@@ -60,43 +60,6 @@ class PixelSpectra:
         return cache[band_hz]
 
 
-@dataclass(frozen=True)
-class BandSummary:
-    """Per-pixel summaries of the power in a band's bins, filled block by block by :meth:`RfftPlans.power`.
-
-    Attributes
-    ----------
-    bins : slice
-        The band's bins.
-    median, peak : ndarray of float32, shape (P,)
-        Median and maximum power over the bins.
-    argmax : ndarray of int64, shape (P,)
-        Position of the maximum, counted from ``bins.start``.
-    """
-
-    bins: slice
-    median: NDArray[np.float32]
-    peak: NDArray[np.float32]
-    argmax: NDArray[np.int64]
-
-    @classmethod
-    def empty(cls, bins: slice, pixels: int) -> BandSummary:
-        return cls(
-            bins=bins,
-            median=np.empty(pixels, np.float32),
-            peak=np.empty(pixels, np.float32),
-            argmax=np.empty(pixels, np.int64),
-        )
-
-    def fill(self, rows: NDArray[np.float32], first: int) -> None:
-        """Summarise ``rows`` (pixels ``first, first + 1, ...``; the band's bins along axis 1)."""
-        end = first + len(rows)
-        self.median[first:end] = median_rows(rows)
-        k = np.argmax(rows, axis=1)
-        self.argmax[first:end] = k
-        self.peak[first:end] = np.take_along_axis(rows, k[:, None], axis=1)[:, 0]
-
-
 def median_bins(frequencies_hz: NDArray[np.float64], band_hz: tuple[float, float]) -> slice:
     """The bins a pixel's noise level is the median of: those of ``band_hz``, or every bin above zero
     when the band holds fewer than three."""
@@ -106,32 +69,10 @@ def median_bins(frequencies_hz: NDArray[np.float64], band_hz: tuple[float, float
     return slice(int(inside[0]), int(inside[-1]) + 1)
 
 
-def median_rows(rows: NDArray[np.float32]) -> NDArray[np.float32]:
-    """``np.median(rows, axis=1)``, about four times faster: one partition along the contiguous axis
-    (numpy's median partitions for both middle elements), the lower middle taken as the maximum below it.
-
-    Parameters
-    ----------
-    rows : ndarray of float32, shape (P, B), C-contiguous, B >= 1
-
-    Returns
-    -------
-    ndarray of float32, shape (P,)
-    """
-    b = rows.shape[1]
-    k = b // 2
-    parted = np.partition(rows, k, axis=1)
-    upper = parted[:, k]
-    if b % 2:
-        return np.asarray(upper, np.float32)
-    lower = parted[:, :k].max(axis=1)
-    return np.asarray((lower.astype(np.float64) + upper) / 2, np.float32)
-
-
 def pixel_spectra(
     flow: NDArray[np.float32],
     *,
-    fps: float,
+    sample_rate_hz: float,
     plans: RfftPlans | None = None,
     band_hz: tuple[float, float] | None = None,
     mix: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]] | None = None,
@@ -142,7 +83,7 @@ def pixel_spectra(
     ----------
     flow : ndarray of float32, shape (N, h, w, 2)
         Flow maps in time order.
-    fps : float
+    sample_rate_hz : float
         Sampling rate of the flow maps, Hz.
     plans : RfftPlans, optional
         FFT plan cache; the process-wide one by default.
@@ -161,7 +102,7 @@ def pixel_spectra(
     n = flow.shape[0]
     flat = flow.reshape(n, -1)
     nfft = fast_length(n)
-    freqs = np.fft.rfftfreq(nfft, d=1.0 / fps).astype(np.float64)
+    freqs = np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz).astype(np.float64)
     summary = None
     if band_hz is not None:
         summary = BandSummary.empty(median_bins(freqs, band_hz), flat.shape[1] // 2)
@@ -170,7 +111,7 @@ def pixel_spectra(
         a, b, c = (np.asarray(m, np.float32).ravel() for m in mix)
         per_pixel = (a, b, c)
     power = (plans or shared_plans()).power(flat, nfft=nfft, pairs=2, summary=summary, mix=per_pixel)
-    spectra = PixelSpectra(frequencies_hz=freqs, power=power, fps=fps, n=nfft)
+    spectra = PixelSpectra(frequencies_hz=freqs, power=power, sample_rate_hz=sample_rate_hz, n=nfft)
     if band_hz is not None and summary is not None:
         spectra.__dict__.setdefault("_summaries", {})[band_hz] = summary
     return spectra
@@ -218,11 +159,9 @@ def whitened_spectrum(
 
 
 __all__ = [
-    "BandSummary",
     "PixelSpectra",
     "background_spectrum",
     "median_bins",
-    "median_rows",
     "pixel_spectra",
     "whitened_spectrum",
 ]

@@ -135,24 +135,8 @@ def stream_frames(
     kept = _Kept(
         n, grid, reader.info.has_depth, (reader.info.height, reader.info.width) if keep_gray else None
     )
-    flow_buf = np.empty((n, *grid, 1 if magnitude else 2), np.float32)
-    # The camera's own motion (shake, drift) moves the whole frame; estimate it each frame from a ring
-    # along the border (see workers.pipeline.camera) so that it is neither an object nor mixed into one.
-    camera = np.zeros((n, 2), np.float32)
-    # Flow is written straight into the buffer by the flow threads (magnitudes are reduced here); the
-    # camera's motion is taken from each map while the threads compute the next ones.
     frames = iter(reader.frames_with_depth_on(grid, start, stop))
-    count = 0
-    for i, flow in enumerate(
-        flow_stream(kept.grays(frames), config=flow_cfg, out=None if magnitude else flow_buf)
-    ):
-        if magnitude:
-            flow_buf[i, ..., 0] = flow_magnitude(flow)
-        else:
-            camera[i] = kept.ring.motion(flow)
-        count = i + 1
-        if progress is not None and (i % 8 == 0 or i == n - 1):
-            progress("flow", 0.05 + 0.75 * count / n)
+    flow_buf, camera, count = _flows(kept, frames, flow_cfg, magnitude=magnitude, progress=progress)
     if kept.first_rgb is None or count + 1 < MIN_FRAMES:
         raise AnalysisError(
             f"the clip ended after {kept.frames_read} of the {n + 1} frames it announced; at least "
@@ -183,6 +167,32 @@ def stream_frames(
         camera_still_fraction=removal.still_fraction,
         announced=n,
     )
+
+
+def _flows(
+    kept: _Kept, frames: Iterator[Frame], flow_cfg: FlowConfig, *, magnitude: bool, progress: Progress | None
+) -> tuple[NDArray[np.float32], NDArray[np.float32], int]:
+    """The flow of ``frames`` (N, h, w, 2), or its magnitude (N, h, w, 1), each map's border motion
+    (N, 2), and how many maps the frames gave (N at most: a clip may end early)."""
+    n = kept.n
+    flow_buf = np.empty((n, *kept.grid, 1 if magnitude else 2), np.float32)
+    # The camera's own motion (shake, drift) moves the whole frame; estimate it each frame from a ring
+    # along the border (see workers.pipeline.camera) so that it is neither an object nor mixed into one.
+    camera = np.zeros((n, 2), np.float32)
+    # Flow is written straight into the buffer by the flow threads (magnitudes are reduced here); the
+    # camera's motion is taken from each map while the threads compute the next ones.
+    count = 0
+    for i, flow in enumerate(
+        flow_stream(kept.grays(frames), config=flow_cfg, out=None if magnitude else flow_buf)
+    ):
+        if magnitude:
+            flow_buf[i, ..., 0] = flow_magnitude(flow)
+        else:
+            camera[i] = kept.ring.motion(flow)
+        count = i + 1
+        if progress is not None and (i % 8 == 0 or i == n - 1):
+            progress("flow", 0.05 + 0.75 * count / n)
+    return flow_buf, camera, count
 
 
 class _Kept:

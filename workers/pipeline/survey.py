@@ -26,7 +26,6 @@ import math
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,8 +34,8 @@ from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing
 from workers.pipeline.detection import SURVEY_PEAKS
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.light import FLICKER_ROWS, block_brightness, flickering_rows
-from workers.pipeline.model import BAND_NYQUIST_FRACTION
-from workers.pipeline.peaks import Peak, detect_peaks
+from workers.pipeline.model import BAND_NYQUIST_FRACTION, Survey
+from workers.pipeline.peaks import Peak, PeakSpectra, detect_peaks
 
 #: Floats held by the survey's segment buffer (flow of every survey pixel over one Welch segment).
 SURVEY_BUFFER_FLOATS = 8_000_000
@@ -46,132 +45,6 @@ MAX_BLOCKS = 2048
 #: A peak whose whitened power at the median pixel exceeds this (power over the pixel's own noise) is seen
 #: over the static background too: camera motion, flicker or codec pulses rather than an object.
 GLOBAL_MEDIAN_SNR = 2.5
-
-
-@dataclass(frozen=True)
-class Survey:
-    """What :func:`survey_motion` saw in a whole clip.
-
-    Attributes
-    ----------
-    fps : float
-        Frame rate of the surveyed frames, Hz.
-    first_frame : int
-        Clip index of the first surveyed frame.
-    frames : int
-        Frames surveyed (flow maps + 1).
-    grid_shape : (h, w)
-        Survey grid; ``grid_scale`` survey pixels per input pixel.
-    grid_scale : float
-    segment_frames : int
-        Welch segment length, flow samples (hop: half of it).
-    frequencies_hz : ndarray of float64, shape (F,)
-    power : ndarray of float64, shape (F,)
-        Welch average of the summed per-pixel power (survey pixels² / frame²).
-    whitened : ndarray of float64, shape (F,)
-        Welch average of the per-pixel power over each pixel's median power in the band, summed.
-    median_snr : ndarray of float64, shape (F,)
-        Welch average of the median pixel's whitened power: about 1 for noise, high for a frequency seen
-        all over the picture.
-    segments : int
-        Welch segments averaged.
-    segment_starts : ndarray of int64, shape (S,)
-        Clip index of the first frame of each stored segment (each covers ``segment_span`` frames).
-    segment_span : int
-    segment_power : ndarray of float32, shape (S, F)
-        Summed per-pixel power of each stored segment (merged segments are added).
-    block_frames : int
-        Frames per entry of ``block_energy``.
-    block_energy : ndarray of float64, shape (B,)
-        Mean squared motion per frame, input px², of block b, which starts at clip frame
-        ``first_frame + b * block_frames``.
-    max_step_px : float
-        Per-frame motion of the fastest moving pixels (99th percentile over the pixels), input pixels, in
-        the frames where it is largest (90th percentile over the frames, robust to a few glitches).
-    peaks : list of Peak
-        Confident peaks, strongest first, harmonics folded in (``snr_db`` over the whitened floor).
-    global_peaks_hz : list of float
-        The peaks (among ``peaks``) that are seen over the whole picture.
-    flicker_hz : list of float
-        The peaks (among ``peaks``) at which the picture's brightness oscillates: lighting flicker.
-    """
-
-    fps: float
-    first_frame: int
-    frames: int
-    grid_shape: tuple[int, int]
-    grid_scale: float
-    segment_frames: int
-    frequencies_hz: NDArray[np.float64]
-    power: NDArray[np.float64]
-    whitened: NDArray[np.float64]
-    median_snr: NDArray[np.float64]
-    segments: int
-    segment_starts: NDArray[np.int64]
-    segment_span: int
-    segment_power: NDArray[np.float32]
-    block_frames: int
-    block_energy: NDArray[np.float64]
-    max_step_px: float
-    peaks: list[Peak]
-    global_peaks_hz: list[float]
-    flicker_hz: list[float] = field(default_factory=list)
-
-    @property
-    def bin_hz(self) -> float:
-        """Width of one Welch bin, Hz."""
-        return self.fps / self.segment_frames
-
-    @property
-    def object_peaks(self) -> list[Peak]:
-        """Confident peaks that are not seen over the whole picture, strongest first."""
-        return [p for p in self.peaks if p.frequency_hz not in self.global_peaks_hz]
-
-    def band_energy(self, frequency_hz: float, *, half_width_bins: float = 1.5) -> NDArray[np.float64]:
-        """Power of each stored segment near ``frequency_hz`` (within ``half_width_bins``).
-
-        Returns
-        -------
-        ndarray of float64, shape (S,)
-        """
-        sel = np.abs(self.frequencies_hz - frequency_hz) <= half_width_bins * self.bin_hz
-        if not sel.any():
-            sel[int(np.argmin(np.abs(self.frequencies_hz - frequency_hz)))] = True
-        return np.asarray(self.segment_power[:, sel].sum(axis=1), np.float64)
-
-    def decay_at(self, frequency_hz: float, *, isolation_bins: float = 3.0) -> tuple[float, float] | None:
-        """The envelope's decay rate at ``frequency_hz`` over the whole clip, from the stored segments'
-        energy after its strongest one: (σ, its standard uncertainty), 1/s; None when fewer than three
-        segments follow it, or another peak lies within ``isolation_bins`` (their energies would mix).
-        """
-        if any(
-            self.bin_hz < abs(p.frequency_hz - frequency_hz) <= isolation_bins * self.bin_hz
-            for p in self.peaks
-        ):
-            return None
-        energy = self.band_energy(frequency_hz)
-        first = int(np.argmax(energy))
-        energy = energy[first:]
-        if energy.size < 3 or not np.all(energy > 0):
-            return None
-        t = (self.segment_starts[first:] + self.segment_span / 2) / self.fps
-        design = np.stack([np.ones_like(t, dtype=np.float64), t.astype(np.float64)], axis=1)
-        coef, *_ = np.linalg.lstsq(design, np.log(energy), rcond=None)
-        res = np.log(energy) - design @ coef
-        dof = max(len(t) - 2, 1)
-        cov = np.linalg.inv(design.T @ design) * float(res @ res) / dof
-        # Energy falls as exp(-2 sigma t).
-        return -float(coef[1]) / 2, math.sqrt(max(float(cov[1, 1]), 0.0)) / 2
-
-    def explains(self, frequency_hz: float, *, tolerance: float = 0.02) -> bool:
-        """Whether ``frequency_hz`` is one of the survey's peaks, or a harmonic of one, within
-        ``tolerance`` (relative) or one and a half Welch bins, whichever is wider."""
-        slack = max(tolerance * frequency_hz, 1.5 * self.bin_hz)
-        for peak in self.peaks:
-            for f in (peak.frequency_hz, *peak.harmonics_hz):
-                if abs(f - frequency_hz) <= slack:
-                    return True
-        return False
 
 
 def survey_factor(height: int, width: int, *, segment_frames: int, width_px: int = 96) -> int:
@@ -246,15 +119,7 @@ def survey_motion(
     ParameterError
         On a non-positive ``fps``, fewer than 17 frames, or frames that change size.
     """
-    if not (math.isfinite(fps) and fps > 0):
-        raise ParameterError(f"survey: fps={fps} must be a positive number of frames per second")
-    if total_frames < 17:
-        raise ParameterError(
-            f"survey: a clip of {total_frames} frames is too short to survey; analyse it whole"
-        )
-    length = segment_frames or segment_length(total_frames)
-    if length < 16 or length % 2:
-        raise ParameterError(f"survey: segment_frames={length} must be an even number >= 16")
+    length = _checked_length(fps, total_frames, segment_frames)
     iterator = iter(grays)
     try:
         first = next(iterator)
@@ -275,23 +140,25 @@ def survey_motion(
     if acc.samples < 16:
         raise ParameterError(f"survey: the clip yielded only {acc.samples + 1} frames; analyse it whole")
     acc.finish()
+    return _summary(acc, flows, min_snr_db=min_snr_db, band_hz=band_hz)
+
+
+def _summary(
+    acc: _WelchAccumulator, flows: _SurveyFlow, *, min_snr_db: float, band_hz: tuple[float, float] | None
+) -> Survey:
+    """The survey from its finished accumulator and flow: the Welch spectra, their peaks, which of those
+    are seen over the whole picture or are lighting flicker, and the segments' energy."""
     power, whitened, median_snr, background = acc.averages()
-    bin_hz = fps / acc.length
-    peaks = _survey_peaks(
-        acc.frequencies_hz,
-        (power, background, whitened, median_snr),
-        bin_hz=bin_hz,
-        nyquist_hz=fps / 2,
-        min_snr_db=min_snr_db,
-        band_hz=band_hz,
-    )
+    fps, bin_hz = acc.fps, acc.fps / acc.length
+    spectra = (power, background, whitened, median_snr)
+    peaks = _survey_peaks(acc.frequencies_hz, spectra, bin_hz=bin_hz, min_snr_db=min_snr_db, band_hz=band_hz)
     starts, span, seg_power = acc.segments_stored()
     return Survey(
         fps=fps,
-        first_frame=first_frame,
+        first_frame=acc.first_frame,
         frames=acc.samples + 1,
         grid_shape=flows.shape,
-        grid_scale=1.0 / factor,
+        grid_scale=1.0 / flows.factor,
         segment_frames=acc.length,
         frequencies_hz=acc.frequencies_hz,
         power=power,
@@ -308,6 +175,20 @@ def survey_motion(
         global_peaks_hz=[p.frequency_hz for p in peaks if median_snr[p.bin] > GLOBAL_MEDIAN_SNR],
         flicker_hz=_flicker(np.asarray(flows.brightness, np.float32), fps=fps, peaks=peaks, bin_hz=bin_hz),
     )
+
+
+def _checked_length(fps: float, total_frames: int, segment_frames: int | None) -> int:
+    """The Welch segment length, once the rate and the clip's length are known to allow a survey."""
+    if not (math.isfinite(fps) and fps > 0):
+        raise ParameterError(f"survey: fps={fps} must be a positive number of frames per second")
+    if total_frames < 17:
+        raise ParameterError(
+            f"survey: a clip of {total_frames} frames is too short to survey; analyse it whole"
+        )
+    length = segment_frames or segment_length(total_frames)
+    if length < 16 or length % 2:
+        raise ParameterError(f"survey: segment_frames={length} must be an even number >= 16")
+    return length
 
 
 class _SurveyFlow:
@@ -374,7 +255,6 @@ def _survey_peaks(
     spectra: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
     *,
     bin_hz: float,
-    nyquist_hz: float,
     min_snr_db: float,
     band_hz: tuple[float, float] | None,
 ) -> list[Peak]:
@@ -384,18 +264,20 @@ def _survey_peaks(
     power, background, whitened, median_snr = spectra
     # Peaks are searched from the first bin so that a low peak's left flank counts for its prominence;
     # those below two bins (unresolved from the mean and slow drift) are dropped afterwards.
-    band = (0.5 * bin_hz, BAND_NYQUIST_FRACTION * nyquist_hz)
+    band = (0.5 * bin_hz, BAND_NYQUIST_FRACTION * float(freqs[-1]))
     policy = dataclasses.replace(SURVEY_PEAKS, weak_min_snr_db=min_snr_db)
 
     def peaks_in(searched: tuple[float, float]) -> list[Peak]:
         return detect_peaks(
-            freqs,
-            summed=power,
-            background=background,
-            whitened=whitened,
-            median_snr=median_snr,
+            PeakSpectra(
+                frequencies_hz=freqs,
+                bin_hz=bin_hz,
+                summed=power,
+                background=background,
+                whitened=whitened,
+                median_snr=median_snr,
+            ),
             band_hz=searched,
-            bin_hz=bin_hz,
             policy=policy,
         )
 
@@ -623,7 +505,6 @@ class _WelchAccumulator:
 
 
 __all__ = [
-    "Survey",
     "segment_length",
     "survey_factor",
     "survey_motion",

@@ -18,8 +18,8 @@ gives a :class:`~workers.pipeline.synth.Scene` with its ground truth:
 - :data:`REAL_STILL_CROPS` and :class:`ColumnCrop`: still parts of the shared real clips (the flat
   background beside the forks), the null corpus's real part.
 
-Used by the accuracy tier (tests/unit/pipeline/test_real_world_classes.py, test_codecs.py, test_null.py)
-and by ``bench/null_corpus.py``.
+Used by the accuracy tier (tests/accuracy/pipeline/test_real_world_classes.py, test_compressed_footage.py,
+test_real_footage.py) and by ``bench/null_corpus.py``.
 """
 
 from __future__ import annotations

@@ -81,6 +81,10 @@ def object_motion(
     max_pixels : int
         Pixels sampled (seeded) for the decomposition.
     seed : int
+    frequency_hz, sample_rate_hz : float, optional
+        The object's frequency and the flow's sample rate: the component is sought near it.
+    confidence : Confidence, optional
+        Of the grid's flow: each pixel's flow counts by its weight.
 
     Returns
     -------
@@ -99,21 +103,59 @@ def object_motion(
         if weight is None
         else np.repeat(np.sqrt(weight.ravel()[idx]), 2).astype(np.float32)
     )
-    mean_course: NDArray[np.float64] | None = None
     if frequency_hz is not None and sample_rate_hz is not None:
-        nu = frequency_hz / sample_rate_hz
-        u1 = _band_component(mat, nu, weights=counts)
-        if confidence is not None:
-            # the course's own mean is removed, so the columns' means make no difference to it
-            mean_course = _mean_course(mat.reshape(n, -1, 2), _tensors(confidence, idx), nu)
-        if mean_course is not None and line_snr(mean_course, nu) > line_snr(u1, nu):
-            u1 = mean_course / float(np.linalg.norm(mean_course))
-        else:
-            mean_course = None
+        tensors = None if confidence is None else _tensors(confidence, idx)
+        course = _course_near(mat, counts, tensors, cycles_per_sample=frequency_hz / sample_rate_hz)
     else:
         weighted = mat * counts
         _evals, evecs = np.linalg.eigh((weighted @ weighted.T).astype(np.float64))
-        u1 = evecs[:, -1]
+        course = _Course(unit=evecs[:, -1], mean=None)
+    return _motion_along(mat, course, pixel_scale=pixel_scale)
+
+
+@dataclass(frozen=True)
+class _Course:
+    """The time course an object's motion follows.
+
+    Attributes
+    ----------
+    unit : ndarray of float64, shape (N,)
+        Unit time course the pixels' loadings are taken on.
+    mean : ndarray of float64, shape (N,) or None
+        The pixels' common motion in grid pixels per frame, when it is the object's (see
+        :func:`_mean_course`); None when ``unit`` is a principal component.
+    """
+
+    unit: NDArray[np.float64]
+    mean: NDArray[np.float64] | None
+
+
+def _course_near(
+    mat: NDArray[np.float32],
+    counts: NDArray[np.float32],
+    tensors: NDArray[np.float64] | None,
+    *,
+    cycles_per_sample: float,
+) -> _Course:
+    """The course of the motion near a frequency: the band's leading component of ``mat`` (N, 2P),
+    each column weighed by ``counts`` (2P,); or, given the pixels' structure ``tensors`` (P, 2, 2), their
+    common motion where that stands out more clearly there (:func:`line_snr`)."""
+    n = mat.shape[0]
+    nu = cycles_per_sample
+    u1 = _band_component(mat, nu, weights=counts)
+    mean_course: NDArray[np.float64] | None = None
+    if tensors is not None:
+        # the course's own mean is removed, so the columns' means make no difference to it
+        mean_course = _mean_course(mat.reshape(n, -1, 2), tensors, nu)
+    if mean_course is not None and line_snr(mean_course, nu) > line_snr(u1, nu):
+        return _Course(unit=mean_course / float(np.linalg.norm(mean_course)), mean=mean_course)
+    return _Course(unit=u1, mean=None)
+
+
+def _motion_along(mat: NDArray[np.float32], course: _Course, *, pixel_scale: float) -> ObjectMotion:
+    """The motion of the pixels of ``mat`` (N, 2P) along ``course``: their loadings on it give the axis,
+    the typical pixel's amplitude and the coherence (see :class:`ObjectMotion`)."""
+    u1 = course.unit
     # (P, 2): per-pixel amplitude vector for unit time course
     loads = (mat.T @ u1.astype(np.float32)).astype(np.float64).reshape(-1, 2)
     cov = loads.T @ loads
@@ -126,10 +168,10 @@ def object_motion(
     norms = np.linalg.norm(loads, axis=1)
     coherence = float(np.linalg.norm(loads.mean(axis=0)) / (norms.mean() + 1e-12))
     sign = 1.0 if np.sum(proj) >= 0 else -1.0
-    if mean_course is not None:
+    if course.mean is not None:
         # The mean flow over the pixels is the motion itself (grid pixels per frame), with its sign.
-        velocity = mean_course * pixel_scale
-        if float(np.dot(mean_course, u1)) < 0:
+        velocity = course.mean * pixel_scale
+        if float(np.dot(course.mean, u1)) < 0:
             velocity = -velocity
     else:
         velocity = u1 * scale_px * sign * pixel_scale
@@ -377,7 +419,7 @@ def second_motion(
     mask: NDArray[np.bool_],
     *,
     frequency_hz: float,
-    fps: float,
+    sample_rate_hz: float,
     lines: float = 3.0,
     max_pixels: int = 4000,
     seed: int = 0,
@@ -395,7 +437,7 @@ def second_motion(
     ----------
     flow : ndarray of float32, shape (N, h, w, 2)
     mask : ndarray of bool, shape (h, w)
-    frequency_hz, fps : float
+    frequency_hz, sample_rate_hz : float
     lines : float
         Half-width of the band examined, in lines of the window (fps / N).
     max_pixels : int
@@ -414,12 +456,12 @@ def second_motion(
     n = flow.shape[0]
     data = flow.reshape(n, -1, 2)[:, idx, :].reshape(n, -1).astype(np.float64)
     data -= data.mean(axis=0)
-    bins = np.arange(n // 2 + 1) / n * fps  # the window's own lines: independent of each other
-    near = np.flatnonzero(np.abs(bins - frequency_hz) <= lines * fps / n)
+    bins = np.arange(n // 2 + 1) / n * sample_rate_hz  # the window's own lines: independent of each other
+    near = np.flatnonzero(np.abs(bins - frequency_hz) <= lines * sample_rate_hz / n)
     if near.size < 4:
         return 0.0
     t = np.arange(n)
-    phase = 2 * np.pi * np.outer(bins[near] / fps, t)  # (K, N)
+    phase = 2 * np.pi * np.outer(bins[near] / sample_rate_hz, t)  # (K, N)
     # two real products: a complex one would first copy the flow as complex numbers
     spectra = np.cos(phase) @ data - 1j * (np.sin(phase) @ data)  # (K, 2P)
     values = np.sort(np.linalg.eigvalsh(spectra @ spectra.conj().T).real)[::-1]
@@ -440,7 +482,7 @@ def track_object(
     buffers: FrameBuffers,
     mask: NDArray[np.bool_],
     *,
-    fps: float,
+    sample_rate_hz: float,
     pixel_scale: float,
     frequency_guess_hz: float,
     band_hz: tuple[float, float] | None = None,
@@ -453,6 +495,8 @@ def track_object(
     ``RIGID_COHERENCE``) is then registered frame by frame, and the registration's motion replaces the
     flow's when it follows it (correlation of at least 0.9): flow is biased low by smoothing, while a
     registration that locked onto the wrong texture (very fast or blurred motion) no longer follows it.
+    Otherwise an object whose motion spans ``FOLLOW_MIN_PX`` grid pixels or more is followed through the
+    flow, and that motion is kept when its fit stands more than 1 dB clearer.
 
     Parameters
     ----------
@@ -460,7 +504,7 @@ def track_object(
         The window's flow, grey frames and camera motion.
     mask : ndarray of bool, shape (h, w)
         The object's spectral mask on the flow grid.
-    fps : float
+    sample_rate_hz : float
         Rate of the flow samples, Hz.
     pixel_scale : float
         Input pixels per grid pixel.
@@ -479,24 +523,89 @@ def track_object(
     -------
     Track
     """
+    fitter = _Fitter(
+        sample_rate_hz=sample_rate_hz,
+        frequency_guess_hz=frequency_guess_hz,
+        times_s=buffers.times_s,
+        band_hz=band_hz,
+    )
+    motion = _clearest_motion(
+        buffers.flow,
+        mask,
+        frequency_hz=frequency_guess_hz,
+        sample_rate_hz=sample_rate_hz,
+        pixel_scale=pixel_scale,
+        confidence=confidence,
+        coarse=coarse,
+    )
+    onset, fit = fitter(motion.velocity_px)  # replaced by the registration's when that tracked the object
+    flow_track = Track(
+        velocity_px=motion.velocity_px,
+        axis_px=motion.axis_px,
+        source="flow",
+        onset=onset,
+        fit=fit,
+        shifts_px=None,
+        region=mask,
+    )
+    if buffers.gray is not None and motion.coherence >= RIGID_COHERENCE:
+        registered = _registered_track(flow_track, buffers, fitter, pixel_scale=pixel_scale)
+        if registered is not None:
+            return registered
+    followed = _followed_track(flow_track, buffers.flow, fitter, pixel_scale=pixel_scale)
+    return flow_track if followed is None else followed
 
-    def fitted(signal: NDArray[np.float64]) -> tuple[int, RingdownFit]:
+
+@dataclass(frozen=True)
+class _Fitter:
+    """Fits the ring-down of a motion from its release (:func:`fit_ringdown` with the window's settings).
+
+    Attributes
+    ----------
+    sample_rate_hz : float
+        Rate of the flow samples, Hz.
+    frequency_guess_hz : float
+    times_s : ndarray of float64, shape (N + 1,)
+        The window's frame times.
+    band_hz : (low, high) or None
+    """
+
+    sample_rate_hz: float
+    frequency_guess_hz: float
+    times_s: NDArray[np.float64]
+    band_hz: tuple[float, float] | None
+
+    def __call__(self, signal: NDArray[np.float64]) -> tuple[int, RingdownFit]:
+        """The release (first sample of the motion) of ``signal`` (N,) and the ring-down fitted from it."""
         start = detect_release(signal)
         return start, fit_ringdown(
             signal,
-            fps=fps,
-            frequency_guess_hz=frequency_guess_hz,
+            sample_rate_hz=self.sample_rate_hz,
+            frequency_guess_hz=self.frequency_guess_hz,
             start_index=start,
-            frame_times_s=buffers.times_s,
-            band_hz=band_hz,
+            frame_times_s=self.times_s,
+            band_hz=self.band_hz,
         )
 
+
+def _clearest_motion(
+    flow: NDArray[np.floating[Any]],
+    mask: NDArray[np.bool_],
+    *,
+    frequency_hz: float,
+    sample_rate_hz: float,
+    pixel_scale: float,
+    confidence: Confidence | None,
+    coarse: CoarseView | None,
+) -> ObjectMotion:
+    """The object's motion on the grid of ``flow`` (N, h, w, 2), or on the ``coarse`` grid when its line
+    stands ``COARSE_ADVANTAGE`` times clearer there at ``frequency_hz`` (:func:`line_snr`)."""
     motion = object_motion(
-        buffers.flow,
+        flow,
         mask,
         pixel_scale=pixel_scale,
-        frequency_hz=frequency_guess_hz,
-        sample_rate_hz=fps,
+        frequency_hz=frequency_hz,
+        sample_rate_hz=sample_rate_hz,
         confidence=confidence,
     )
     if coarse is not None and coarse.region.any():
@@ -504,80 +613,118 @@ def track_object(
             coarse.flow,
             coarse.region,
             pixel_scale=coarse.pixel_scale,
-            frequency_hz=frequency_guess_hz,
-            sample_rate_hz=fps,
+            frequency_hz=frequency_hz,
+            sample_rate_hz=sample_rate_hz,
             confidence=coarse.confidence,
         )
-        nu = frequency_guess_hz / fps
+        nu = frequency_hz / sample_rate_hz
         if line_snr(seen.velocity_px, nu) > COARSE_ADVANTAGE * line_snr(motion.velocity_px, nu):
-            motion = seen
-    velocity = motion.velocity_px
-    axis = motion.axis_px
-    source = "flow"
-    onset, fit = fitted(velocity)  # replaced by the registration's when that tracked the object
-    shifts: NDArray[np.float64] | None = None  # image displacement per frame vs the reference, input px
-    region = mask  # object pixels in the reference frame, grid
-    if buffers.gray is not None and motion.coherence >= RIGID_COHERENCE:
-        ref = int(np.argmax(np.abs(velocity)))
-        position = np.concatenate([[0.0], np.cumsum(velocity)])
-        initial = (position - position[ref])[:, None] * np.asarray(axis)[None, :]
-        reach = float(np.abs(position - position[ref]).max()) / pixel_scale
-        gray_shape = (int(buffers.gray.shape[1]), int(buffers.gray.shape[2]))
-        outline = silhouette(buffers.flow[ref], mask, axis_px=axis, shape=gray_shape, reach_px=reach)
-        camera = np.concatenate([[[0.0, 0.0]], np.cumsum(buffers.camera_px, axis=0)]) * pixel_scale
-        camera -= camera[ref]
-        scale = buffers.gray_pixel_scale  # input pixels per pixel of the grey frames
-        disp2d, failed = register_translation(
-            buffers.gray,
-            outline,
-            ref_index=ref,
-            initial_px=(initial + camera) / scale,
-            max_failed=MAX_FAILED_SHARE,
-        )
-        disp2d = disp2d * scale - camera  # the object's motion relative to the camera, input pixels
-        if failed <= MAX_FAILED_SHARE:
-            centred = disp2d - disp2d.mean(axis=0)
-            _, vecs = np.linalg.eigh(centred.T @ centred)
-            new_axis = vecs[:, -1] if float(vecs[:, -1] @ np.asarray(axis)) >= 0 else -vecs[:, -1]
-            registered = np.diff(disp2d @ new_axis)
-            reg_onset, reg_fit = fitted(registered)
-            agreement = float(np.corrcoef(registered, velocity)[0, 1]) if np.std(registered) > 0 else 0.0
-            if agreement >= 0.9:
-                axis = (float(new_axis[0]), float(new_axis[1]))
-                velocity, onset, fit = registered, reg_onset, reg_fit
-                source = "registration"
-                shifts = disp2d + camera  # where the object is in the image (depth maps)
-                grid_outline = _outline_grid(outline, mask.shape)
-                if grid_outline.sum() >= 16:
-                    region = grid_outline
-    if source == "flow":
-        # A large motion (a pendulum's swing) sweeps the object over pixels that are background most of
-        # the time: their flow at a fixed place is a pulse, not the object's motion. Follow the object
-        # through the flow instead, and keep that when it explains the motion better.
-        position = np.concatenate([[0.0], np.cumsum(velocity)]) / pixel_scale
-        reach = float(np.ptp(position))
-        if reach >= FOLLOW_MIN_PX:
-            ref = int(np.argmax(np.abs(velocity)))
-            seed = silhouette(buffers.flow[ref], mask, axis_px=axis, shape=mask.shape, reach_px=reach)
-            if int(seed.sum()) >= 16:
-                path = follow_region(buffers.flow, seed, ref_index=ref) * pixel_scale
-                centred = path - path.mean(axis=0)
-                _, vecs = np.linalg.eigh(centred.T @ centred)
-                along = vecs[:, -1] if float(vecs[:, -1] @ np.asarray(axis)) >= 0 else -vecs[:, -1]
-                followed = np.diff(path @ along)
-                f_onset, f_fit = fitted(followed)
-                if f_fit.snr_db > fit.snr_db + 1.0:
-                    axis = (float(along[0]), float(along[1]))
-                    velocity, onset, fit, source = followed, f_onset, f_fit, "tracked"
-                    region = seed
+            return seen
+    return motion
+
+
+def _registered_track(
+    flow_track: Track, buffers: FrameBuffers, fitter: _Fitter, *, pixel_scale: float
+) -> Track | None:
+    """The object's motion by registration of its texture in the grey frames (a rigid object), or None
+    when the registration failed too often or does not follow the flow's motion (correlation below 0.9).
+
+    Parameters
+    ----------
+    flow_track : Track
+        The motion the flow measured (its velocity, axis and region guide the registration).
+    buffers : FrameBuffers
+        The window's flow, grey frames (not None) and camera motion.
+    fitter : _Fitter
+    pixel_scale : float
+        Input pixels per grid pixel.
+
+    Returns
+    -------
+    Track or None
+        With ``source`` ``"registration"`` and the object's image ``shifts_px``.
+    """
+    assert buffers.gray is not None
+    velocity, axis, mask = flow_track.velocity_px, flow_track.axis_px, flow_track.region
+    ref = int(np.argmax(np.abs(velocity)))
+    position = np.concatenate([[0.0], np.cumsum(velocity)])
+    initial = (position - position[ref])[:, None] * np.asarray(axis)[None, :]
+    reach = float(np.abs(position - position[ref]).max()) / pixel_scale
+    gray_shape = (int(buffers.gray.shape[1]), int(buffers.gray.shape[2]))
+    outline = silhouette(buffers.flow[ref], mask, axis_px=axis, shape=gray_shape, reach_px=reach)
+    camera = np.concatenate([[[0.0, 0.0]], np.cumsum(buffers.camera_px, axis=0)]) * pixel_scale
+    camera -= camera[ref]
+    scale = buffers.gray_pixel_scale  # input pixels per pixel of the grey frames
+    disp2d, failed = register_translation(
+        buffers.gray,
+        outline,
+        ref_index=ref,
+        initial_px=(initial + camera) / scale,
+        max_failed=MAX_FAILED_SHARE,
+    )
+    disp2d = disp2d * scale - camera  # the object's motion relative to the camera, input pixels
+    if not failed <= MAX_FAILED_SHARE:
+        return None
+    new_axis, registered = _principal_motion(disp2d, axis)
+    onset, fit = fitter(registered)
+    agreement = float(np.corrcoef(registered, velocity)[0, 1]) if np.std(registered) > 0 else 0.0
+    if not agreement >= 0.9:
+        return None
+    grid_outline = _outline_grid(outline, mask.shape)
     return Track(
-        velocity_px=velocity,
-        axis_px=axis,
-        source=source,
+        velocity_px=registered,
+        axis_px=(float(new_axis[0]), float(new_axis[1])),
+        source="registration",
         onset=onset,
         fit=fit,
-        shifts_px=shifts,
-        region=region,
+        shifts_px=disp2d + camera,  # where the object is in the image (depth maps)
+        region=grid_outline if grid_outline.sum() >= 16 else mask,
+    )
+
+
+def _principal_motion(
+    path: NDArray[np.float64], axis: tuple[float, float]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The principal axis of a path (T, 2) of positions, turned to agree with ``axis``, and the
+    per-frame motion along it, shape (T - 1,)."""
+    centred = path - path.mean(axis=0)
+    _, vecs = np.linalg.eigh(centred.T @ centred)
+    along = vecs[:, -1] if float(vecs[:, -1] @ np.asarray(axis)) >= 0 else -vecs[:, -1]
+    return along, np.diff(path @ along)
+
+
+def _followed_track(
+    flow_track: Track, flow: NDArray[np.float32], fitter: _Fitter, *, pixel_scale: float
+) -> Track | None:
+    """The object's motion by following its pixels through the ``flow`` (N, h, w, 2), or None when its
+    motion spans less than ``FOLLOW_MIN_PX`` grid pixels, too few pixels move with it, or the fit to the
+    followed motion stands no more than 1 dB clearer than ``flow_track``'s.
+
+    A large motion (a pendulum's swing) sweeps the object over pixels that are background most of the
+    time: their flow at a fixed place is a pulse, not the object's motion.
+    """
+    velocity, axis, mask = flow_track.velocity_px, flow_track.axis_px, flow_track.region
+    position = np.concatenate([[0.0], np.cumsum(velocity)]) / pixel_scale
+    reach = float(np.ptp(position))
+    if not reach >= FOLLOW_MIN_PX:
+        return None
+    ref = int(np.argmax(np.abs(velocity)))
+    seed = silhouette(flow[ref], mask, axis_px=axis, shape=mask.shape, reach_px=reach)
+    if int(seed.sum()) < 16:
+        return None
+    path = follow_region(flow, seed, ref_index=ref) * pixel_scale
+    along, followed = _principal_motion(path, axis)
+    onset, fit = fitter(followed)
+    if not fit.snr_db > flow_track.fit.snr_db + 1.0:
+        return None
+    return Track(
+        velocity_px=followed,
+        axis_px=(float(along[0]), float(along[1])),
+        source="tracked",
+        onset=onset,
+        fit=fit,
+        shifts_px=None,
+        region=seed,
     )
 
 

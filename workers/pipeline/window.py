@@ -23,9 +23,10 @@ from workers.pipeline.model import (
     ObjectMeasurement,
     Progress,
     QualityNote,
+    Survey,
 )
 from workers.pipeline.peaks import Peak
-from workers.pipeline.survey import Survey, survey_motion
+from workers.pipeline.survey import survey_motion
 
 #: The band's default lower edge: this many periods of the window (nothing slower is an oscillation of it).
 BAND_MIN_PERIODS = 2.0
@@ -55,8 +56,8 @@ def frames_for_band(config: AnalysisConfig, fps: float) -> int:
 class Plan:
     """What :func:`plan_analysis` decided: frame rates, window, flow settings and the survey behind them."""
 
-    fps: float  # rate of the analysed samples: the clip's rate / step
-    clip_fps: float
+    sample_rate_hz: float  # rate of the analysed samples: the clip's rate / step
+    fps: float  # the clip's frame rate
     start: int  # clip frames [start, stop), every step-th
     stop: int
     step: int
@@ -237,24 +238,24 @@ def fixed_window(total: int, config: AnalysisConfig, *, needed: int = 0) -> tupl
     return start, stop
 
 
-def default_band(fps: float, n: int) -> tuple[float, float]:
+def default_band(sample_rate_hz: float, n: int) -> tuple[float, float]:
     """The band a window of ``n`` flow maps at ``fps`` can show: from :data:`BAND_MIN_PERIODS` periods of
     the window up to :data:`BAND_NYQUIST_FRACTION` of the Nyquist rate."""
-    return BAND_MIN_PERIODS * fps / n, BAND_NYQUIST_FRACTION * fps / 2
+    return BAND_MIN_PERIODS * sample_rate_hz / n, BAND_NYQUIST_FRACTION * sample_rate_hz / 2
 
 
 def band_edges(
-    min_frequency_hz: float | None, max_frequency_hz: float | None, fps: float, n: int
+    min_frequency_hz: float | None, max_frequency_hz: float | None, sample_rate_hz: float, n: int
 ) -> tuple[float, float]:
     """The edges the user gave, :func:`default_band`'s where they gave none, the upper one at most the
     Nyquist rate (unchecked: :func:`analysis_band` refuses an empty band)."""
-    default_lo, default_hi = default_band(fps, n)
+    default_lo, default_hi = default_band(sample_rate_hz, n)
     lo = min_frequency_hz if min_frequency_hz is not None else default_lo
     hi = max_frequency_hz if max_frequency_hz is not None else default_hi
-    return lo, min(hi, fps / 2)
+    return lo, min(hi, sample_rate_hz / 2)
 
 
-def analysis_band(config: AnalysisConfig, fps: float, n: int) -> tuple[float, float]:
+def analysis_band(config: AnalysisConfig, sample_rate_hz: float, n: int) -> tuple[float, float]:
     """The band searched in a window of ``n`` flow maps at ``fps``: the user's, or from
     :data:`BAND_MIN_PERIODS` periods of the window up to :data:`BAND_NYQUIST_FRACTION` of the Nyquist
     rate (the one owner of the default band).
@@ -264,11 +265,11 @@ def analysis_band(config: AnalysisConfig, fps: float, n: int) -> tuple[float, fl
     ParameterError
         When the band is empty at this rate and length.
     """
-    lo, hi = band_edges(config.min_frequency_hz, config.max_frequency_hz, fps, n)
+    lo, hi = band_edges(config.min_frequency_hz, config.max_frequency_hz, sample_rate_hz, n)
     if lo >= hi:
         raise ParameterError(
-            f"frequency band [{lo:.3g}, {hi:.3g}] Hz is empty at {fps:g} fps with {n} flow samples; "
-            "widen the band or analyse more frames"
+            f"frequency band [{lo:.3g}, {hi:.3g}] Hz is empty at {sample_rate_hz:g} fps with {n} flow "
+            "samples; widen the band or analyse more frames"
         )
     return lo, hi
 
@@ -377,10 +378,8 @@ def plan_window(
     Parameters
     ----------
     survey : Survey
-    total_frames : int
-        Frames in the clip (that decode).
-    default_frames : int
-        Window length when nothing asks for more.
+    total_frames, default_frames : int
+        Frames in the clip (that decode); the window's length when nothing asks for more.
     max_samples : int
         Most flow maps the main analysis may hold (its memory budget).
     grid_scale : float
@@ -404,18 +403,7 @@ def plan_window(
     seen = [p for p in survey.peaks if lo <= p.frequency_hz <= hi and p.frequency_hz not in survey.flicker_hz]
     objects = [p for p in seen if p.frequency_hz not in survey.global_peaks_hz]
     if not seen and min_duration_s is None:
-        stop = min(total_frames, default_frames)
-        return WindowPlan(
-            start_frame=0,
-            stop_frame=stop,
-            frame_step=1,
-            reference_hz=None,
-            periods=0.0,
-            reason=(
-                f"nothing stood out in a survey of all {total_frames} frames: the first {stop} were "
-                "analysed; give start_frame and frames to choose the window"
-            ),
-        )
+        return _first_frames(total_frames, default_frames)
     main = (objects or seen)[0] if seen else None
     lowest = min((p.frequency_hz for p in seen), default=None)
     onset = _onset_frame(survey, main.frequency_hz) if main is not None else survey.first_frame
@@ -432,21 +420,25 @@ def plan_window(
     start, stop = _placed(onset, length, step, total_frames)
     periods = (lowest or 0.0) * (stop - start - 1) / survey.fps
     every = "" if step == 1 else f" (one frame in {step})"
-    if main is None or lowest is None:
-        reason = f"frames {start}-{stop}{every} of {total_frames}{why}"
-    else:
+    reason = f"frames {start}-{stop}{every} of {total_frames}{why}"
+    if main is not None and lowest is not None:
         reason = (
             f"a survey of all {total_frames} frames found motion at {main.frequency_hz:.3g} Hz starting "
             f"near frame {onset}; frames {start}-{stop}{every} span {periods:.1f} periods of "
             f"{lowest:.3g} Hz{why}"
         )
+    return WindowPlan(start, stop, step, lowest, periods, reason)
+
+
+def _first_frames(total_frames: int, default_frames: int) -> WindowPlan:
+    """The default window from the clip's start, when the survey saw nothing to follow."""
+    stop = min(total_frames, default_frames)
+    reason = (
+        f"nothing stood out in a survey of all {total_frames} frames: the first {stop} were analysed; "
+        "give start_frame and frames to choose the window"
+    )
     return WindowPlan(
-        start_frame=start,
-        stop_frame=stop,
-        frame_step=step,
-        reference_hz=lowest,
-        periods=periods,
-        reason=reason,
+        start_frame=0, stop_frame=stop, frame_step=1, reference_hz=None, periods=0.0, reason=reason
     )
 
 

@@ -89,8 +89,8 @@ def test_spectra_of_the_constrained_flow_need_no_copy_of_it():
 
     conf = flow_confidence(_texture(37, 41), frame_noise=1.0)
     flow = np.random.default_rng(3).standard_normal((300, 37, 41, 2)).astype(np.float32)
-    copied = pixel_spectra(constrained_flow(flow, conf), fps=100.0).power
-    mixed = pixel_spectra(flow, fps=100.0, mix=tensor_sqrt(conf)).power
+    copied = pixel_spectra(constrained_flow(flow, conf), sample_rate_hz=100.0).power
+    mixed = pixel_spectra(flow, sample_rate_hz=100.0, mix=tensor_sqrt(conf)).power
     np.testing.assert_allclose(mixed, copied, rtol=1e-5, atol=1e-6 * float(copied.max()))
     whole = constrained_flow(flow, conf)
     np.testing.assert_array_equal(constrained_flow(flow[7], conf), whole[7])  # one map as in a window

@@ -155,12 +155,12 @@ def test_the_fit_stays_in_the_band():
     x = np.exp(-0.5 * t) * np.cos(2 * np.pi * 32 * t) + 0.25 * np.cos(2 * np.pi * 45 * t + 0.4)
     v = np.diff(x) + np.random.default_rng(0).normal(0, 0.02, 250)
     for guess in (40.5, 45.0, 59.0):
-        fit = fit_ringdown(v, fps=fps, frequency_guess_hz=guess, band_hz=(40.0, 60.0))
+        fit = fit_ringdown(v, sample_rate_hz=fps, frequency_guess_hz=guess, band_hz=(40.0, 60.0))
         assert 40.0 <= fit.frequency_hz <= 60.0
-    fit = fit_ringdown(v, fps=fps, frequency_guess_hz=45.0, band_hz=(40.0, 60.0))
+    fit = fit_ringdown(v, sample_rate_hz=fps, frequency_guess_hz=45.0, band_hz=(40.0, 60.0))
     assert fit.frequency_hz == pytest.approx(45.0, abs=0.05)
     with pytest.raises(ValueError, match="band"):
-        fit_ringdown(v, fps=fps, band_hz=(200.0, 300.0))
+        fit_ringdown(v, sample_rate_hz=fps, band_hz=(200.0, 300.0))
 
 
 def test_concentration_tells_one_oscillation_from_narrow_band_noise():
@@ -168,7 +168,7 @@ def test_concentration_tells_one_oscillation_from_narrow_band_noise():
     n = 512
     t = np.arange(n + 1) / FPS
     steady = np.diff(0.05 * np.sin(2 * np.pi * 7.0 * t)) + rng.normal(0, 0.1, n)
-    fit = fit_ringdown(steady, fps=FPS, frequency_guess_hz=7.0)
+    fit = fit_ringdown(steady, sample_rate_hz=FPS, frequency_guess_hz=7.0)
     assert fit.snr_db < 0  # each sample mostly noise ...
     assert fit.concentration > 0.8  # ... but near 7 Hz one oscillation explains it
     assert fit.detection_db > 15
@@ -176,7 +176,7 @@ def test_concentration_tells_one_oscillation_from_narrow_band_noise():
     freqs = np.fft.rfftfreq(4 * n, 1 / FPS)
     spectrum[(freqs < 6.0) | (freqs > 8.0)] = 0
     noise = np.diff(np.fft.irfft(spectrum)[: n + 1])
-    noisy = fit_ringdown(noise / noise.std(), fps=FPS, frequency_guess_hz=7.0)
+    noisy = fit_ringdown(noise / noise.std(), sample_rate_hz=FPS, frequency_guess_hz=7.0)
     assert noisy.concentration < 0.8
 
 
@@ -266,9 +266,15 @@ def test_the_camera_evidence_needs_the_region_to_move_no_more_than_the_border():
     border[:, 0] = 0.4 * np.sin(2 * np.pi * 8.0 * t)
     evidence = _evidence(border_px=border, camera_removed=True)
     camera_power = float((np.abs(np.fft.rfft(border[:, 0] - border[:, 0].mean())) ** 2).max())
-    assert evidence.camera(8.0, 1.0, region_power=0.01 * camera_power, ring_power=None, fps=FPS)
-    assert evidence.camera(8.0, 1.0, region_power=5.0 * camera_power, ring_power=None, fps=FPS) is None
-    assert evidence.camera(5.0, 1.0, region_power=0.01 * camera_power, ring_power=None, fps=FPS) is None
+    assert evidence.camera(8.0, 1.0, region_power=0.01 * camera_power, ring_power=None, sample_rate_hz=FPS)
+    assert (
+        evidence.camera(8.0, 1.0, region_power=5.0 * camera_power, ring_power=None, sample_rate_hz=FPS)
+        is None
+    )
+    assert (
+        evidence.camera(5.0, 1.0, region_power=0.01 * camera_power, ring_power=None, sample_rate_hz=FPS)
+        is None
+    )
 
 
 def test_a_second_motion_in_a_region_is_measured():
@@ -281,12 +287,12 @@ def test_a_second_motion_in_a_region_is_measured():
     flow[:, :, 8:, 0] = 0.6 * np.sin(2 * np.pi * 10.6 * t + 1.0)[:, None, None]
     flow += np.random.default_rng(4).normal(0, 0.01, flow.shape).astype(np.float32)
     mask = np.ones((h, w), bool)
-    assert second_motion(flow, mask, frequency_hz=10.0, fps=FPS) > 0.2
+    assert second_motion(flow, mask, frequency_hz=10.0, sample_rate_hz=FPS) > 0.2
     tines = np.zeros((n, h, w, 2), np.float32)
     tines[:, :, :8, 0] = np.sin(2 * np.pi * 10.0 * t)[:, None, None]
     tines[:, :, 8:, 0] = -np.sin(2 * np.pi * 10.0 * t)[:, None, None]
     tines += np.random.default_rng(5).normal(0, 0.01, tines.shape).astype(np.float32)
-    assert second_motion(tines, mask, frequency_hz=10.0, fps=FPS) < 0.05
+    assert second_motion(tines, mask, frequency_hz=10.0, sample_rate_hz=FPS) < 0.05
 
 
 def test_a_region_is_followed_through_the_flow():

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy import ndimage, optimize
 
-from workers.pipeline.fft import RfftPlans
+from workers.pipeline.fft import RfftPlans, median_rows
 from workers.pipeline.lstsq import least_squares
 from workers.pipeline.peaks import noise_floor
 from workers.pipeline.segmentation import _fill_holes
-from workers.pipeline.spectra import median_rows, pixel_spectra
+from workers.pipeline.spectra import pixel_spectra
 
 
 @pytest.mark.parametrize("bins", [1, 2, 3, 124, 125])
@@ -30,8 +30,8 @@ def test_band_medians_taken_with_the_transforms_equal_those_taken_after(band_hz,
     the narrow band that holds fewer than three bins falls back to every bin above zero in both."""
     flow = np.random.default_rng(7).normal(size=(100, 37, 53, 2)).astype(np.float32)
     plans = RfftPlans(threads=threads, block=256)  # several blocks, the last one partial
-    together = pixel_spectra(flow, fps=30.0, plans=plans, band_hz=band_hz)
-    after = pixel_spectra(flow, fps=30.0, plans=plans)
+    together = pixel_spectra(flow, sample_rate_hz=30.0, plans=plans, band_hz=band_hz)
+    after = pixel_spectra(flow, sample_rate_hz=30.0, plans=plans)
     np.testing.assert_array_equal(together.power, after.power)
     medians = together.band_median(band_hz)
     np.testing.assert_array_equal(medians, after.band_median(band_hz))

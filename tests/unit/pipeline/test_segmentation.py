@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from workers.pipeline.peaks import Peak, find_peaks, fold_aliased_harmonics, noise_floor
+from workers.pipeline.peaks import Peak, PeakCriteria, find_peaks, fold_aliased_harmonics, noise_floor
 from workers.pipeline.segmentation import local_peaks
 from workers.pipeline.spectra import PixelSpectra, whitened_spectrum
 
@@ -35,7 +35,7 @@ def _spectra(*, seed, region_snr, k0=40, box=(50, 60, 30, 30)):
     scale = float(np.median(power))
     power[k0, region.ravel()] += region_snr * scale * level[region]
     freqs = np.fft.rfftfreq(N, d=1.0 / FPS)
-    return PixelSpectra(frequencies_hz=freqs, power=power, fps=FPS, n=N), region, float(freqs[k0])
+    return PixelSpectra(frequencies_hz=freqs, power=power, sample_rate_hz=FPS, n=N), region, float(freqs[k0])
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -48,7 +48,7 @@ def test_a_weak_region_no_whole_picture_spectrum_shows_is_found(seed):
         whitened,
         band_hz=BAND,
         noise=noise_floor(whitened, width=max(15, len(whitened) // 6)),
-        min_snr_db=3.0,
+        criteria=PeakCriteria(min_snr_db=3.0),
     )
     assert all(abs(p.frequency_hz - f0) > spectra.bin_hz for p in whole)
     # ... the neighbourhood scan finds it, at the right frequency, and nothing else.
@@ -82,14 +82,18 @@ def _peak(f):
 
 def test_overtones_folded_below_nyquist_join_their_fundamental():
     # 600 fps: 3 x 110 = 330 Hz shows at 270 Hz, 2 x 247 = 494 Hz at 106 Hz.
-    kept = fold_aliased_harmonics([_peak(110.0), _peak(270.2)], fps=600.0, bin_hz=2.3)
+    kept = fold_aliased_harmonics([_peak(110.0), _peak(270.2)], sample_rate_hz=600.0, bin_hz=2.3)
     assert [p.frequency_hz for p in kept] == [110.0]
     assert kept[0].harmonics_hz == [270.2]
-    kept = fold_aliased_harmonics([_peak(247.0), _peak(106.1), _peak(196.0)], fps=600.0, bin_hz=2.3)
+    kept = fold_aliased_harmonics(
+        [_peak(247.0), _peak(106.1), _peak(196.0)], sample_rate_hz=600.0, bin_hz=2.3
+    )
     assert [p.frequency_hz for p in kept] == [247.0, 196.0]
     assert kept[0].harmonics_hz == [106.1]
     # Two strings a fourth apart stay two objects; unfolded multiples are left to fold_harmonics.
-    kept = fold_aliased_harmonics([_peak(110.0), _peak(147.0), _peak(220.0)], fps=600.0, bin_hz=2.3)
+    kept = fold_aliased_harmonics(
+        [_peak(110.0), _peak(147.0), _peak(220.0)], sample_rate_hz=600.0, bin_hz=2.3
+    )
     assert [p.frequency_hz for p in kept] == [110.0, 147.0, 220.0]
 
 

@@ -30,7 +30,7 @@ def test_ringdown_fit_beats_one_bin_by_far(n):
         f = rng.uniform(2, 12)
         zeta = rng.uniform(0.01, 0.1)
         v, fd = damped_velocity(f, zeta, 30.0, n, phase=rng.uniform(0, 6.28), noise=0.03, rng=rng)
-        fit = fit_ringdown(v, fps=30.0)
+        fit = fit_ringdown(v, sample_rate_hz=30.0)
         errors.append(abs(fit.frequency_hz - fd) / fd)
     errors = np.array(errors)
     bin_rel = (30.0 / n) / 7.0  # one bin relative to a mid-band frequency
@@ -47,7 +47,7 @@ def test_ringdown_fit_measures_damping_within_20_percent():
         v, _ = damped_velocity(
             rng.uniform(3, 10), zeta, 30.0, 128, phase=rng.uniform(0, 6), noise=0.02, rng=rng
         )
-        fit = fit_ringdown(v, fps=30.0)
+        fit = fit_ringdown(v, sample_rate_hz=30.0)
         rel.append(abs(fit.damping_ratio - zeta) / zeta)
     assert np.percentile(rel, 90) < 0.2
 
@@ -55,7 +55,7 @@ def test_ringdown_fit_measures_damping_within_20_percent():
 def test_ringdown_fit_skips_still_samples_before_release():
     v, fd = damped_velocity(4.0, 0.03, 30.0, 80)
     signal = np.concatenate([np.zeros(20), v])
-    fit = fit_ringdown(signal, fps=30.0, start_index=20)
+    fit = fit_ringdown(signal, sample_rate_hz=30.0, start_index=20)
     assert fit.frequency_hz == pytest.approx(fd, rel=1e-3)
     assert fit.amplitude == pytest.approx(5.0, rel=1e-2)
 

@@ -70,7 +70,9 @@ def damped(f_hz: float, *, fps: float = 30.0, n: int = 128, release: int = 20, z
 @pytest.mark.parametrize("f_hz", [3.0, 6.0, 11.0])
 def test_spectrogram_ridge_follows_the_ringdown(f_hz):
     fps, n, release = 30.0, 128, 20
-    times, freqs, power = ringdown_spectrogram(damped(f_hz, fps=fps, n=n, release=release), fps=fps)
+    times, freqs, power = ringdown_spectrogram(
+        damped(f_hz, fps=fps, n=n, release=release), sample_rate_hz=fps
+    )
     assert times.shape == (n + 1,)
     assert power.shape == (len(freqs), len(times))
     assert freqs[0] == 0.0
@@ -89,9 +91,9 @@ def test_spectrogram_ridge_follows_the_ringdown(f_hz):
 
 def test_spectrogram_of_a_short_or_bad_series_is_refused():
     with pytest.raises(ValueError, match="at least 5"):
-        ringdown_spectrogram(np.zeros(4), fps=30.0)
+        ringdown_spectrogram(np.zeros(4), sample_rate_hz=30.0)
     with pytest.raises(ValueError, match="fps"):
-        ringdown_spectrogram(np.zeros(40), fps=0.0)
+        ringdown_spectrogram(np.zeros(40), sample_rate_hz=0.0)
 
 
 def test_drawing_leaves_out_the_3d_toolkit_and_keeps_it_importable():

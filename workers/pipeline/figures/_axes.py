@@ -12,6 +12,7 @@ import functools
 import math
 import threading
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -161,64 +162,106 @@ def _tick_values(vmin: float, vmax: float, bins: int) -> tuple[list[float], int]
     return ticks, 10
 
 
-def _colour_bar(
-    fig: Any,
-    size: tuple[int, int],
-    *,
-    x: int,
-    y: int,
-    height: int,
-    vmin: float,
-    vmax: float,
-    cmap: str,
-    label: str,
-    marks: Sequence[tuple[float, tuple[int, int, int]]] = (),
-    bins: int = 6,
-    width: int = 20,
-) -> Underlay:
+@dataclass(frozen=True)
+class ColourBar:
+    """A vertical colour bar: where it goes, the scale it shows and how it is labelled.
+
+    Attributes
+    ----------
+    x, y : int
+        The bar's top-left pixel in the figure (top-left origin).
+    height : int
+        The bar's height, pixels.
+    vmin, vmax : float
+        The values at the bottom and the top of the bar.
+    cmap : str
+        matplotlib colour map name.
+    label : str
+        Text along the bar's right side.
+    marks : sequence of (float, (int, int, int))
+        (value, rgb) lines across the bar (the objects' frequencies).
+    bins : int
+        At most this many tick intervals.
+    width : int
+        The bar's width, pixels (ticks extend to its right).
+    """
+
+    x: int
+    y: int
+    height: int
+    vmin: float
+    vmax: float
+    cmap: str
+    label: str
+    marks: Sequence[tuple[float, tuple[int, int, int]]] = ()
+    bins: int = 6
+    width: int = 20
+
+    def row_of(self, value: float) -> int:
+        """The bar's pixel row (from its top) of ``value``."""
+        return round((self.vmax - value) / (self.vmax - self.vmin) * (self.height - 1))
+
+
+#: Length of the colour bar's ticks, pixels.
+_BAR_TICK_PX = 6
+
+
+def _colour_bar(fig: Any, size: tuple[int, int], bar: ColourBar) -> Underlay:
     """A vertical colour bar as an underlay image (bar, frame, ticks, marks) plus figure texts.
 
-    ``(x, y)`` is the bar's top-left pixel; ``marks`` are (value, rgb) lines across the bar (the
-    objects' frequencies). Returns the underlay to pass to :func:`_finish`.
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        Gets the tick labels and the bar's label, as figure texts.
+    size : (int, int)
+        The figure's (width, height), pixels.
+    bar : ColourBar
+
+    Returns
+    -------
+    Underlay
+        The bar's image at ``(bar.x, bar.y)``, to pass to :func:`_finish`.
     """
     W, H = size
-    tick_len = 6
-    img = np.full((height, width + tick_len, 3), 255, np.uint8)
-    rows = vmax - (np.arange(height) + 0.5) * ((vmax - vmin) / height)
-    img[:, :width] = _colour_lut(cmap)[_colour_index(rows, vmin, vmax)][:, None, :]
-    img[0, :width] = img[-1, :width] = 0
-    img[:, 0] = img[:, width - 1] = 0
-
-    def row_of(value: float) -> int:
-        return round((vmax - value) / (vmax - vmin) * (height - 1))
-
-    for value, rgb in marks:
-        if vmin <= value <= vmax:
-            r = row_of(value)
-            img[max(r - 3, 0) : r + 4, :width] = 0
-            img[max(r - 1, 0) : r + 2, 1 : width - 1] = rgb
-    ticks, decimals = _tick_values(vmin, vmax, bins)
+    img = _colour_bar_image(bar)
+    ticks, decimals = _tick_values(bar.vmin, bar.vmax, bar.bins)
     for value in ticks:
-        r = row_of(value)
-        img[max(r - 1, 0) : r + 1, width:] = 0
+        r = bar.row_of(value)
+        img[max(r - 1, 0) : r + 1, bar.width :] = 0
         fig.text(
-            (x + width + tick_len + 4) / W,
-            1 - (y + r) / H,
+            (bar.x + bar.width + _BAR_TICK_PX + 4) / W,
+            1 - (bar.y + r) / H,
             _tick_label(value, decimals),
             ha="left",
             va="center",
             fontsize=_SMALL,
         )
     fig.text(
-        (x + width + tick_len + 40) / W,
-        1 - (y + height / 2) / H,
-        label,
+        (bar.x + bar.width + _BAR_TICK_PX + 40) / W,
+        1 - (bar.y + bar.height / 2) / H,
+        bar.label,
         ha="left",
         va="center",
         rotation=90,
         fontsize=_FONT,
     )
-    return (img, x, y)
+    return (img, bar.x, bar.y)
+
+
+def _colour_bar_image(bar: ColourBar) -> NDArray[np.uint8]:
+    """The bar's pixels: the colour scale framed in black, its marks, and white room for the ticks."""
+    width, height = bar.width, bar.height
+    img = np.full((height, width + _BAR_TICK_PX, 3), 255, np.uint8)
+    rows = bar.vmax - (np.arange(height) + 0.5) * ((bar.vmax - bar.vmin) / height)
+    img[:, :width] = _colour_lut(bar.cmap)[_colour_index(rows, bar.vmin, bar.vmax)][:, None, :]
+    img[0, :width] = img[-1, :width] = 0
+    img[:, 0] = img[:, width - 1] = 0
+    for value, rgb in bar.marks:
+        if bar.vmin <= value <= bar.vmax:
+            r = bar.row_of(value)
+            img[max(r - 3, 0) : r + 4, :width] = 0
+            img[max(r - 1, 0) : r + 2, 1 : width - 1] = rgb
+    return img
 
 
 def _axes_box_px(ax: Any, size: tuple[int, int]) -> tuple[int, int, int, int]:
@@ -356,23 +399,51 @@ def _log_tick(value: float, _pos: object = None) -> str:
     return "10" + str(round(exponent)).translate(_SUPERSCRIPT)
 
 
+@dataclass(frozen=True)
+class AxisStyle:
+    """How :func:`_axis` ticks and grids an axes.
+
+    Attributes
+    ----------
+    x_bins, y_bins : int
+        At most this many tick intervals along x and along y.
+    log_y : bool
+        y is on a log scale: ticks at powers of ten (at most 8 labelled decades).
+    grid : bool
+        Grey grid lines at the ticks.
+    y_ticks : bool
+        Ticks and tick labels on y (ignored when ``log_y``).
+    """
+
+    x_bins: int = 6
+    y_bins: int = 5
+    log_y: bool = False
+    grid: bool = True
+    y_ticks: bool = True
+
+
+#: Length of an axis's ticks, pixels.
+_TICK_PX = 5.0
+
+
 def _axis(
-    ax: Any,
-    size: tuple[int, int],
-    *,
-    xlabel: str,
-    ylabel: str,
-    x_bins: int = 6,
-    y_bins: int = 5,
-    log_y: bool = False,
-    grid: bool = True,
-    y_ticks: bool = True,
+    ax: Any, size: tuple[int, int], *, xlabel: str, ylabel: str, style: AxisStyle = AxisStyle()
 ) -> None:
     """Ticks, tick labels, grid and axis labels of ``ax`` as a handful of artists.
 
     matplotlib's own ticks cost about a millisecond and a half each to create and lay out; these are
     drawn as one line collection per axis and one text per label, at fixed pixel offsets. Call it
     once the axes' limits are final.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+    size : (int, int)
+        The figure's (width, height), pixels.
+    xlabel, ylabel : str
+        The axis labels.
+    style : AxisStyle
+        Tick counts, log scale, grid.
     """
     from matplotlib.ticker import NullLocator
 
@@ -381,51 +452,22 @@ def _axis(
         axis.set_minor_locator(NullLocator())
     W, H = size
     box = ax.get_position()
-    ax_w, ax_h = box.width * W, box.height * H
-    tick = 5.0
+    ax_px = (box.width * W, box.height * H)
     x0, x1 = sorted(ax.get_xlim())
     y0, y1 = sorted(ax.get_ylim())
     ax.set_xlim(x0, x1)  # freeze: the artists below must not move the limits
     ax.set_ylim(y0, y1)
-    xt, xd = _tick_values(x0, x1, x_bins)
-    if log_y:
-        lo_e, hi_e = math.ceil(math.log10(y0) - 1e-9), math.floor(math.log10(y1) + 1e-9)
-        step = max(1, math.ceil((hi_e - lo_e + 1) / 8))
-        yt = [10.0**e for e in range(lo_e, hi_e + 1, step)]
-        ylabels = [_log_tick(v) for v in yt]
-    elif y_ticks:
-        yt, yd = _tick_values(y0, y1, y_bins)
-        ylabels = [_tick_label(v, yd) for v in yt]
-    else:
-        yt, ylabels = [], []
-    xtrans, ytrans = ax.get_xaxis_transform(), ax.get_yaxis_transform()
-    nan = float("nan")
-    if grid:
-        gx = [v for x in xt for v in (x, x, nan)]
-        gy = [v for _ in xt for v in (0.0, 1.0, nan)]
-        ax.plot(gx, gy, transform=xtrans, color="0.88", linewidth=0.8, zorder=0.5)
-        gx = [v for _ in yt for v in (0.0, 1.0, nan)]
-        gy = [v for y in yt for v in (y, y, nan)]
-        ax.plot(gx, gy, transform=ytrans, color="0.88", linewidth=0.8, zorder=0.5)
-    mx = [v for x in xt for v in (x, x, nan)]
-    my = [v for _ in xt for v in (0.0, -tick / ax_h, nan)]
-    ax.plot(mx, my, transform=xtrans, color="black", linewidth=0.8, clip_on=False)
-    mx = [v for _ in yt for v in (0.0, -tick / ax_w, nan)]
-    my = [v for y in yt for v in (y, y, nan)]
-    ax.plot(mx, my, transform=ytrans, color="black", linewidth=0.8, clip_on=False)
-    for x in xt:
-        ax.text(
-            x,
-            -(tick + 3) / ax_h,
-            _tick_label(x, xd),
-            transform=xtrans,
-            ha="center",
-            va="top",
-            fontsize=_SMALL,
-        )
-    for y, label in zip(yt, ylabels, strict=True):
-        ax.text(-(tick + 3) / ax_w, y, label, transform=ytrans, ha="right", va="center", fontsize=_SMALL)
-    ax.text(0.5, -(tick + 24) / ax_h, xlabel, transform=ax.transAxes, ha="center", va="top", fontsize=_FONT)
+    xt, xd = _tick_values(x0, x1, style.x_bins)
+    xlabels = [_tick_label(x, xd) for x in xt]
+    yt, ylabels = _y_ticks(y0, y1, style)
+    if style.grid:
+        _grid_lines(ax, xt, yt)
+    _tick_marks(ax, xt, yt, ax_px)
+    _tick_texts(ax, list(zip(xt, xlabels, strict=True)), list(zip(yt, ylabels, strict=True)), ax_px)
+    ax_w, ax_h = ax_px
+    ax.text(
+        0.5, -(_TICK_PX + 24) / ax_h, xlabel, transform=ax.transAxes, ha="center", va="top", fontsize=_FONT
+    )
     ax.text(
         -66 / ax_w,
         0.5,
@@ -438,40 +480,158 @@ def _axis(
     )
 
 
+def _y_ticks(y0: float, y1: float, style: AxisStyle) -> tuple[list[float], list[str]]:
+    """The y ticks of [y0, y1] and their labels: decades on a log scale, none without ``y_ticks``."""
+    if style.log_y:
+        lo_e, hi_e = math.ceil(math.log10(y0) - 1e-9), math.floor(math.log10(y1) + 1e-9)
+        step = max(1, math.ceil((hi_e - lo_e + 1) / 8))
+        yt = [10.0**e for e in range(lo_e, hi_e + 1, step)]
+        return yt, [_log_tick(v) for v in yt]
+    if style.y_ticks:
+        yt, yd = _tick_values(y0, y1, style.y_bins)
+        return yt, [_tick_label(v, yd) for v in yt]
+    return [], []
+
+
+def _grid_lines(ax: Any, xt: Sequence[float], yt: Sequence[float]) -> None:
+    """Light grey lines across ``ax`` at the x ticks ``xt`` and the y ticks ``yt``, under the data."""
+    nan = float("nan")
+    gx = [v for x in xt for v in (x, x, nan)]
+    gy = [v for _ in xt for v in (0.0, 1.0, nan)]
+    ax.plot(gx, gy, transform=ax.get_xaxis_transform(), color="0.88", linewidth=0.8, zorder=0.5)
+    gx = [v for _ in yt for v in (0.0, 1.0, nan)]
+    gy = [v for y in yt for v in (y, y, nan)]
+    ax.plot(gx, gy, transform=ax.get_yaxis_transform(), color="0.88", linewidth=0.8, zorder=0.5)
+
+
+def _tick_marks(ax: Any, xt: Sequence[float], yt: Sequence[float], ax_px: tuple[float, float]) -> None:
+    """The tick marks below the x axis and left of the y axis; ``ax_px`` is the axes' size in pixels."""
+    ax_w, ax_h = ax_px
+    nan = float("nan")
+    mx = [v for x in xt for v in (x, x, nan)]
+    my = [v for _ in xt for v in (0.0, -_TICK_PX / ax_h, nan)]
+    ax.plot(mx, my, transform=ax.get_xaxis_transform(), color="black", linewidth=0.8, clip_on=False)
+    mx = [v for _ in yt for v in (0.0, -_TICK_PX / ax_w, nan)]
+    my = [v for y in yt for v in (y, y, nan)]
+    ax.plot(mx, my, transform=ax.get_yaxis_transform(), color="black", linewidth=0.8, clip_on=False)
+
+
+def _tick_texts(
+    ax: Any,
+    x_labels: Sequence[tuple[float, str]],
+    y_labels: Sequence[tuple[float, str]],
+    ax_px: tuple[float, float],
+) -> None:
+    """The (value, text) tick labels below the x axis and left of the y axis."""
+    ax_w, ax_h = ax_px
+    xtrans, ytrans = ax.get_xaxis_transform(), ax.get_yaxis_transform()
+    for x, label in x_labels:
+        ax.text(x, -(_TICK_PX + 3) / ax_h, label, transform=xtrans, ha="center", va="top", fontsize=_SMALL)
+    for y, label in y_labels:
+        ax.text(-(_TICK_PX + 3) / ax_w, y, label, transform=ytrans, ha="right", va="center", fontsize=_SMALL)
+
+
+#: A legend's inner padding, sample length, gap between sample and text, and margin from the axes' corner,
+#: pixels.
+_LEGEND_PAD, _LEGEND_SAMPLE, _LEGEND_GAP, _LEGEND_MARGIN = 8.0, 30.0, 8.0, 10.0
+
+
+@dataclass(frozen=True)
+class _LegendBox:
+    """Where a legend goes in its axes, in pixels from the axes' bottom-left corner.
+
+    Attributes
+    ----------
+    ax_w, ax_h : float
+        The axes' size, pixels.
+    left, top, width, height : float
+        The legend's box.
+    line_h : float
+        Distance between the entries' baselines.
+    fontsize : float
+        Points.
+    """
+
+    ax_w: float
+    ax_h: float
+    left: float
+    top: float
+    width: float
+    height: float
+    line_h: float
+    fontsize: float
+
+    def at(self, x_px: float, y_px: float) -> tuple[float, float]:
+        """Axes fraction of a pixel position."""
+        return (x_px / self.ax_w, y_px / self.ax_h)
+
+    def row_y(self, i: int) -> float:
+        """The vertical centre of entry ``i`` (0 at the top), pixels."""
+        text_h = self.fontsize * DPI / 72
+        return self.top - _LEGEND_PAD - (i + 0.5) * self.line_h + (self.line_h - text_h) / 2
+
+
 def _legend(ax: Any, size: tuple[int, int], *, fontsize: float = _SMALL) -> None:
     """The labelled artists of ``ax`` listed in a box at its upper right corner.
 
     Equivalent to ``ax.legend(loc="upper right")`` for lines, markers and spans, at a fraction of the
     cost (matplotlib's legend lays out through a tree of offset boxes).
-    """
-    from matplotlib.font_manager import FontProperties
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import FancyBboxPatch, Rectangle
 
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+    size : (int, int)
+        The figure's (width, height), pixels.
+    fontsize : float
+        Of the entries' labels, points.
+    """
     handles, labels = ax.get_legend_handles_labels()
     if not handles:
         return
+    box = _legend_box(ax, size, labels, fontsize)
+    _legend_frame(ax, box)
+    for i, (handle, label) in enumerate(zip(handles, labels, strict=True)):
+        y = box.row_y(i)
+        x0 = box.left + _LEGEND_PAD
+        _legend_sample(ax, handle, box, x0, y)
+        ax.text(
+            *box.at(x0 + _LEGEND_SAMPLE + _LEGEND_GAP, y),
+            label,
+            transform=ax.transAxes,
+            ha="left",
+            va="center",
+            fontsize=fontsize,
+            zorder=12,
+            clip_on=False,
+        )
+
+
+def _legend_box(ax: Any, size: tuple[int, int], labels: Sequence[str], fontsize: float) -> _LegendBox:
+    """The box that fits ``labels`` (measured with the figure's renderer) at the axes' upper right."""
+    from matplotlib.font_manager import FontProperties
+
     W, H = size
-    box = ax.get_position()
-    ax_w, ax_h = box.width * W, box.height * H
+    bounds = ax.get_position()
+    ax_w, ax_h = bounds.width * W, bounds.height * H
     renderer = ax.figure.canvas.get_renderer()
     prop = FontProperties(size=fontsize)
     widths = [renderer.get_text_width_height_descent(t, prop, ismath=False)[0] for t in labels]
     line_h = fontsize * DPI / 72 * 1.45
-    pad, sample, gap, margin = 8.0, 30.0, 8.0, 10.0
-    width = pad + sample + gap + max(widths) + pad
-    height = 2 * pad + line_h * len(labels) - (line_h - fontsize * DPI / 72)
-    right, top = ax_w - margin, ax_h - margin
+    width = _LEGEND_PAD + _LEGEND_SAMPLE + _LEGEND_GAP + max(widths) + _LEGEND_PAD
+    height = 2 * _LEGEND_PAD + line_h * len(labels) - (line_h - fontsize * DPI / 72)
+    right, top = ax_w - _LEGEND_MARGIN, ax_h - _LEGEND_MARGIN
+    return _LegendBox(ax_w, ax_h, right - width, top, width, height, line_h, fontsize)
 
-    def at(x_px: float, y_px: float) -> tuple[float, float]:
-        return (x_px / ax_w, y_px / ax_h)
 
-    left, bottom = right - width, top - height
+def _legend_frame(ax: Any, box: _LegendBox) -> None:
+    """The legend's white, rounded, grey-edged background."""
+    from matplotlib.patches import FancyBboxPatch
+
     ax.add_patch(
         FancyBboxPatch(
-            at(left, bottom),
-            width / ax_w,
-            height / ax_h,
+            box.at(box.left, box.top - box.height),
+            box.width / box.ax_w,
+            box.height / box.ax_h,
             boxstyle="round,pad=0,rounding_size=0.008",
             transform=ax.transAxes,
             facecolor="white",
@@ -481,50 +641,45 @@ def _legend(ax: Any, size: tuple[int, int], *, fontsize: float = _SMALL) -> None
             clip_on=False,
         )
     )
-    for i, (handle, label) in enumerate(zip(handles, labels, strict=True)):
-        y = top - pad - (i + 0.5) * line_h + (line_h - fontsize * DPI / 72) / 2
-        x0 = left + pad
-        if isinstance(handle, Line2D):
-            ax.add_line(
-                Line2D(
-                    [at(x0, y)[0], at(x0 + sample / 2, y)[0], at(x0 + sample, y)[0]],
-                    [at(x0, y)[1]] * 3,
-                    transform=ax.transAxes,
-                    color=handle.get_color(),
-                    linestyle=handle.get_linestyle(),
-                    linewidth=handle.get_linewidth(),
-                    marker=handle.get_marker(),
-                    markersize=handle.get_markersize(),
-                    markeredgecolor=handle.get_markeredgecolor(),
-                    markerfacecolor=handle.get_markerfacecolor(),
-                    markeredgewidth=handle.get_markeredgewidth(),
-                    markevery=[1],
-                    zorder=11,
-                    clip_on=False,
-                )
+
+
+def _legend_sample(ax: Any, handle: Any, box: _LegendBox, x0: float, y: float) -> None:
+    """A legend entry's sample from pixel (x0, y) of the axes: a short line with its marker, or a patch."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Rectangle
+
+    at, sample = box.at, _LEGEND_SAMPLE
+    if isinstance(handle, Line2D):
+        ax.add_line(
+            Line2D(
+                [at(x0, y)[0], at(x0 + sample / 2, y)[0], at(x0 + sample, y)[0]],
+                [at(x0, y)[1]] * 3,
+                transform=ax.transAxes,
+                color=handle.get_color(),
+                linestyle=handle.get_linestyle(),
+                linewidth=handle.get_linewidth(),
+                marker=handle.get_marker(),
+                markersize=handle.get_markersize(),
+                markeredgecolor=handle.get_markeredgecolor(),
+                markerfacecolor=handle.get_markerfacecolor(),
+                markeredgewidth=handle.get_markeredgewidth(),
+                markevery=[1],
+                zorder=11,
+                clip_on=False,
             )
-        else:
-            ax.add_patch(
-                Rectangle(
-                    at(x0, y - 6),
-                    sample / ax_w,
-                    12 / ax_h,
-                    transform=ax.transAxes,
-                    facecolor=handle.get_facecolor(),
-                    edgecolor="none",
-                    zorder=11,
-                    clip_on=False,
-                )
+        )
+    else:
+        ax.add_patch(
+            Rectangle(
+                at(x0, y - 6),
+                sample / box.ax_w,
+                12 / box.ax_h,
+                transform=ax.transAxes,
+                facecolor=handle.get_facecolor(),
+                edgecolor="none",
+                zorder=11,
+                clip_on=False,
             )
-        ax.text(
-            *at(x0 + sample + gap, y),
-            label,
-            transform=ax.transAxes,
-            ha="left",
-            va="center",
-            fontsize=fontsize,
-            zorder=12,
-            clip_on=False,
         )
 
 

@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.figures._axes import (
+    AxisStyle,
     _axis,
     _figure,
     _finish,
@@ -29,6 +30,9 @@ from workers.pipeline.model import finite_or_none
 
 if TYPE_CHECKING:
     from workers.pipeline.model import Analysis, ObjectMeasurement
+
+#: The axes of a panel without a series: no y scale to show.
+_NO_Y_TICKS = AxisStyle(y_ticks=False)
 
 
 def _metres_per_px(obj: ObjectMeasurement) -> float | None:
@@ -83,7 +87,7 @@ def draw_displacement(analysis: Analysis) -> NDArray[np.uint8]:
     if not analysis.objects:
         ax = _panels(fig, 1)[0]
         ax.set_xlim(*_window_span_s(analysis))
-        _axis(ax, size, xlabel="time (s)", ylabel="displacement (px)", y_ticks=False)
+        _axis(ax, size, xlabel="time (s)", ylabel="displacement (px)", style=_NO_Y_TICKS)
         _note(ax, _no_object_message(analysis))
         return _finish(canvas, size)
     axes = _panels(fig, len(analysis.objects))
@@ -92,7 +96,7 @@ def draw_displacement(analysis: Analysis) -> NDArray[np.uint8]:
         series = _displacement_series(obj)
         if series is None:
             ax.set_xlim(*_window_span_s(analysis))
-            _axis(ax, size, xlabel="time (s)", ylabel="displacement", y_ticks=False)
+            _axis(ax, size, xlabel="time (s)", ylabel="displacement", style=_NO_Y_TICKS)
             _note(ax, f"#{obj.id}: no displacement series ({analysis.method} method)")
             continue
         measured, model, unit, _ = series

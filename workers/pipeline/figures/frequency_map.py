@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.figures._axes import (
+    ColourBar,
     _colour_bar,
     _colour_index,
     _colour_lut,
@@ -95,14 +96,16 @@ def draw_frequency_map(analysis: Analysis) -> NDArray[np.uint8]:
     bar = _colour_bar(
         fig,
         size,
-        x=left + dsize[0] + 16,
-        y=top + 10,
-        height=max(dsize[1] - 20, 20),
-        vmin=lo,
-        vmax=hi,
-        cmap=FREQUENCY_CMAP,
-        label="dominant frequency (Hz)",
-        marks=marks,
+        ColourBar(
+            x=left + dsize[0] + 16,
+            y=top + 10,
+            height=max(dsize[1] - 20, 20),
+            vmin=lo,
+            vmax=hi,
+            cmap=FREQUENCY_CMAP,
+            label="dominant frequency (Hz)",
+            marks=marks,
+        ),
     )
     if not analysis.objects:
         centre = ((left + dsize[0] / 2) / size[0], (size[1] - top - dsize[1] / 2) / size[1])

@@ -9,6 +9,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.figures._axes import (
+    AxisStyle,
+    ColourBar,
     Underlay,
     _axes_box_px,
     _axis,
@@ -44,7 +46,7 @@ if TYPE_CHECKING:
 def ringdown_spectrogram(
     displacement: NDArray[np.floating[Any]],
     *,
-    fps: float,
+    sample_rate_hz: float,
     window: int | None = None,
     hop: int = 1,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
@@ -59,7 +61,7 @@ def ringdown_spectrogram(
     ----------
     displacement : ndarray of float, shape (N + 1,)
         Displacement per frame (any length unit); NaNs are treated as 0.
-    fps : float
+    sample_rate_hz : float
         Sample rate, frames per second.
     window : int, optional
         Segment length in samples; default the largest power of two <= N / 3, clipped to [8, 64].
@@ -75,10 +77,10 @@ def ringdown_spectrogram(
     power : ndarray of float64, shape (F, T)
         Power of the velocity, (unit/s)² per bin.
     """
-    if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"fps={fps} must be a positive number")
+    if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+        raise ValueError(f"fps={sample_rate_hz} must be a positive number")
     x = np.nan_to_num(np.asarray(displacement, np.float64).ravel())
-    v = np.diff(x) * fps
+    v = np.diff(x) * sample_rate_hz
     n = len(v)
     if n < 4:
         raise ValueError(f"a spectrogram needs at least 5 displacement samples, got {len(x)}")
@@ -101,11 +103,15 @@ def ringdown_spectrogram(
     nfft = 4 * window
     spec = np.fft.fft(segments * np.hanning(window), n=nfft, axis=1)[:, : nfft // 2 + 1]
     power = (np.abs(spec) ** 2).T
-    freqs = np.arange(nfft // 2 + 1) * (fps / nfft)
+    freqs = np.arange(nfft // 2 + 1) * (sample_rate_hz / nfft)
     # Segment k spans velocity samples k - half .. k - half + window - 1; velocity sample i lies between
     # frames i and i + 1, so the segment's centre is at frame k (for an even window).
-    times = centres / fps
+    times = centres / sample_rate_hz
     return times.astype(np.float64), freqs.astype(np.float64), power.astype(np.float64)
+
+
+#: The axes of a spectrogram panel: few frequency ticks, no grid over the image.
+_PANEL_AXIS = AxisStyle(y_bins=4, grid=False)
 
 
 def draw_ringdown(analysis: Analysis) -> NDArray[np.uint8]:
@@ -133,72 +139,99 @@ def draw_ringdown(analysis: Analysis) -> NDArray[np.uint8]:
         y=1 - 12 / size[1],
         va="top",
     )
-    nyquist = _sample_rate(analysis) / 2
     if not analysis.objects:
         ax = _panels(fig, 1, right_px=110.0)[0]
         ax.set_xlim(*_window_span_s(analysis))
-        ax.set_ylim(0, nyquist)
-        _axis(ax, size, xlabel="time (s)", ylabel="frequency (Hz)", y_bins=4, grid=False)
+        ax.set_ylim(0, _sample_rate(analysis) / 2)
+        _axis(ax, size, xlabel="time (s)", ylabel="frequency (Hz)", style=_PANEL_AXIS)
         _note(ax, _no_object_message(analysis))
         return _finish(canvas, size)
     axes = _panels(fig, len(analysis.objects), right_px=110.0)
-    lut = _colour_lut(SPECTROGRAM_CMAP)
     underlays: list[Underlay] = []
     for ax, obj in zip(axes, analysis.objects, strict=True):
-        colour = _mpl_color(obj.id)
-        ax.set_ylim(0, nyquist)
-        _title(ax, f"#{obj.id}")
-        spectrogram = _spectrogram_of(analysis, obj)
-        if spectrogram is None:
-            ax.set_xlim(*_window_span_s(analysis))
-            _axis(ax, size, xlabel="time (s)", ylabel="frequency (Hz)", y_bins=4, grid=False)
-            _note(ax, f"#{obj.id}: no displacement series ({analysis.method} method)")
-            continue
-        times, freqs, power = spectrogram
-        peak = float(np.max(power)) if power.size else 0.0
-        db = 10 * np.log10(np.maximum(power, 1e-300) / max(peak, 1e-300))
-        xlim = (float(times[0]), float(times[-1])) if len(times) > 1 else _window_span_s(analysis)
-        ylim = (0.0, min(nyquist, float(freqs[-1])))
-        ax.set_xlim(*xlim)
-        ax.set_ylim(*ylim)
-        _axis(ax, size, xlabel="time (s)", ylabel="frequency (Hz)", y_bins=4, grid=False)
-        # The spectrogram is rasterised here and laid under the (transparent) axes.
-        ax.patch.set_visible(False)
-        x0, y0, x1, y1 = _axes_box_px(ax, size)
-        flat = _raster(db, times, freqs, xlim=xlim, ylim=ylim, shape=(y1 - y0, x1 - x0))
-        shown = db.ravel()[flat]
-        underlays.append((lut[_colour_index(shown, -SPECTROGRAM_RANGE_DB, 0.0)], x0, y0))
-        f = finite_or_none(obj.eigenfrequency_hz)
-        if f is not None:
-            ax.axhline(
-                f,
-                color=colour,
-                linestyle="--",
-                linewidth=2.0,
-                label=f"#{obj.id} f = {format_quantity(f, obj.eigenfrequency_sd_hz, 'Hz')}",
-            )
-        release = finite_or_none(obj.release_time_s)
-        if release is not None:
-            ax.axvline(release, color=colour, linestyle=":", linewidth=2.2, label=f"release {release:.3f} s")
-        _legend(ax, size, fontsize=9.5)
+        image = _object_panel(ax, size, analysis, obj)
+        if image is not None:
+            underlays.append(image)
     if underlays:
         width, height = size
-        underlays.append(
-            _colour_bar(
-                fig,
-                size,
-                x=width - 92,
-                y=70,
-                height=height - 130,
-                vmin=-SPECTROGRAM_RANGE_DB,
-                vmax=0.0,
-                cmap=SPECTROGRAM_CMAP,
-                label="power (dB re. panel max)",
-                bins=2,
-                width=16,
-            )
+        bar = ColourBar(
+            x=width - 92,
+            y=70,
+            height=height - 130,
+            vmin=-SPECTROGRAM_RANGE_DB,
+            vmax=0.0,
+            cmap=SPECTROGRAM_CMAP,
+            label="power (dB re. panel max)",
+            bins=2,
+            width=16,
         )
+        underlays.append(_colour_bar(fig, size, bar))
     return _finish(canvas, size, underlays=underlays)
+
+
+def _object_panel(
+    ax: Any, size: tuple[int, int], analysis: Analysis, obj: ObjectMeasurement
+) -> Underlay | None:
+    """Draw ``obj``'s panel on ``ax``: its axes, eigenfrequency, release and legend.
+
+    Returns the spectrogram's image to lay under the (transparent) axes, or None (and a note on the
+    panel) when the object has no displacement series.
+    """
+    nyquist = _sample_rate(analysis) / 2
+    ax.set_ylim(0, nyquist)
+    _title(ax, f"#{obj.id}")
+    spectrogram = _spectrogram_of(analysis, obj)
+    if spectrogram is None:
+        ax.set_xlim(*_window_span_s(analysis))
+        _axis(ax, size, xlabel="time (s)", ylabel="frequency (Hz)", style=_PANEL_AXIS)
+        _note(ax, f"#{obj.id}: no displacement series ({analysis.method} method)")
+        return None
+    times, freqs, _ = spectrogram
+    xlim = (float(times[0]), float(times[-1])) if len(times) > 1 else _window_span_s(analysis)
+    ylim = (0.0, min(nyquist, float(freqs[-1])))
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
+    _axis(ax, size, xlabel="time (s)", ylabel="frequency (Hz)", style=_PANEL_AXIS)
+    ax.patch.set_visible(False)
+    image = _spectrogram_image(ax, size, spectrogram, xlim=xlim, ylim=ylim)
+    _mark_frequency_and_release(ax, obj)
+    _legend(ax, size, fontsize=9.5)
+    return image
+
+
+def _spectrogram_image(
+    ax: Any,
+    size: tuple[int, int],
+    spectrogram: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
+    *,
+    xlim: tuple[float, float],
+    ylim: tuple[float, float],
+) -> Underlay:
+    """The spectrogram in dB re. its maximum, rasterised to the pixels of ``ax`` (an underlay)."""
+    times, freqs, power = spectrogram
+    peak = float(np.max(power)) if power.size else 0.0
+    db = 10 * np.log10(np.maximum(power, 1e-300) / max(peak, 1e-300))
+    x0, y0, x1, y1 = _axes_box_px(ax, size)
+    flat = _raster(db, times, freqs, xlim=xlim, ylim=ylim, shape=(y1 - y0, x1 - x0))
+    shown = db.ravel()[flat]
+    return (_colour_lut(SPECTROGRAM_CMAP)[_colour_index(shown, -SPECTROGRAM_RANGE_DB, 0.0)], x0, y0)
+
+
+def _mark_frequency_and_release(ax: Any, obj: ObjectMeasurement) -> None:
+    """A dashed line at the object's eigenfrequency and a dotted one at its release, when measured."""
+    colour = _mpl_color(obj.id)
+    f = finite_or_none(obj.eigenfrequency_hz)
+    if f is not None:
+        ax.axhline(
+            f,
+            color=colour,
+            linestyle="--",
+            linewidth=2.0,
+            label=f"#{obj.id} f = {format_quantity(f, obj.eigenfrequency_sd_hz, 'Hz')}",
+        )
+    release = finite_or_none(obj.release_time_s)
+    if release is not None:
+        ax.axvline(release, color=colour, linestyle=":", linewidth=2.2, label=f"release {release:.3f} s")
 
 
 def _spectrogram_of(
@@ -219,6 +252,6 @@ def _spectrogram_of(
                 return np.asarray(times, np.float64), np.asarray(freqs, np.float64), p
     if obj.displacement_px is None or len(obj.displacement_px) < 5:
         return None
-    times, freqs, power = ringdown_spectrogram(obj.displacement_px, fps=_sample_rate(analysis))
+    times, freqs, power = ringdown_spectrogram(obj.displacement_px, sample_rate_hz=_sample_rate(analysis))
     t0 = float(_times_s(analysis, len(obj.displacement_px))[0])
     return times + t0, freqs, power
