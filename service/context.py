@@ -21,6 +21,7 @@ from service.settings import Settings
 from service.storage import Reservations, Storage
 from service.store import STREAM_ACTIVE, JobRecord, Store
 from service.stream_transport import LocalTransport, StreamTransport, transport_for
+from service.views import job_view
 from service.webhooks import Dispatcher
 
 log = logging.getLogger(__name__)
@@ -268,8 +269,6 @@ def _webhook_view(settings: Settings) -> Any:
     root = (settings.public_url or "").rstrip("/")
 
     def render(job: JobRecord) -> dict[str, Any]:
-        from service.jobs import job_view  # here: service.jobs imports this module
-
         view: dict[str, Any] = job_view(job, root_path=root).model_dump(mode="json")
         return view
 

@@ -33,10 +33,10 @@ from service.auth import authenticate, client_address
 from service.bodies import loads_shallow
 from service.context import ServiceContext
 from service.errors import InvalidInputError, ServiceError, UnavailableError, problem_document
-from service.jobs import excitation_json
 from service.retention import expiry
 from service.store import StreamRecord, new_id
 from service.stream_transport import new_token
+from service.views import excitation_json
 
 log = logging.getLogger(__name__)
 

@@ -691,7 +691,7 @@ class Session:
         about as long as the analysis): the job, with its images, completes a moment later, so a client
         that wants the images waits for the job (``GET /v1/jobs/{id}?wait=``).
         """
-        from service.jobs import artifact_url
+        from service.views import artifact_url
         from workers.drawing import draw_all
         from workers.pipeline.errors import EigenscopeError
         from workers.pipeline.figures import ARTIFACT_FILES

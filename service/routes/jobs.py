@@ -12,7 +12,7 @@ from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
 
 from api_schemas import ARTIFACT_NAMES, AnalysisResult, JobCreate, JobList, JobModel, JobStatus
-from service import jobs
+from service import jobs, views
 from service.deps import ContextDep, Cursor, IdempotencyKey, PageSize, TenantDep
 from service.openapi import ETAG_HEADER, RETRY_AFTER_HEADER, problem_responses
 from service.store import TERMINAL
@@ -72,10 +72,10 @@ def create_job(
     idempotency_key: IdempotencyKey = None,
 ) -> JobModel:
     job, created = jobs.create_job(ctx, body, tenant=tenant, idempotency_key=idempotency_key)
-    view = jobs.job_view(job, root_path=_root(request))
+    view = views.job_view(job, root_path=_root(request))
     response.headers["Location"] = f"{_root(request)}/v1/jobs/{job.id}"
     # The same tag a GET of the job gives now: a client can long-poll for its first change at once.
-    response.headers["ETag"] = jobs.etag_of(view.model_dump_json().encode())
+    response.headers["ETag"] = views.etag_of(view.model_dump_json().encode())
     response.headers["Retry-After"] = str(ctx.settings.retry_after_s)
     if not created:
         response.headers["Idempotent-Replayed"] = "true"
@@ -165,9 +165,9 @@ async def get_job(
     interval = _POLL_FIRST_S
     while True:
         job = await run_in_threadpool(ctx.store.get_job, job_id, tenant)
-        body = jobs.job_view(job, root_path=root).model_dump_json().encode()
-        etag = jobs.etag_of(body)
-        current = jobs.etag_matches(if_none_match, etag)
+        body = views.job_view(job, root_path=root).model_dump_json().encode()
+        etag = views.etag_of(body)
+        current = views.etag_matches(if_none_match, etag)
         left = deadline - time.monotonic()
         if wait is None or job.status in TERMINAL or (if_none_match and not current) or left <= 0:
             break
@@ -210,7 +210,7 @@ async def delete_job(job_id: JobId, ctx: ContextDep, tenant: TenantDep) -> Respo
     responses=problem_responses(401, 404, 409, 429, 503),
 )
 def cancel_job(job_id: JobId, request: Request, ctx: ContextDep, tenant: TenantDep) -> JobModel:
-    return jobs.job_view(ctx.store.cancel_job(job_id, tenant), root_path=_root(request))
+    return views.job_view(ctx.store.cancel_job(job_id, tenant), root_path=_root(request))
 
 
 @router.get(
@@ -237,8 +237,8 @@ async def get_job_result(
 ) -> Response:
     result = await run_in_threadpool(jobs.job_result, ctx, job_id, tenant=tenant, root_path=_root(request))
     body = result.model_dump_json().encode()
-    headers = {"ETag": jobs.etag_of(body), "Cache-Control": "private, no-cache"}
-    if jobs.etag_matches(if_none_match, headers["ETag"]):
+    headers = {"ETag": views.etag_of(body), "Cache-Control": "private, no-cache"}
+    if views.etag_matches(if_none_match, headers["ETag"]):
         return Response(status_code=304, headers=headers)
     return Response(body, media_type="application/json", headers=headers)
 
@@ -291,10 +291,10 @@ def get_job_artifact(
 ) -> Response:
     path = jobs.artifact_file(ctx, job_id, name, tenant=tenant)
     stat = path.stat()
-    etag = jobs.etag_of(f"{job_id}/{path.name}/{stat.st_size}/{stat.st_mtime_ns}".encode())
+    etag = views.etag_of(f"{job_id}/{path.name}/{stat.st_size}/{stat.st_mtime_ns}".encode())
     # The files of a job never change once published; private: each key sees only its own.
     headers = {"ETag": etag, "Cache-Control": "private, no-cache"}
-    if jobs.etag_matches(if_none_match, etag):
+    if views.etag_matches(if_none_match, etag):
         return Response(status_code=304, headers=headers)
     media_type = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
     return FileResponse(
