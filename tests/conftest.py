@@ -1,11 +1,13 @@
-"""Shared pytest configuration: seeded randomness and the shared data folder."""
+"""Shared pytest configuration: seeded randomness, the shared data folder, the command line run in a fresh
+process, and each test's tier (from its folder)."""
 
 from __future__ import annotations
 
 import os
 import random
+import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 # isort: off
@@ -35,9 +37,46 @@ def shared_dir() -> Path:
     return SHARED
 
 
-#: Tiers by folder (``./run test --tier NAME`` or ``pytest -m NAME``). A test under ``tests/unit`` marked
-#: ``accuracy`` (a whole analysis of a scene) is in the accuracy tier, not the unit tier.
-TIERS = {"unit": "unit", "contract": "contract", "integration": "integration", "e2e": "e2e", "fuzz": "fuzz"}
+def _run_eigenscope(*args: object, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "eigenscope", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        check=False,
+    )
+
+
+@pytest.fixture(scope="session")
+def run_eigenscope() -> Callable[..., subprocess.CompletedProcess[str]]:
+    """``run_eigenscope(*args, cwd=None)``: ``python -m eigenscope ARGS`` in a fresh process, its output
+    captured as text, whatever its exit status."""
+    return _run_eigenscope
+
+
+@pytest.fixture(scope="session")
+def cli_clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A clip made by ``eigenscope synth`` (64 frames of 320x240, seed 3; its ground truth beside it in
+    ``clip.truth.json``): the command line's own test clip, for the unit and the accuracy tier."""
+    out = tmp_path_factory.mktemp("cli") / "clip.npz"
+    done = _run_eigenscope(
+        "synth", "--out", out, "--frames", 64, "--width", 320, "--height", 240, "--seed", 3
+    )
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+#: Tiers by folder (``./run test --tier NAME`` or ``pytest -m NAME``): whole analyses of ground-truth scenes
+#: and footage live in ``tests/accuracy``, never in ``tests/unit`` (a test there marked ``accuracy`` is an
+#: error: move it).
+TIERS = {
+    "unit": "unit",
+    "accuracy": "accuracy",
+    "contract": "contract",
+    "integration": "integration",
+    "e2e": "e2e",
+    "fuzz": "fuzz",
+}
 #: Under pytest-xdist (``-n 2 --dist loadgroup``, as ``scripts/test.sh`` runs it) the tests of a module that
 #: starts services stay on one worker (its module-scoped services are started once), and the modules
 #: that use the shared Redis test database (which the harness flushes) share one worker.
@@ -47,12 +86,13 @@ SHARED_REDIS = "shared-redis"
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Give each test exactly one tier marker, from its folder (``accuracy`` for a test under
-    ``tests/unit`` that its module or function marks so), dropping any other tier marker a module
+    """Give each test exactly one tier marker, from its folder, dropping any other tier marker a module
     declared (the contract tests that start services were marked ``integration``): ``-m TIER`` selects
-    every test once. Group the service tiers' tests by module for pytest-xdist."""
+    every test once. A unit test marked ``accuracy`` stops the run: accuracy tests live in
+    ``tests/accuracy``. Group the service tiers' tests by module for pytest-xdist."""
     root = Path(__file__).resolve().parent
     tiers: dict[int, str] = {}
+    misplaced: list[str] = []
     for i, item in enumerate(items):
         try:
             where = item.path.resolve().relative_to(root)
@@ -62,11 +102,16 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if tier is None:
             continue
         if tier == "unit" and item.get_closest_marker("accuracy") is not None:
-            tier = "accuracy"
+            misplaced.append(item.nodeid)
         tiers[i] = tier
         if tier in SERVICE_TIERS and item.get_closest_marker("xdist_group") is None:
             item.add_marker(pytest.mark.xdist_group(where.as_posix()))
-    names = {*TIERS.values(), "accuracy"}
+    if misplaced:
+        raise pytest.UsageError(
+            "tests under tests/unit marked accuracy (whole analyses belong to the accuracy tier): move them "
+            "to the same place under tests/accuracy, which marks its tests itself: " + ", ".join(misplaced)
+        )
+    names = set(TIERS.values())
     for i in tiers:
         for node in items[i].listchain():
             node.own_markers[:] = [m for m in node.own_markers if m.name not in names]

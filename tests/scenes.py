@@ -3,7 +3,7 @@
 A scene is rendered, written as an npz bundle and analysed once per test session: every later request for
 the same scene with the same configuration and excitation gets the same :class:`SceneRun` (tests read it,
 never change it). Test modules use this module directly (``from tests.scenes import run_scene``) or through
-the ``run_scene`` fixture of ``tests/unit/pipeline/conftest.py``; nothing is imported from a conftest.
+the ``run_scene`` fixture of ``tests/accuracy/conftest.py``; nothing is imported from a conftest.
 
 :data:`ACCURACY_ROWS` collects the ground-truth accuracy figures printed at the end of a run
 (``tests/conftest.py``, which hands each test's new rows to its report, so they reach the controller

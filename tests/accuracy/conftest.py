@@ -1,5 +1,7 @@
-"""The ``run_scene`` fixture of the pipeline's accuracy tests: :func:`tests.scenes.run_scene` with the
-session's scene folder (each scene is rendered and analysed once per session and shared)."""
+"""Fixtures of the accuracy tier (``tests/accuracy``, marked ``accuracy`` by ``tests/conftest.py``): the
+``run_scene`` fixture, :func:`tests.scenes.run_scene` with the session's scene folder (each scene is
+rendered and analysed once per session and shared). ``shared_dir`` (real footage) and the command line's
+``run_eigenscope`` and ``cli_clip``, which the unit tier uses too, are in ``tests/conftest.py``."""
 
 from __future__ import annotations
 

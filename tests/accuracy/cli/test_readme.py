@@ -20,8 +20,6 @@ README = ROOT / "README.md"
 COMMAND = "eigenscope analyze docs/example/spring.zip"
 NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
 
-pytestmark = pytest.mark.accuracy  # a whole analysis
-
 
 def readme_example() -> tuple[list[str], list[str]]:
     """(the example command's arguments, the sample output's lines), as the README has them."""

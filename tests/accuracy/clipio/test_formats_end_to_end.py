@@ -18,8 +18,8 @@ from workers.pipeline.clipio import writers as w
 from workers.pipeline.synth import Scene, SceneObject, SyntheticClip, render
 from workers.runner import run_analysis
 
-#: A whole analysis of one scene in every format: the accuracy tier.
-pytestmark = [pytest.mark.slow, pytest.mark.accuracy]
+#: A whole analysis of one scene in every format.
+pytestmark = pytest.mark.slow
 
 FPS = 30.0
 T0 = 1_700_000_000_000_000_000
@@ -93,7 +93,12 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
     "open3d-zip": (
         lambda d, c: (
             w.write_open3d(
-                d / "o3d.zip", c.rgb, depth=c.depth, intrinsics=c.intrinsics, fps=FPS, image_format="png"
+                d / "o3d.zip",
+                c.rgb,
+                depth=c.depth,
+                intrinsics=c.intrinsics,
+                fps=FPS,
+                options=w.Open3dOptions(image_format="png"),
             ),
             {},
         ),
@@ -123,7 +128,7 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
                 stamps_ns=_stamps(96),
                 intrinsics=c.intrinsics,
                 depth=c.depth,
-                layout="realsense-sdk",
+                options=w.RosBagOptions(layout="realsense-sdk"),
             ),
             {},
         ),
@@ -148,7 +153,7 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
                 stamps_ns=_stamps(96),
                 intrinsics=c.intrinsics,
                 depth=c.depth,
-                storage="sqlite3",
+                options=w.RosBagOptions(storage="sqlite3"),
             ),
             {},
         ),
@@ -163,7 +168,7 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
                 intrinsics=c.intrinsics,
                 depth=c.depth,
                 version=2,
-                compressed=True,
+                options=w.RosBagOptions(compressed=True),
             ),
             {},
         ),

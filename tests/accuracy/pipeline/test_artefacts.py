@@ -8,9 +8,6 @@ import pytest
 
 from workers.pipeline.synth import Scene, SceneObject
 
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 ARTEFACTS = {
     "camera-shake": {"shake_px": 1.5, "shake_hz": 8.3},
     "slow-drift": {"drift_px_per_s": (6.0, 2.0)},

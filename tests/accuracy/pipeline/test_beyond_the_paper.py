@@ -14,9 +14,6 @@ from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import Excitation
 from workers.pipeline.synth import Scene, SceneObject
 
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 SEEDS = [0, 1, 2]
 
 

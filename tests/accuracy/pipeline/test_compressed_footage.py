@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.accuracy.pipeline.test_groundtruth import CASES, scene_for
 from tests.scenes import ACCURACY_ROWS
-from tests.unit.pipeline.test_groundtruth import CASES, scene_for
 from workers.pipeline.analysis import Analysis, AnalysisConfig, analyze
 from workers.pipeline.clipio import open_clip
 from workers.pipeline.significance import MAX_FALSE_ALARM
@@ -27,9 +27,6 @@ from workers.pipeline.synth_corpus import (
     thin_bar,
     wheel,
 )
-
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
 
 MPEG4_ACTION_CAMERA = ("mpeg4", 1_200_000, 12)
 H264_PHONE = ("libx264", 1_500_000, 15)

@@ -14,9 +14,6 @@ from workers.pipeline.analysis import AnalysisConfig
 from workers.pipeline.flow import FlowConfig
 from workers.pipeline.synth import Scene, SceneObject, render
 
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 
 def _codes(run):
     return {q.code for q in run.analysis.quality}

@@ -13,9 +13,6 @@ from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import AnalysisConfig
 from workers.pipeline.synth import Scene, SceneObject
 
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 # (name, frequency_hz, mass_kg, depth_m, frames, release_frame, excitation, value, size)
 CASES = [
     ("3Hz-N128", 3.0, 0.8, 1.0, 128, 0, "step_release", 12.0, (640, 480)),

@@ -13,9 +13,6 @@ from workers.pipeline.errors import ClipError, ParameterError
 from workers.pipeline.live import LiveAnalysis, LiveConfig
 from workers.pipeline.synth import Scene, SceneObject, SceneReader
 
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 
 def _scene(frames: int = 100, release: int = 12) -> Scene:
     obj = SceneObject(

@@ -12,9 +12,6 @@ from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import DEFAULT_MAX_FRAMES, AnalysisConfig, analyze
 from workers.pipeline.synth import Scene, SceneObject, SceneReader
 
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 
 def _object(*, width, height, frequency_hz, amplitude_px, release_frame, damping_ratio=0.01):
     focal = 525.0 * width / 640.0

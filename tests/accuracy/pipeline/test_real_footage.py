@@ -13,9 +13,6 @@ from workers.pipeline.analysis import AnalysisConfig, analyze
 from workers.pipeline.clipio import ClipOverrides, open_clip
 from workers.pipeline.synth_corpus import REAL_STILL_CROPS, ColumnCrop
 
-#: Whole analyses of real footage: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 CLIPS = [(f, fps) for f in (32, 64, 128) for fps in (250, 500, 1000) if not (f == 128 and fps == 250)]
 
 

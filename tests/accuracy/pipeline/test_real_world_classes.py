@@ -17,9 +17,6 @@ from workers.pipeline.analysis import AnalysisConfig, analyze
 from workers.pipeline.clipio import ClipOverrides, open_clip, write_npz
 from workers.pipeline.synth import Scene, SceneObject, SceneReader, render
 
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 FOCAL_AT_640 = 525.0
 
 

@@ -11,17 +11,14 @@ import numpy as np
 import pytest
 
 from workers.pipeline.errors import ParameterError
+from workers.pipeline.model import Survey
 from workers.pipeline.survey import (
     MAX_BLOCKS,
     MAX_SEGMENTS,
-    Survey,
     survey_motion,
 )
 from workers.pipeline.synth import Scene, SceneObject, SceneReader
 from workers.pipeline.window import WindowRules, plan_window
-
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
 
 FPS = 30.0
 

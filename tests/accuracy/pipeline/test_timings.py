@@ -12,9 +12,6 @@ from workers.pipeline.analysis import AnalysisConfig, analyze
 from workers.pipeline.clipio import open_clip, write_npz
 from workers.pipeline.synth import Scene, SceneObject, render
 
-#: Whole analyses of rendered scenes: the accuracy tier (``./run test --tier accuracy``).
-pytestmark = pytest.mark.accuracy
-
 
 @pytest.mark.parametrize("method", ["default", "paper"])
 def test_stage_times_add_up_to_the_analysis(method: str, tmp_path: Path):
