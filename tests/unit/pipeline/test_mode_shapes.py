@@ -1,0 +1,150 @@
+"""Modes of one object on arrays with ground truth: a struck Euler-Bernoulli cantilever's first three
+bending modes (frequencies, damping, shapes against the analytic ones), harmonics told from modes by
+their shapes, and bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from workers.pipeline.errors import ParameterError
+from workers.pipeline.modes import align_phase, find_modes, mac
+
+#: β_r L of a cantilever's first three bending modes.
+BETA_L = (1.8751, 4.6941, 7.8548)
+
+
+def cantilever_shape(beta_l: float, xi: np.ndarray) -> np.ndarray:
+    """The bending mode shape of a clamped-free beam at ξ = x / L."""
+    b = beta_l * xi
+    sigma = (math.cosh(beta_l) + math.cos(beta_l)) / (math.sinh(beta_l) + math.sin(beta_l))
+    return np.cosh(b) - np.cos(b) - sigma * (np.sinh(b) - np.sin(b))
+
+
+def cantilever_motion(
+    *,
+    f1_hz: float = 3.0,
+    zetas: tuple[float, ...] = (0.01, 0.006, 0.004),
+    amplitudes_px: tuple[float, ...] = (1.0, 0.3, 0.12),
+    fs: float = 240.0,
+    samples: int = 1024,
+    pixels: int = 60,
+    noise_px: float = 0.01,
+    seed: int = 0,
+) -> tuple[np.ndarray, list[float], list[np.ndarray]]:
+    """Flow (samples, pixels, 2) of a struck cantilever lying along x and bending in y: each mode a
+    damped oscillation of its shape; the flow is each sample's displacement difference."""
+    rng = np.random.default_rng(seed)
+    xi = np.linspace(0.02, 1.0, pixels)
+    t = np.arange(samples + 1) / fs
+    disp = np.zeros((samples + 1, pixels))
+    freqs, shapes = [], []
+    for r, (beta_l, zeta, amp) in enumerate(zip(BETA_L, zetas, amplitudes_px, strict=True)):
+        fn = f1_hz * (beta_l / BETA_L[0]) ** 2
+        wn = 2 * math.pi * fn
+        wd = wn * math.sqrt(1 - zeta**2)
+        phi = cantilever_shape(beta_l, xi)
+        phi = phi / np.abs(phi).max()
+        disp += amp * np.outer(np.exp(-zeta * wn * t) * np.sin(wd * t + 0.3 * r), phi)
+        freqs.append(wd / (2 * math.pi))
+        shapes.append(phi)
+    flow = np.zeros((samples, pixels, 2))
+    flow[..., 1] = np.diff(disp, axis=0)
+    flow += rng.normal(0.0, noise_px, flow.shape)
+    return flow.astype(np.float32), freqs, shapes
+
+
+def test_a_struck_cantilever_gives_its_three_bending_modes_with_their_shapes() -> None:
+    zetas = (0.01, 0.006, 0.004)
+    flow, freqs, shapes = cantilever_motion(zetas=zetas)
+    found = find_modes(flow, sample_rate_hz=240.0, band_hz=(1.0, 117.0))
+    assert len(found.modes) == 3, [m.frequency_hz for m in found.modes]
+    assert not found.harmonics
+    by_f = sorted(found.modes, key=lambda m: m.frequency_hz)
+    for mode, f, zeta, shape in zip(by_f, freqs, zetas, shapes, strict=True):
+        assert mode.frequency_hz == pytest.approx(f, rel=0.005)
+        assert mode.damping_ratio == pytest.approx(zeta, rel=0.3)
+        assert mac(mode.shape[:, 1], shape) >= 0.98
+        assert mode.complexity < 0.05  # light damping: a real (standing) mode
+    # The shapes differ from each other (nodes), and the first mode carries most of the motion.
+    off = found.mac[~np.eye(3, dtype=bool)]
+    assert off.max() < 0.5
+    assert found.modes[0].frequency_hz == pytest.approx(freqs[0], rel=0.005)
+    assert found.modes[0].energy_share > found.modes[1].energy_share > found.modes[2].energy_share
+
+
+def test_a_second_mode_gets_its_node_and_sign_change() -> None:
+    flow, _, _ = cantilever_motion()
+    found = find_modes(flow, sample_rate_hz=240.0, band_hz=(1.0, 117.0))
+    second = min((m for m in found.modes if m.frequency_hz > 10), key=lambda m: m.frequency_hz)
+    y = second.shape[:, 1].real
+    # One sign change along the beam (the second bending mode's node, near x = 0.78 L).
+    changes = np.flatnonzero(np.diff(np.sign(y[np.abs(y) > 0.05 * np.abs(y).max()])))
+    assert len(changes) == 1
+
+
+def test_a_rigid_object_moving_periodically_but_not_sinusoidally_has_one_mode_and_its_harmonic() -> None:
+    rng = np.random.default_rng(1)
+    fs, n, f0 = 240.0, 960, 7.0
+    t = np.arange(n) / fs
+    course = np.cos(2 * np.pi * f0 * t) + 0.35 * np.cos(2 * np.pi * 2 * f0 * t + 0.4)
+    direction = np.array([0.8, 0.6])
+    flow = course[:, None, None] * direction[None, None, :] * np.ones((1, 40, 1))
+    flow = flow + rng.normal(0, 0.01, flow.shape)
+    found = find_modes(flow, sample_rate_hz=fs, band_hz=(1.0, 100.0))
+    assert len(found.modes) == 1
+    assert found.modes[0].frequency_hz == pytest.approx(f0, rel=0.002)
+    assert len(found.harmonics) == 1
+    harmonic = found.harmonics[0]
+    assert harmonic.order == 2
+    assert harmonic.frequency_hz == pytest.approx(2 * f0, rel=0.002)
+    assert harmonic.mac > 0.99
+
+
+def test_a_mode_at_twice_another_with_a_different_shape_is_a_mode_not_a_harmonic() -> None:
+    rng = np.random.default_rng(2)
+    fs, n, f0, pixels = 240.0, 960, 6.0, 50
+    t = np.arange(n)[:, None] / fs
+    x = np.linspace(0, 1, pixels)[None, :]
+    # The first shape is even about the middle, the second odd (a node there): orthogonal.
+    first = np.cos(2 * np.pi * f0 * t) * np.cos(np.pi * (x - 0.5))
+    second = 0.5 * np.cos(2 * np.pi * 2 * f0 * t + 1.0) * np.sin(2 * np.pi * (x - 0.5))
+    flow = np.zeros((n, pixels, 2))
+    flow[..., 0] = first + second + rng.normal(0, 0.01, (n, pixels))
+    found = find_modes(flow, sample_rate_hz=fs, band_hz=(1.0, 100.0))
+    assert sorted(round(m.frequency_hz, 1) for m in found.modes) == [6.0, 12.0]
+    assert not found.harmonics
+    assert found.mac[0, 1] < 0.1
+
+
+def test_noise_alone_has_no_mode() -> None:
+    rng = np.random.default_rng(3)
+    flow = rng.normal(0, 0.05, (512, 30, 2))
+    found = find_modes(flow, sample_rate_hz=100.0, band_hz=(1.0, 45.0))
+    assert found.modes == []
+
+
+def test_mac_and_phase_alignment() -> None:
+    a = np.array([1.0, -2.0, 0.5])
+    assert mac(a, 3j * a) == pytest.approx(1.0)
+    assert mac(a, np.array([2.0, 1.0, 0.0])) == pytest.approx(0.0)
+    assert mac(a, np.zeros(3)) == 0.0
+    aligned = align_phase(a * np.exp(1.1j))
+    np.testing.assert_allclose(aligned, -a, atol=1e-12)  # its largest component made positive
+    with pytest.raises(ParameterError, match="cannot be compared"):
+        mac(a, np.ones(4))
+
+
+@pytest.mark.parametrize(
+    ("shape", "rate", "message"),
+    [
+        ((100, 10), 100.0, "samples, pixels, 2"),
+        ((8, 10, 2), 100.0, "too few"),
+        ((100, 10, 2), 0.0, "positive"),
+    ],
+)
+def test_bad_input_says_what_to_give(shape: tuple[int, ...], rate: float, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        find_modes(np.zeros(shape, np.float32), sample_rate_hz=rate, band_hz=(1.0, 40.0))

@@ -1,0 +1,369 @@
+"""Modes of one object: the narrow-band components of its pixels' motion, each with its frequency,
+damping, share of the motion and shape, and which of them are harmonics of another.
+
+An object is the region that moves; a mode is a narrow-band component found on its pixels. The image
+shows each pixel's motion (x and y, flow in pixels per sample). A mode's *shape* is the complex amplitude
+of every pixel's motion at the mode's frequency (the window's tapered DFT there), so that pixels moving
+in anti-phase (either side of a node) have opposite signs. Shapes decide what a peak is:
+
+- a peak at an integer multiple of a stronger one whose shape is the same (MAC near 1) is a *harmonic*:
+  the object's motion is periodic but not sinusoidal (a rigid object's pixels share one time course);
+- a peak whose shape differs (a node, a sign change: low MAC) is a *mode*.
+
+Each mode's modal coordinate is taken by a modal filter (the least-squares projection of the pixels'
+motion on every mode's real shape at once, so that one mode's motion does not leak into another's fit)
+and fitted as a damped oscillation (:func:`workers.pipeline.ringdown.fit_ringdown`), which gives its
+frequency and damping with their uncertainties.
+
+MAC (modal assurance criterion) between shapes a and b: |a^H b|^2 / ((a^H a)(b^H b)), 1 for shapes
+equal up to a complex factor, 0 for orthogonal ones.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline.errors import ParameterError
+from workers.pipeline.peaks import interpolate_peak, noise_floor
+from workers.pipeline.ringdown import RingdownFit, fit_ringdown
+from workers.pipeline.significance import tukey
+
+#: A peak of the object's summed spectrum is a candidate mode when it stands this far above the
+#: spectrum's running median (its floor), dB.
+MIN_MODE_DB = 10.0
+#: ... and holds at least this share of the strongest peak's power (weaker lines are leakage and noise).
+MIN_MODE_SHARE = 1e-3
+#: Running-median width of the floor, bins (odd).
+FLOOR_WIDTH_BINS = 31
+#: A peak at n times a stronger one (within this relative tolerance, or 1.5 bins) whose shape has a MAC
+#: of at least :data:`HARMONIC_MAC` with it is that one's harmonic, not a mode.
+HARMONIC_TOLERANCE = 0.02
+HARMONIC_MAC = 0.8
+#: Harmonic orders considered.
+MAX_HARMONIC_ORDER = 10
+#: The window is tapered by a Tukey window with this fraction in cosine lobes: a Hann window would all
+#: but hide a fast mode that has rung down in the first tenth of the window.
+TAPER_ALPHA = 0.2
+#: The modal coordinate is fitted within this many bins of its peak (its band).
+FIT_HALF_WIDTH_BINS = 6.0
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One mode of an object.
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Damped frequency, Hz (from the fit of its modal coordinate).
+    frequency_sd_hz : float
+        Its standard uncertainty (the fit's own), Hz.
+    damping_ratio : float
+    damping_sd : float
+        Its standard uncertainty (the fit's own).
+    energy_share : float
+        Share of the object's motion energy (its pixels' summed power over the band) in this mode's line.
+    decay : float
+        How far the modal coordinate's envelope decays over the fitted span, nepers (its regime's
+        evidence).
+    shape : ndarray of complex128, shape (P, 2)
+        Complex amplitude of each pixel's motion (x, y) at the mode's frequency, flow units, phase-aligned
+        so that its largest real part is positive and its imaginary part is as small as can be.
+    fit : RingdownFit
+        The damped oscillation fitted to the modal coordinate.
+    """
+
+    frequency_hz: float
+    frequency_sd_hz: float
+    damping_ratio: float
+    damping_sd: float
+    energy_share: float
+    decay: float
+    shape: NDArray[np.complex128]
+    fit: RingdownFit
+
+    @property
+    def complexity(self) -> float:
+        """How far the shape is from a real (standing) one: the imaginary part's share of its norm, 0 for
+        a real mode (light, proportional damping), up to 1 for a travelling wave."""
+        norm = float(np.sum(np.abs(self.shape) ** 2))
+        return float(np.sum(self.shape.imag**2) / norm) if norm > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class Harmonic:
+    """A peak that is an overtone of a mode (same shape at an integer multiple of its frequency).
+
+    Attributes
+    ----------
+    frequency_hz : float
+    fundamental_hz : float
+        The mode's frequency.
+    order : int
+    mac : float
+        MAC between the peak's shape and the mode's (the evidence).
+    """
+
+    frequency_hz: float
+    fundamental_hz: float
+    order: int
+    mac: float
+
+
+@dataclass(frozen=True)
+class ObjectModes:
+    """What :func:`find_modes` found on one object.
+
+    Attributes
+    ----------
+    modes : list of Mode
+        Strongest (largest energy share) first.
+    harmonics : list of Harmonic
+    mac : ndarray of float64, shape (M, M)
+        MAC between the modes' shapes (1 on the diagonal).
+    """
+
+    modes: list[Mode]
+    harmonics: list[Harmonic] = field(default_factory=list)
+    mac: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
+
+
+def mac(
+    a: NDArray[np.complexfloating] | NDArray[np.floating],
+    b: NDArray[np.complexfloating] | NDArray[np.floating],
+) -> float:
+    """The modal assurance criterion of two shapes (any shape, flattened): |a^H b|^2 / ((a^H a)(b^H b)).
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0 when either shape is zero.
+    """
+    x = np.asarray(a, np.complex128).ravel()
+    y = np.asarray(b, np.complex128).ravel()
+    if x.shape != y.shape:
+        raise ParameterError(f"mac: shapes of {x.size} and {y.size} values cannot be compared")
+    den = float(np.vdot(x, x).real * np.vdot(y, y).real)
+    return float(abs(np.vdot(x, y)) ** 2 / den) if den > 0 else 0.0
+
+
+def mac_matrix(shapes: list[NDArray[np.complex128]]) -> NDArray[np.float64]:
+    """MAC between every pair of ``shapes``, (M, M)."""
+    out = np.ones((len(shapes), len(shapes)))
+    for i in range(len(shapes)):
+        for j in range(i + 1, len(shapes)):
+            out[i, j] = out[j, i] = mac(shapes[i], shapes[j])
+    return out
+
+
+def align_phase(shape: NDArray[np.complex128]) -> NDArray[np.complex128]:
+    """``shape`` times the unit factor that makes it as real as it can be (the angle that maximises the
+    real part's energy: half the angle of the sum of its squares), its largest real component positive."""
+    z = np.asarray(shape, np.complex128)
+    theta = 0.5 * float(np.angle(np.sum(z**2)))
+    out = z * np.exp(-1j * theta)
+    flat = out.real.ravel()
+    if flat.size and flat[int(np.argmax(np.abs(flat)))] < 0:
+        out = -out
+    return np.asarray(out, np.complex128)
+
+
+def find_modes(
+    motion: NDArray[np.floating],
+    *,
+    sample_rate_hz: float,
+    band_hz: tuple[float, float],
+    max_modes: int = 6,
+    start_index: int = 0,
+) -> ObjectModes:
+    """The modes of one object from its pixels' motion.
+
+    Parameters
+    ----------
+    motion : ndarray of float, shape (N, P, 2)
+        Each of the object's P pixels' motion per sample (flow, x and y), N samples at
+        ``sample_rate_hz``; the camera's motion removed.
+    sample_rate_hz : float
+    band_hz : (low, high)
+        Modes are sought in this band.
+    max_modes : int
+        At most this many modes (the strongest), harmonics not counted.
+    start_index : int
+        First sample of the motion (the release): the modal coordinates are fitted from there.
+
+    Returns
+    -------
+    ObjectModes
+
+    Raises
+    ------
+    ParameterError
+        On a motion array of the wrong shape, a non-positive rate, or a window too short to fit.
+    """
+    x = _series(motion, sample_rate_hz)
+    n = len(x)
+    taper = tukey(n, TAPER_ALPHA).astype(np.float64)
+    spectra = np.fft.rfft((x - x.mean(axis=0)) * taper[:, None], axis=0)
+    power = np.sum(np.abs(spectra) ** 2, axis=1)
+    freqs = np.asarray(np.fft.rfftfreq(n, d=1.0 / sample_rate_hz), np.float64)
+    bin_hz = sample_rate_hz / n
+    lines = _lines(power, freqs, band_hz=band_hz)
+    shapes = [align_phase(_dft(x, taper, f / sample_rate_hz)) for f, _ in lines]
+    modal, harmonics = _sort_out(lines, shapes, bin_hz=bin_hz)
+    modal = modal[:max_modes]
+    if not modal:
+        return ObjectModes(modes=[], harmonics=harmonics)
+    in_band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
+    total = float(power[in_band].sum()) or 1.0
+    coords = _modal_coordinates(x, [shapes[i] for i in modal])
+    modes = [
+        _fit_mode(
+            coords[:, k],
+            shapes[i],
+            lines[i],
+            sample_rate_hz=sample_rate_hz,
+            bin_hz=bin_hz,
+            start_index=start_index,
+            share=_line_power(power, freqs, lines[i][0], bin_hz) / total,
+        )
+        for k, i in enumerate(modal)
+    ]
+    modes.sort(key=lambda m: -m.energy_share)
+    return ObjectModes(modes=modes, harmonics=harmonics, mac=mac_matrix([m.shape for m in modes]))
+
+
+def _series(motion: NDArray[np.floating], sample_rate_hz: float) -> NDArray[np.float64]:
+    """``motion`` (N, P, 2) as (N, 2P) float64 columns, checked."""
+    arr = np.asarray(motion)
+    if arr.ndim != 3 or arr.shape[2] != 2:
+        raise ParameterError(f"find_modes: motion must be (samples, pixels, 2), got {arr.shape}")
+    if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+        raise ParameterError(f"find_modes: sample_rate_hz={sample_rate_hz} must be positive")
+    if arr.shape[0] < 16 or arr.shape[1] < 1:
+        raise ParameterError(
+            f"find_modes: {arr.shape[0]} samples of {arr.shape[1]} pixels are too few; give at least 16 "
+            "samples of one pixel"
+        )
+    return arr.reshape(arr.shape[0], -1).astype(np.float64)
+
+
+def _lines(
+    power: NDArray[np.float64], freqs: NDArray[np.float64], *, band_hz: tuple[float, float]
+) -> list[tuple[float, float]]:
+    """The narrow-band lines of the summed spectrum in the band: (frequency, power), strongest first.
+    A line is a local maximum :data:`MIN_MODE_DB` above the running median, holding at least
+    :data:`MIN_MODE_SHARE` of the strongest line's power."""
+    floor = noise_floor(power, width=FLOOR_WIDTH_BINS)
+    ratio = power / np.maximum(floor, 1e-300)
+    found: list[tuple[float, float]] = []
+    for k in range(1, len(power) - 1):
+        if not (band_hz[0] <= freqs[k] <= band_hz[1]):
+            continue
+        if power[k] < power[k - 1] or power[k] < power[k + 1]:
+            continue
+        if 10 * math.log10(max(ratio[k], 1e-300)) < MIN_MODE_DB:
+            continue
+        found.append((float(freqs[1]) * interpolate_peak(power, k), float(power[k])))
+    found.sort(key=lambda line: -line[1])
+    strongest = found[0][1] if found else 0.0
+    return [line for line in found if line[1] >= MIN_MODE_SHARE * strongest]
+
+
+def _dft(
+    x: NDArray[np.float64], taper: NDArray[np.float64], cycles_per_sample: float
+) -> NDArray[np.complex128]:
+    """Each column's tapered DFT at ``cycles_per_sample``, as (P, 2) complex."""
+    k = np.arange(len(x))
+    kernel = taper * np.exp(-2j * np.pi * cycles_per_sample * k)
+    values = kernel @ (x - x.mean(axis=0))
+    return np.asarray(values.reshape(-1, 2), np.complex128)
+
+
+def _sort_out(
+    lines: list[tuple[float, float]], shapes: list[NDArray[np.complex128]], *, bin_hz: float
+) -> tuple[list[int], list[Harmonic]]:
+    """Which lines are modes (their indices, strongest first) and which are harmonics of a stronger mode
+    (an integer multiple with the same shape)."""
+    modal: list[int] = []
+    harmonics: list[Harmonic] = []
+    for i, (f, _) in enumerate(lines):
+        found = None
+        for j in modal:
+            f0 = lines[j][0]
+            order = round(f / f0)
+            if not 2 <= order <= MAX_HARMONIC_ORDER:
+                continue
+            if abs(f - order * f0) > max(HARMONIC_TOLERANCE * f, 1.5 * bin_hz):
+                continue
+            similarity = mac(shapes[i], shapes[j])
+            if similarity >= HARMONIC_MAC:
+                found = Harmonic(frequency_hz=f, fundamental_hz=f0, order=order, mac=similarity)
+                break
+        if found is None:
+            modal.append(i)
+        else:
+            harmonics.append(found)
+    return modal, harmonics
+
+
+def _modal_coordinates(x: NDArray[np.float64], shapes: list[NDArray[np.complex128]]) -> NDArray[np.float64]:
+    """The modal filter: each sample's motion projected on the modes' real shapes at once (least
+    squares), (N, M)."""
+    basis = np.stack([s.real.ravel() for s in shapes], axis=1)  # (2P, M)
+    coords, *_ = np.linalg.lstsq(basis, (x - x.mean(axis=0)).T, rcond=None)
+    return np.asarray(coords.T, np.float64)
+
+
+def _line_power(power: NDArray[np.float64], freqs: NDArray[np.float64], f: float, bin_hz: float) -> float:
+    """The summed spectrum's power within two bins of ``f``."""
+    near = np.abs(freqs - f) <= 2 * bin_hz
+    return float(power[near].sum())
+
+
+def _fit_mode(
+    coord: NDArray[np.float64],
+    shape: NDArray[np.complex128],
+    line: tuple[float, float],
+    *,
+    sample_rate_hz: float,
+    bin_hz: float,
+    start_index: int,
+    share: float,
+) -> Mode:
+    """One mode: its modal coordinate fitted as a damped oscillation near its line."""
+    f = line[0]
+    half = FIT_HALF_WIDTH_BINS * bin_hz
+    fit = fit_ringdown(
+        coord,
+        sample_rate_hz=sample_rate_hz,
+        frequency_guess_hz=f,
+        start_index=start_index,
+        band_hz=(max(f - half, 0.5 * bin_hz), f + half),
+    )
+    return Mode(
+        frequency_hz=fit.frequency_hz,
+        frequency_sd_hz=fit.frequency_sd_hz,
+        damping_ratio=fit.damping_ratio,
+        damping_sd=fit.damping_sd,
+        energy_share=min(share, 1.0),
+        decay=fit.decay,
+        shape=shape,
+        fit=fit,
+    )
+
+
+__all__ = [
+    "HARMONIC_MAC",
+    "MIN_MODE_DB",
+    "Harmonic",
+    "Mode",
+    "ObjectModes",
+    "align_phase",
+    "find_modes",
+    "mac",
+    "mac_matrix",
+]
