@@ -267,14 +267,14 @@ def _live_run(
             live.wait(5.0)
             est = live.estimate()
             if est is not None:
-                out.append((f.index, est.eigenfrequency_hz, est.eigenfrequency_sd_hz))
+                out.append((f.index, est.eigenfrequency_hz, est.eigenfrequency_uncertainty_hz))
                 if est.converged and converged is None:
                     converged = {
                         "frame": f.index,
                         "f": est.eigenfrequency_hz,
-                        "sd": est.eigenfrequency_sd_hz,
+                        "sd": est.eigenfrequency_uncertainty_hz,
                         "k": est.stiffness_n_per_m,
-                        "k_sd": est.stiffness_sd,
+                        "k_sd": est.stiffness_uncertainty_n_per_m,
                     }
     live.close()
     return out, converged

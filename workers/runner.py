@@ -243,6 +243,23 @@ def write_result_json(out: Path, result: AnalysisResult) -> None:
     write_atomically(out / RESULT_FILE, json.dumps(result.model_dump(mode="json"), indent=2))
 
 
+def _object_result(o: ObjectMeasurement) -> ObjectResult:
+    """An object as the API gives it: the pipeline's measurement carries the API's names and units, so its
+    fields are copied by name (non-finite numbers become null, tuples lists), and its ring-down series
+    sampled for the result."""
+    values: dict[str, Any] = {}
+    for name in ObjectResult.model_fields:
+        if name == "ringdown" or not hasattr(o, name):
+            continue
+        value = getattr(o, name)
+        if isinstance(value, float) and not math.isfinite(value):
+            value = None
+        elif isinstance(value, tuple):
+            value = list(value)
+        values[name] = value
+    return ObjectResult(**values, ringdown=_ringdown(o))
+
+
 def build_result(
     analysis: Analysis,
     *,
@@ -252,41 +269,8 @@ def build_result(
 ) -> AnalysisResult:
     """The :class:`AnalysisResult` of ``analysis``, naming the image files ``artifacts`` (key -> file name);
     nothing is drawn or written (a live stream sends it before its images are drawn)."""
-    from workers.pipeline.model import finite_or_none
-
     requested, params = list(excitation), parameters
-    objects = [
-        ObjectResult(
-            id=o.id,
-            eigenfrequency_hz=o.eigenfrequency_hz,
-            regime=o.regime,
-            eigenfrequency_uncertainty_hz=finite_or_none(o.eigenfrequency_sd_hz),
-            natural_frequency_hz=finite_or_none(o.natural_frequency_hz),
-            angular_frequency_rad_s=o.angular_frequency_rad_s,
-            damping_ratio=finite_or_none(o.damping_ratio),
-            damping_ratio_uncertainty=finite_or_none(o.damping_ratio_sd),
-            amplitude_px=finite_or_none(o.amplitude_px),
-            amplitude_source=o.amplitude_source,
-            amplitude_m=finite_or_none(o.amplitude_m),
-            amplitude_uncertainty_m=finite_or_none(o.amplitude_sd_m),
-            depth_m=finite_or_none(o.depth_m),
-            motion_direction=list(o.motion_direction) if o.motion_direction else None,
-            stiffness_n_per_m=finite_or_none(o.stiffness_n_per_m),
-            stiffness_uncertainty_n_per_m=finite_or_none(o.stiffness_sd),
-            mass_kg=finite_or_none(o.mass_kg),
-            mass_uncertainty_kg=finite_or_none(o.mass_sd),
-            pixel_count=o.pixel_count,
-            bbox_px=list(o.bbox_px),
-            harmonics_hz=o.harmonics_hz,
-            release_time_s=finite_or_none(o.release_time_s),
-            snr_db=finite_or_none(o.snr_db),
-            false_alarm_probability=finite_or_none(o.false_alarm_probability),
-            null_reasons=o.null_reasons,
-            notes=o.notes,
-            ringdown=_ringdown(o),
-        )
-        for o in analysis.objects
-    ]
+    objects = [_object_result(o) for o in analysis.objects]
     parameters_used = analysis.parameters | {
         "fps": analysis.fps,
         "fps_source": analysis.fps_source,

@@ -819,21 +819,12 @@ class _FailedError(Exception):
         self.problem = problem
 
 
-_RENAMES = {
-    "eigenfrequency_sd_hz": "eigenfrequency_uncertainty_hz",
-    "damping_ratio_sd": "damping_ratio_uncertainty",
-    "amplitude_sd_m": "amplitude_uncertainty_m",
-    "stiffness_sd": "stiffness_uncertainty_n_per_m",
-    "mass_sd": "mass_uncertainty_kg",
-}
-
-
 def live_estimate_json(values: dict[str, Any]) -> dict[str, Any]:
-    """A live estimate (``estimate_dict``) under the API's field names (:class:`LiveEstimateModel`)."""
+    """A live estimate (``estimate_dict``) as the API gives it (:class:`LiveEstimateModel`: the pipeline's
+    names are the API's)."""
     from api_schemas import LiveEstimateModel
 
-    renamed = {_RENAMES.get(k, k): v for k, v in values.items()}
-    return LiveEstimateModel.model_validate(renamed).model_dump(mode="json")
+    return LiveEstimateModel.model_validate(values).model_dump(mode="json")
 
 
 def _address_cap() -> str:

@@ -504,7 +504,7 @@ def _artefacts(
         )
         suspect = Suspect(
             frequency_hz=obj.eigenfrequency_hz,
-            sd_hz=obj.eigenfrequency_sd_hz or 0.0,
+            sd_hz=obj.eigenfrequency_uncertainty_hz or 0.0,
             width_bins=cand.peak.width_bins,
             localised=front.scan.localised_share(obj.eigenfrequency_hz, own),
             region_power=region_power,
@@ -526,7 +526,7 @@ def _artefacts(
                 front.evidence,
                 obj.eigenfrequency_hz,
                 objects_hz=stronger,
-                tolerance_hz=max(1.5 * front.scan.bin_hz, 2 * (obj.eigenfrequency_sd_hz or 0.0)),
+                tolerance_hz=max(1.5 * front.scan.bin_hz, 2 * (obj.eigenfrequency_uncertainty_hz or 0.0)),
             )
         if verdict is not None:
             out[obj.id] = verdict

@@ -588,7 +588,7 @@ def oscillation_verdict(obj: ObjectMeasurement, *, band_hz: tuple[float, float])
             "out_of_band",
             figures={"band_low_hz": band_hz[0], "band_high_hz": band_hz[1]},
         )
-    sd = obj.eigenfrequency_sd_hz
+    sd = obj.eigenfrequency_uncertainty_hz
     if sd is None or not math.isfinite(sd) or sd >= MAX_RELATIVE_SD * f:
         return RejectedPeak(
             f,
@@ -848,7 +848,7 @@ def clip_regime(obj: ObjectMeasurement, survey: Survey | None, *, clip_s: float)
         return None
     omega = 2 * math.pi * obj.eigenfrequency_hz
     obj.damping_ratio = sigma / omega
-    obj.damping_ratio_sd = sigma_sd / omega
+    obj.damping_ratio_uncertainty = sigma_sd / omega
     obj.null_reasons = [r for r in obj.null_reasons if not r.startswith("damping:")]
     obj.notes.append(
         "damping from the decay of its energy over the whole clip "

@@ -128,7 +128,7 @@ class LiveConfig:
 @dataclass(frozen=True, kw_only=True)
 class LiveEstimate:
     """The main object's figures from the frames so far. Frequencies in Hz, lengths in metres unless
-    ``_px``; every ``*_sd`` is a standard uncertainty; None where not measurable.
+    ``_px``; every ``*_uncertainty*`` is a standard uncertainty; None where not measurable.
 
     Attributes
     ----------
@@ -143,7 +143,7 @@ class LiveEstimate:
     periods : float
         Periods of motion fitted.
     relative_uncertainty : float
-        ``eigenfrequency_sd_hz / eigenfrequency_hz``.
+        ``eigenfrequency_uncertainty_hz / eigenfrequency_hz``.
     converged : bool
         Whether the convergence rule holds (see the module docstring).
     """
@@ -154,18 +154,18 @@ class LiveEstimate:
     release_time_s: float
     periods: float
     eigenfrequency_hz: float
-    eigenfrequency_sd_hz: float
+    eigenfrequency_uncertainty_hz: float
     natural_frequency_hz: float
     damping_ratio: float
-    damping_ratio_sd: float
+    damping_ratio_uncertainty: float
     amplitude_px: float
     amplitude_m: float | None
-    amplitude_sd_m: float | None
+    amplitude_uncertainty_m: float | None
     depth_m: float | None
     stiffness_n_per_m: float | None
-    stiffness_sd: float | None
+    stiffness_uncertainty_n_per_m: float | None
     mass_kg: float | None
-    mass_sd: float | None
+    mass_uncertainty_kg: float | None
     snr_db: float
     relative_uncertainty: float
     converged: bool
@@ -175,8 +175,8 @@ class LiveEstimate:
         """The frequency's ``level`` interval (normal), Hz; only 0.95 and 0.68 are tabulated."""
         z = {0.95: 1.959964, 0.68: 0.994458}[level]
         return (
-            self.eigenfrequency_hz - z * self.eigenfrequency_sd_hz,
-            self.eigenfrequency_hz + z * self.eigenfrequency_sd_hz,
+            self.eigenfrequency_hz - z * self.eigenfrequency_uncertainty_hz,
+            self.eigenfrequency_hz + z * self.eigenfrequency_uncertainty_hz,
         )
 
 
@@ -571,7 +571,7 @@ class LiveAnalysis:
         )
         metric = self._metric(image, mask=mask, times=times, onset=onset, n=n)
         reasons = list(metric.null_reasons)
-        amp_m, amp_sd_m, depth = metric.amplitude_m, metric.amplitude_sd_m, metric.depth_m
+        amp_m, amp_sd_m, depth = metric.amplitude_m, metric.amplitude_uncertainty_m, metric.depth_m
         mech = object_mechanics(fit, metric, self.excitation, frequency_sd_hz=f_sd)
         reasons.extend(mech.null_reasons)
         duration = float(times[n] - times[onset])
@@ -583,18 +583,18 @@ class LiveAnalysis:
             release_time_s=float(times[onset]) + max(t_rel, 0.0),
             periods=f * duration,
             eigenfrequency_hz=f,
-            eigenfrequency_sd_hz=f_sd,
+            eigenfrequency_uncertainty_hz=f_sd,
             natural_frequency_hz=fit.natural_frequency_hz,
             damping_ratio=fit.damping_ratio,
-            damping_ratio_sd=zeta_sd,
+            damping_ratio_uncertainty=zeta_sd,
             amplitude_px=amp_px,
             amplitude_m=amp_m,
-            amplitude_sd_m=amp_sd_m,
+            amplitude_uncertainty_m=amp_sd_m,
             depth_m=depth,
             stiffness_n_per_m=mech.stiffness_n_per_m,
-            stiffness_sd=mech.stiffness_sd,
+            stiffness_uncertainty_n_per_m=mech.stiffness_uncertainty_n_per_m,
             mass_kg=mech.mass_kg,
-            mass_sd=mech.mass_sd,
+            mass_uncertainty_kg=mech.mass_uncertainty_kg,
             snr_db=fit.snr_db,
             relative_uncertainty=f_sd / f,
             converged=False,
@@ -646,7 +646,7 @@ class LiveAnalysis:
         )
         prev = self._previous
         agrees = prev is None or abs(est.eigenfrequency_hz - prev.eigenfrequency_hz) <= 1.96 * math.hypot(
-            est.eigenfrequency_sd_hz, prev.eigenfrequency_sd_hz
+            est.eigenfrequency_uncertainty_hz, prev.eigenfrequency_uncertainty_hz
         )
         self._agree = self._agree + 1 if meets and agrees else (1 if meets else 0)
         self._converged = self._converged or self._agree >= cfg.confirmations

@@ -169,20 +169,20 @@ def measure_object(
     return ObjectMeasurement(
         id=region.label,
         eigenfrequency_hz=fit.frequency_hz,
-        eigenfrequency_sd_hz=frequency_sd_hz(fit),
+        eigenfrequency_uncertainty_hz=frequency_sd_hz(fit),
         # Damping needs a decay to measure; a sustained (or growing) oscillation shows none here.
         natural_frequency_hz=fit.natural_frequency_hz if ringing else fit.frequency_hz,
         damping_ratio=fit.damping_ratio if ringing else None,
-        damping_ratio_sd=damping_sd(fit) if ringing else None,
+        damping_ratio_uncertainty=damping_sd(fit) if ringing else None,
         amplitude_px=release.amp_px,
         amplitude_m=metric.amplitude_m,
-        amplitude_sd_m=metric.amplitude_sd_m,
+        amplitude_uncertainty_m=metric.amplitude_uncertainty_m,
         depth_m=metric.depth_m,
         motion_direction=metric.direction,
         stiffness_n_per_m=mech.stiffness_n_per_m,
-        stiffness_sd=mech.stiffness_sd,
+        stiffness_uncertainty_n_per_m=mech.stiffness_uncertainty_n_per_m,
         mass_kg=mech.mass_kg,
-        mass_sd=mech.mass_sd,
+        mass_uncertainty_kg=mech.mass_uncertainty_kg,
         pixel_count=int(region.full_mask.sum()),
         bbox_px=bounding_box(region.full_mask),
         harmonics_hz=list(region.peak.harmonics_hz),
@@ -262,14 +262,14 @@ def object_mechanics(
         return Mechanics(
             null_reasons=["no excitation given: stiffness and mass need a held force or an impulse"]
         )
-    if metric.amplitude_m is None or metric.amplitude_sd_m is None:
+    if metric.amplitude_m is None or metric.amplitude_uncertainty_m is None:
         return Mechanics()
     return stiffness_and_mass(
         kind=excitation.kind,
         value=excitation.value,
         value_sd=excitation.uncertainty,
         amplitude_m=metric.amplitude_m,
-        amplitude_sd_m=metric.amplitude_sd_m,
+        amplitude_uncertainty_m=metric.amplitude_uncertainty_m,
         natural_frequency_hz=fit.natural_frequency_hz,
         damped_frequency_hz=fit.frequency_hz,
         frequency_sd_hz=frequency_sd_hz,

@@ -91,9 +91,9 @@ class Mechanics:
     """Stiffness and mass with standard uncertainties; None when not measurable (see ``null_reasons``)."""
 
     stiffness_n_per_m: float | None = None
-    stiffness_sd: float | None = None
+    stiffness_uncertainty_n_per_m: float | None = None
     mass_kg: float | None = None
-    mass_sd: float | None = None
+    mass_uncertainty_kg: float | None = None
     null_reasons: list[str] = field(default_factory=list)
 
 
@@ -103,7 +103,7 @@ def stiffness_and_mass(
     value: float,
     value_sd: float,
     amplitude_m: float,
-    amplitude_sd_m: float,
+    amplitude_uncertainty_m: float,
     natural_frequency_hz: float,
     damped_frequency_hz: float,
     frequency_sd_hz: float,
@@ -114,7 +114,7 @@ def stiffness_and_mass(
     ----------
     kind : ``"step_release"`` (value = held force F, N) or ``"impulse"`` (value = impulse J, N·s)
     value, value_sd : float
-    amplitude_m, amplitude_sd_m : float
+    amplitude_m, amplitude_uncertainty_m : float
         Held displacement (step release) or envelope amplitude at release (impulse), metres.
     natural_frequency_hz, damped_frequency_hz, frequency_sd_hz : float
 
@@ -126,7 +126,7 @@ def stiffness_and_mass(
         return Mechanics(null_reasons=["amplitude is zero: the object did not move measurably"])
     wn = 2 * math.pi * natural_frequency_hz
     wd = 2 * math.pi * damped_frequency_hz
-    rel_a = amplitude_sd_m / amplitude_m
+    rel_a = amplitude_uncertainty_m / amplitude_m
     rel_v = value_sd / value
     rel_w = frequency_sd_hz / max(natural_frequency_hz, 1e-12)
     if kind == "step_release":
@@ -139,4 +139,6 @@ def stiffness_and_mass(
         k = m * wn**2
         rel_m = math.sqrt(rel_v**2 + rel_a**2 + rel_w**2)
         rel_k = math.sqrt(rel_v**2 + rel_a**2 + rel_w**2)  # k = J ω / A: one power of ω
-    return Mechanics(stiffness_n_per_m=k, stiffness_sd=k * rel_k, mass_kg=m, mass_sd=m * rel_m)
+    return Mechanics(
+        stiffness_n_per_m=k, stiffness_uncertainty_n_per_m=k * rel_k, mass_kg=m, mass_uncertainty_kg=m * rel_m
+    )

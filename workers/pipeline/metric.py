@@ -171,7 +171,7 @@ class MetricAmplitude:
 
     Attributes
     ----------
-    amplitude_m, amplitude_sd_m : float or None
+    amplitude_m, amplitude_uncertainty_m : float or None
     depth_m : float or None
         The object's distance (median over the window), metres.
     direction : (x, y, z) or None
@@ -180,7 +180,7 @@ class MetricAmplitude:
     """
 
     amplitude_m: float | None = None
-    amplitude_sd_m: float | None = None
+    amplitude_uncertainty_m: float | None = None
     depth_m: float | None = None
     direction: tuple[float, float, float] | None = None
     null_reasons: list[str] = field(default_factory=list)
@@ -297,7 +297,7 @@ def metric_amplitude(
     # registered displacement is not modelled, so it is carried as uncertainty.
     var += (OUT_OF_PLANE_REL_SD * abs(z_amp)) ** 2
     out.amplitude_m = amp_m
-    out.amplitude_sd_m = amp_m * math.sqrt(var) / a3
+    out.amplitude_uncertainty_m = amp_m * math.sqrt(var) / a3
     out.direction = direction
     if abs(direction[2]) >= 0.05:
         out.notes.append(

@@ -197,19 +197,19 @@ class ObjectMeasurement:
 
     id: int
     eigenfrequency_hz: float
-    eigenfrequency_sd_hz: float | None
+    eigenfrequency_uncertainty_hz: float | None
     natural_frequency_hz: float
     damping_ratio: float | None
-    damping_ratio_sd: float | None
+    damping_ratio_uncertainty: float | None
     amplitude_px: float | None
     amplitude_m: float | None
-    amplitude_sd_m: float | None
+    amplitude_uncertainty_m: float | None
     depth_m: float | None
     motion_direction: tuple[float, float, float] | None
     stiffness_n_per_m: float | None
-    stiffness_sd: float | None
+    stiffness_uncertainty_n_per_m: float | None
     mass_kg: float | None
-    mass_sd: float | None
+    mass_uncertainty_kg: float | None
     pixel_count: int
     bbox_px: tuple[int, int, int, int]
     harmonics_hz: list[float]

@@ -157,10 +157,10 @@ def test_still_frames_are_detected_and_amplitude_is_taken_at_release(run_scene):
 def test_reported_95_percent_intervals_cover_the_truth_in_90_percent_of_random_seeds(run_scene):
     hits = {"eigenfrequency_hz": 0, "stiffness_n_per_m": 0, "mass_kg": 0, "damping_ratio": 0}
     sd_name = {
-        "eigenfrequency_hz": "eigenfrequency_sd_hz",
-        "stiffness_n_per_m": "stiffness_sd",
-        "mass_kg": "mass_sd",
-        "damping_ratio": "damping_ratio_sd",
+        "eigenfrequency_hz": "eigenfrequency_uncertainty_hz",
+        "stiffness_n_per_m": "stiffness_uncertainty_n_per_m",
+        "mass_kg": "mass_uncertainty_kg",
+        "damping_ratio": "damping_ratio_uncertainty",
     }
     trials = 20
     for seed in range(trials):

@@ -158,7 +158,7 @@ def test_a_turning_wheel_is_reported_at_its_rate_not_its_marks_passing() -> None
     # holds every frame (900 flow maps of the look's grid fit the window's memory budget), 10.9 turns
     assert analysis.frames_used == (0, 900)
     assert main.eigenfrequency_hz == pytest.approx(3.62, rel=0.01), reported
-    assert abs(main.eigenfrequency_hz - 3.62) <= 2.5 * main.eigenfrequency_sd_hz
+    assert abs(main.eigenfrequency_hz - 3.62) <= 2.5 * main.eigenfrequency_uncertainty_hz
     assert any(abs(h - 7.24) < 0.1 for h in main.harmonics_hz), main.harmonics_hz
     assert main.false_alarm_probability is not None
     assert main.false_alarm_probability <= MAX_FALSE_ALARM

@@ -133,7 +133,7 @@ def test_the_band_is_law_on_the_fridge_clip(shared_dir):
     assert all(40.0 <= o.eigenfrequency_hz <= 60.0 for o in result.objects), [
         o.eigenfrequency_hz for o in result.objects
     ]
-    assert all(o.eigenfrequency_sd_hz < o.eigenfrequency_hz / 4 for o in result.objects)
+    assert all(o.eigenfrequency_uncertainty_hz < o.eigenfrequency_hz / 4 for o in result.objects)
 
 
 BANDED = [*CLIPS, ("fridge-32", 1000), ("fridge-33.9", 1000)]

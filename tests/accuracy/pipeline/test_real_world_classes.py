@@ -286,7 +286,8 @@ def test_the_band_is_law_nothing_outside_it_is_reported():
         o.eigenfrequency_hz for o in result.objects
     ]
     assert all(
-        o.eigenfrequency_sd_hz is not None and o.eigenfrequency_sd_hz < o.eigenfrequency_hz / 4
+        o.eigenfrequency_uncertainty_hz is not None
+        and o.eigenfrequency_uncertainty_hz < o.eigenfrequency_hz / 4
         for o in result.objects
     )
     found = _nearest(result, 45.0)

@@ -25,19 +25,19 @@ def _object(**changes) -> ObjectMeasurement:
     base = {
         "id": 1,
         "eigenfrequency_hz": 5.0,
-        "eigenfrequency_sd_hz": 0.01,
+        "eigenfrequency_uncertainty_hz": 0.01,
         "natural_frequency_hz": 5.0,
         "damping_ratio": 0.02,
-        "damping_ratio_sd": 0.001,
+        "damping_ratio_uncertainty": 0.001,
         "amplitude_px": 2.0,
         "amplitude_m": None,
-        "amplitude_sd_m": None,
+        "amplitude_uncertainty_m": None,
         "depth_m": None,
         "motion_direction": None,
         "stiffness_n_per_m": None,
-        "stiffness_sd": None,
+        "stiffness_uncertainty_n_per_m": None,
         "mass_kg": None,
-        "mass_sd": None,
+        "mass_uncertainty_kg": None,
         "pixel_count": 100,
         "bbox_px": (0, 0, 10, 10),
         "harmonics_hz": [],
@@ -117,8 +117,8 @@ def test_motion_that_no_oscillation_explains_is_incoherent_unless_it_is_two():
     [
         ({"eigenfrequency_hz": 20.0}, "out_of_band"),
         ({"eigenfrequency_hz": 0.05}, "out_of_band"),
-        ({"eigenfrequency_sd_hz": 1.3}, "uncertain"),  # a quarter of 5 Hz or more
-        ({"eigenfrequency_sd_hz": float("nan")}, "uncertain"),
+        ({"eigenfrequency_uncertainty_hz": 1.3}, "uncertain"),  # a quarter of 5 Hz or more
+        ({"eigenfrequency_uncertainty_hz": float("nan")}, "uncertain"),
     ],
 )
 def test_what_is_not_an_object_says_why(changes, evidence):

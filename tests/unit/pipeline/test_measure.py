@@ -116,12 +116,12 @@ def test_a_held_and_released_object_is_measured_against_its_ground_truth(ringing
     assert obj.depth_m == DEPTH_M
     assert obj.stiffness_n_per_m == pytest.approx(stiffness, rel=0.03)
     assert obj.mass_kg == pytest.approx(stiffness / OMEGA_N**2, rel=0.03)
-    assert 0 < obj.stiffness_sd < 0.1 * stiffness
+    assert 0 < obj.stiffness_uncertainty_n_per_m < 0.1 * stiffness
     assert obj.null_reasons == []
     # The uncertainties include the floors, and the truth lies within a few of them.
-    assert obj.eigenfrequency_sd_hz >= FREQUENCY_REL_FLOOR * obj.eigenfrequency_hz
-    assert abs(obj.eigenfrequency_hz - F_D) <= 3 * obj.eigenfrequency_sd_hz
-    assert abs(obj.damping_ratio - ZETA) <= 3 * obj.damping_ratio_sd
+    assert obj.eigenfrequency_uncertainty_hz >= FREQUENCY_REL_FLOOR * obj.eigenfrequency_hz
+    assert abs(obj.eigenfrequency_hz - F_D) <= 3 * obj.eigenfrequency_uncertainty_hz
+    assert abs(obj.damping_ratio - ZETA) <= 3 * obj.damping_ratio_uncertainty
     # What the object is: its pixels, box and series.
     assert obj.pixel_count == 96
     assert obj.bbox_px == (10, 8, 12, 8)
@@ -173,7 +173,7 @@ def test_a_sustained_vibration_has_no_damping():
     assert obj.eigenfrequency_hz == pytest.approx(F_D, rel=1e-3)
     assert obj.regime != "ring_down"
     assert obj.damping_ratio is None
-    assert obj.damping_ratio_sd is None
+    assert obj.damping_ratio_uncertainty is None
     assert any("not a ring-down" in r for r in obj.null_reasons)
 
 

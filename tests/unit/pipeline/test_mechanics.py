@@ -19,7 +19,7 @@ def test_step_release_gives_k_from_force_over_amplitude_and_m_from_omega():
         value=8.0,
         value_sd=0.0,
         amplitude_m=8.0 / k_true,
-        amplitude_sd_m=0.0,
+        amplitude_uncertainty_m=0.0,
         natural_frequency_hz=fn,
         damped_frequency_hz=fn,
         frequency_sd_hz=0.0,
@@ -39,14 +39,14 @@ def test_impulse_gives_m_from_v0_over_omega():
         value=j,
         value_sd=0.01,
         amplitude_m=amplitude,
-        amplitude_sd_m=amplitude * 0.02,
+        amplitude_uncertainty_m=amplitude * 0.02,
         natural_frequency_hz=wn / (2 * math.pi),
         damped_frequency_hz=wd / (2 * math.pi),
         frequency_sd_hz=0.0,
     )
     assert mech.mass_kg == pytest.approx(m_true)
     assert mech.stiffness_n_per_m == pytest.approx(k_true)
-    assert mech.mass_sd == pytest.approx(m_true * math.hypot(0.05, 0.02))
+    assert mech.mass_uncertainty_kg == pytest.approx(m_true * math.hypot(0.05, 0.02))
 
 
 def test_zero_amplitude_is_reported_not_divided():
@@ -55,7 +55,7 @@ def test_zero_amplitude_is_reported_not_divided():
         value=1.0,
         value_sd=0.0,
         amplitude_m=0.0,
-        amplitude_sd_m=0.0,
+        amplitude_uncertainty_m=0.0,
         natural_frequency_hz=5.0,
         damped_frequency_hz=5.0,
         frequency_sd_hz=0.0,

@@ -143,7 +143,7 @@ def test_the_uncertainty_adds_the_image_the_source_and_the_distance(source, syst
         intrinsics=Intrinsics(500.0, 500.0, 31.5, 23.5),
     )
     expected = math.sqrt((0.04 / 4.0) ** 2 + systematic**2 + DEPTH_OVERRIDE_REL_SD**2)
-    assert out.amplitude_sd_m / out.amplitude_m == pytest.approx(expected, rel=1e-9)
+    assert out.amplitude_uncertainty_m / out.amplitude_m == pytest.approx(expected, rel=1e-9)
 
 
 def test_without_depth_or_intrinsics_or_motion_the_amplitude_is_null_with_a_reason():

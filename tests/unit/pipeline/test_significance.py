@@ -253,10 +253,11 @@ def test_an_object_stands_out_by_its_strongest_line_its_rate_or_an_overtone():
 
     def wheel(harmonics_hz: list[float]) -> ObjectMeasurement:
         return ObjectMeasurement(
-            id=1, eigenfrequency_hz=3.75, eigenfrequency_sd_hz=0.05, natural_frequency_hz=3.75,
-            damping_ratio=0.0, damping_ratio_sd=0.001, amplitude_px=0.3, amplitude_m=None,
-            amplitude_sd_m=None, depth_m=None, motion_direction=None, stiffness_n_per_m=None,
-            stiffness_sd=None, mass_kg=None, mass_sd=None, pixel_count=400, bbox_px=(18, 14, 20, 20),
+            id=1, eigenfrequency_hz=3.75, eigenfrequency_uncertainty_hz=0.05, natural_frequency_hz=3.75,
+            damping_ratio=0.0, damping_ratio_uncertainty=0.001, amplitude_px=0.3, amplitude_m=None,
+            amplitude_uncertainty_m=None, depth_m=None, motion_direction=None, stiffness_n_per_m=None,
+            stiffness_uncertainty_n_per_m=None, mass_kg=None, mass_uncertainty_kg=None, pixel_count=400,
+            bbox_px=(18, 14, 20, 20),
             harmonics_hz=harmonics_hz, release_time_s=0.0, snr_db=10.0, detection_db=20.0,
             concentration=0.9,
         )  # fmt: skip

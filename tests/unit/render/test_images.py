@@ -243,7 +243,9 @@ def test_small_frames_are_upscaled_and_unknowns_say_so(small: Analysed, tmp_path
     # With depth the displacement is in millimetres; without metres, in pixels.
     assert "displacement (mm)" in texts
     texts.clear()
-    no_metres = replace(a, objects=[replace(o, amplitude_m=None, amplitude_sd_m=None) for o in a.objects])
+    no_metres = replace(
+        a, objects=[replace(o, amplitude_m=None, amplitude_uncertainty_m=None) for o in a.objects]
+    )
     write_displacement_png(tmp_path / "px.png", no_metres)
     assert "displacement (px)" in texts
 

@@ -127,9 +127,10 @@ def draw_displacement(analysis: Analysis) -> NDArray[np.uint8]:
         ax.set_xlim(float(t[0]), float(t[-1]))
         _axis(ax, size, xlabel="time (s)", ylabel=f"displacement ({unit})")
         zeta = finite_or_none(obj.damping_ratio)
-        info = f"#{obj.id}: f = {format_quantity(obj.eigenfrequency_hz, obj.eigenfrequency_sd_hz, 'Hz')}"
+        f = format_quantity(obj.eigenfrequency_hz, obj.eigenfrequency_uncertainty_hz, "Hz")
+        info = f"#{obj.id}: f = {f}"
         if zeta is not None:
-            info += f", ζ = {format_quantity(zeta, obj.damping_ratio_sd, '')}"
+            info += f", ζ = {format_quantity(zeta, obj.damping_ratio_uncertainty, '')}"
         _title(ax, info)
         _legend(ax, size)
     return _finish(canvas, size)

@@ -227,7 +227,7 @@ def _mark_frequency_and_release(ax: Any, obj: ObjectMeasurement) -> None:
             color=colour,
             linestyle="--",
             linewidth=2.0,
-            label=f"#{obj.id} f = {format_quantity(f, obj.eigenfrequency_sd_hz, 'Hz')}",
+            label=f"#{obj.id} f = {format_quantity(f, obj.eigenfrequency_uncertainty_hz, 'Hz')}",
         )
     release = finite_or_none(obj.release_time_s)
     if release is not None:

@@ -250,7 +250,7 @@ def _mark_object(ax: Any, obj: ObjectMeasurement, curve: _Curve) -> None:
     if f is None:
         return
     ax.axvline(f, color=colour, linewidth=2.2, zorder=2)
-    label = f"#{obj.id} f = {format_quantity(f, obj.eigenfrequency_sd_hz, 'Hz')}"
+    label = f"#{obj.id} f = {format_quantity(f, obj.eigenfrequency_uncertainty_hz, 'Hz')}"
     _mark(ax, f, curve.at(f), colour, label, marker="o", size=9, zorder=4)
     harmonics = [h for h in obj.harmonics_hz if math.isfinite(h) and 0 < h <= curve.nyquist]
     for i, hf in enumerate(harmonics):

@@ -160,10 +160,11 @@ def format_quantity(value: float | None, sd: float | None, unit: str) -> str:
 
 def object_label(obj: ObjectMeasurement) -> str:
     """The overlay's label of an object: id, f, k and m with units and uncertainties where known."""
+    f = format_quantity(obj.eigenfrequency_hz, obj.eigenfrequency_uncertainty_hz, "Hz")
     return "\n".join(
         (
-            f"#{obj.id}  f = {format_quantity(obj.eigenfrequency_hz, obj.eigenfrequency_sd_hz, 'Hz')}",
-            f"k = {format_quantity(obj.stiffness_n_per_m, obj.stiffness_sd, 'N/m')}",
-            f"m = {format_quantity(obj.mass_kg, obj.mass_sd, 'kg')}",
+            f"#{obj.id}  f = {f}",
+            f"k = {format_quantity(obj.stiffness_n_per_m, obj.stiffness_uncertainty_n_per_m, 'N/m')}",
+            f"m = {format_quantity(obj.mass_kg, obj.mass_uncertainty_kg, 'kg')}",
         )
     )
