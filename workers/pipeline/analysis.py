@@ -54,6 +54,7 @@ from workers.pipeline.model import (
     RejectedPeak,
     Stopwatch,
     Survey,
+    report_progress,
 )
 from workers.pipeline.peaks import Peak
 from workers.pipeline.quality import (
@@ -602,16 +603,13 @@ def analyze_window(
         watch.lap("spectrum")
     window = _Window(buffers, plan, info, config, buffers.box((info.height, info.width)))
     quality: list[QualityNote] = [*clip_notes(plan, buffers, info), *frame_notes(buffers)]
-    if progress:
-        progress("spectrum", 0.82)
+    report_progress(progress, "spectrum")
     spectra = _window_spectra(buffers, plan, info, quality)
     watch.lap("spectrum")
-    if progress:
-        progress("segmentation", 0.88)
+    report_progress(progress, "segmentation")
     regions = _segment(spectra, buffers, window.box, front, config)
     watch.lap("segmentation")
-    if progress:
-        progress("mechanics", 0.93)
+    report_progress(progress, "mechanics")
     objects, by_label = _measure(window, regions, spectra, front, excitations=excitations)
     if buffers.depth is None:
         _to_rest(objects, regions.labels_full)

@@ -29,7 +29,7 @@ from workers.pipeline.errors import AnalysisError
 from workers.pipeline.fft import warm_up as spectrum_warm_up
 from workers.pipeline.flow import FlowConfig, flow_stream
 from workers.pipeline.look import Look
-from workers.pipeline.model import Progress
+from workers.pipeline.model import Progress, report_progress
 from workers.pipeline.roi import Roi
 from workers.pipeline.stream import FrameBuffers
 
@@ -319,8 +319,8 @@ def stream_roi(
     count = 0
     for i, _ in enumerate(flow_stream(grays(), config=flow_config, out=window.flow)):
         count = i + 1
-        if progress is not None and (i % 16 == 0 or count == n):
-            progress("flow", 0.5 + 0.3 * count / max(n, 1))
+        if i % 16 == 0 or count == n:
+            report_progress(progress, "fine", count / max(n, 1))
     if count + 1 < MIN_FRAMES:
         raise AnalysisError(
             f"the clip ended after {window.frames} of the {n + 1} frames it announced; at least "

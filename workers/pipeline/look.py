@@ -45,7 +45,7 @@ from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader
 from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.errors import AnalysisError
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
-from workers.pipeline.model import Progress
+from workers.pipeline.model import Progress, report_progress
 
 #: Width of the coarse grid, pixels (an integer factor below the frame's width, never above it).
 LOOK_WIDTH_PX = 160
@@ -327,8 +327,8 @@ def look_at(
                     if len(pending) >= 2 * FLOW_THREADS + 1:
                         state.flowed(pending.popleft().result())
                 previous = small
-                if progress is not None and i % 16 == 0:
-                    progress("flow", 0.05 + 0.45 * i / max(n, 1))
+                if i % 16 == 0:
+                    report_progress(progress, "look", i / max(n, 1))
                 if i >= n:
                     break
             while pending:

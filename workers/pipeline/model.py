@@ -24,6 +24,30 @@ Method = Literal["default", "paper"]
 #: progress(stage, fraction of the whole analysis in [0, 1])
 Progress = Callable[[str, float], None]
 
+#: The one progress schedule: each phase of an analysis, the stage it reports and the span of the whole
+#: analysis it covers. A clip analysed in one flow pass runs ``flow``; the two-pass front end runs
+#: ``look`` (the whole picture on a coarse grid), then ``fine`` (the region that moves). A second pass over
+#: a longer window lays the schedule again over what is left (``analysis._Onwards``): progress never goes
+#: back.
+PROGRESS_SCHEDULE: dict[str, tuple[str, float, float]] = {
+    "survey": ("survey", 0.0, 0.05),
+    "flow": ("flow", 0.05, 0.80),
+    "look": ("flow", 0.05, 0.50),
+    "fine": ("flow", 0.50, 0.80),
+    "spectrum": ("spectrum", 0.82, 0.88),
+    "segmentation": ("segmentation", 0.88, 0.93),
+    "mechanics": ("mechanics", 0.93, 1.0),
+}
+
+
+def report_progress(progress: Progress | None, phase: str, done: float = 0.0) -> None:
+    """Tell ``progress`` that ``phase`` (a key of :data:`PROGRESS_SCHEDULE`) is ``done`` (0 to 1) through."""
+    if progress is None:
+        return
+    stage, start, end = PROGRESS_SCHEDULE[phase]
+    progress(stage, start + (end - start) * min(max(done, 0.0), 1.0))
+
+
 DEFAULT_MAX_FRAMES = 256
 #: Memory budget of an automatically chosen window's buffers (flow maps, grey frames, depth, spectra).
 DEFAULT_WINDOW_MIB = 384.0

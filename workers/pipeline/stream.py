@@ -19,7 +19,7 @@ from workers.pipeline.errors import AnalysisError
 from workers.pipeline.fft import warm_up as spectrum_warm_up
 from workers.pipeline.flow import FlowConfig, flow_magnitude, flow_stream, prepare_gray
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
-from workers.pipeline.model import Progress
+from workers.pipeline.model import Progress, report_progress
 from workers.pipeline.roi import Roi
 
 
@@ -190,8 +190,8 @@ def _flows(
         else:
             camera[i] = kept.ring.motion(flow)
         count = i + 1
-        if progress is not None and (i % 8 == 0 or i == n - 1):
-            progress("flow", 0.05 + 0.75 * count / n)
+        if i % 8 == 0 or i == n - 1:
+            report_progress(progress, "flow", count / n)
     return flow_buf, camera, count
 
 

@@ -24,6 +24,7 @@ from workers.pipeline.model import (
     Progress,
     QualityNote,
     Survey,
+    report_progress,
 )
 from workers.pipeline.peaks import Peak
 from workers.pipeline.survey import survey_motion
@@ -204,8 +205,8 @@ def survey_grays(reader: ClipReader, progress: Progress | None) -> Iterator[NDAr
 
     total = max(reader.info.frames, 1)
     for i, gray in enumerate(reader.gray_frames()):
-        if progress is not None and i % 64 == 0:
-            progress("survey", 0.05 * i / total)
+        if i % 64 == 0:
+            report_progress(progress, "survey", i / total)
         yield gray
 
 
