@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 
 class StepReleaseExcitation(BaseModel):
@@ -90,6 +90,16 @@ class AnalysisParameters(BaseModel):
     )
     min_frequency_hz: float | None = Field(default=None, ge=0)
     max_frequency_hz: float | None = Field(default=None, gt=0)
+
+    @field_validator("max_frequency_hz")
+    @classmethod
+    def _band_not_empty(cls, value: float | None, info: ValidationInfo) -> float | None:
+        """The band's one check for every request (jobs, streams, the CLI): its top above its bottom.
+        (Whether it fits below the clip's Nyquist rate is known once the clip is.)"""
+        low = info.data.get("min_frequency_hz")
+        if value is not None and low is not None and value <= low:
+            raise ValueError(f"max_frequency_hz={value:g} must exceed min_frequency_hz={low:g}")
+        return value
 
 
 class SegmentationParameters(BaseModel):

@@ -52,12 +52,6 @@ def check_against_clip(body: JobCreate, clip: ClipRecord) -> None:
             ("body", "parameters", "fps"),
             f"clip {clip.id} carries no frame rate; give the recording rate in parameters.fps (Hz)",
         )
-    lo, hi = p.min_frequency_hz, p.max_frequency_hz
-    if lo is not None and hi is not None and lo >= hi:
-        raise _invalid(
-            ("body", "parameters", "max_frequency_hz"),
-            f"max_frequency_hz={hi} must exceed min_frequency_hz={lo}",
-        )
     if p.min_frequency_hz is not None and p.min_frequency_hz >= float(fps) / 2:
         raise _invalid(
             ("body", "parameters", "min_frequency_hz"),

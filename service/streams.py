@@ -106,12 +106,6 @@ def check_request(ctx: ServiceContext, body: StreamCreate) -> None:
     for name in _NOT_FOR_STREAMS:
         if getattr(p, name) is not None:
             raise _invalid(f"parameters.{name}", f"{name} does not apply to a live stream; leave it out")
-    if (
-        p.min_frequency_hz is not None
-        and p.max_frequency_hz is not None
-        and p.min_frequency_hz >= p.max_frequency_hz
-    ):
-        raise _invalid("parameters.max_frequency_hz", "max_frequency_hz must exceed min_frequency_hz")
     _check_frame_size(ctx, body)
     limit = ctx.settings.stream_max_duration_s
     if body.max_duration_s > limit:

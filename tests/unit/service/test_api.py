@@ -120,6 +120,23 @@ def test_a_window_shorter_than_the_pipeline_analyses_is_refused_at_the_request(
     assert ok.status_code == 202
 
 
+def test_an_empty_band_is_refused_by_the_request_schema_for_jobs_and_streams(
+    client: TestClient, small_clip: Path
+) -> None:
+    """The band has one check (AnalysisParameters): a job and a stream both answer 422 on the field."""
+    clip = upload(client, small_clip)
+    band = {"fps": 30, "min_frequency_hz": 5, "max_frequency_hz": 5}
+    job = client.post("/v1/jobs", json={"clip_id": clip["id"], "parameters": band})
+    stream = client.post("/v1/streams", json={"parameters": band})
+    for response in (job, stream):
+        assert response.status_code == 422, response.text
+        error = response.json()["errors"][0]
+        assert error["loc"][-1] == "max_frequency_hz"
+        assert "must exceed min_frequency_hz=5" in error["msg"]
+    ok = client.post("/v1/jobs", json={"clip_id": clip["id"], "parameters": {**band, "max_frequency_hz": 6}})
+    assert ok.status_code == 202
+
+
 def test_errors_are_problem_json(client: TestClient) -> None:
     for response, status in (
         (client.get("/v1/jobs/x"), 404),
