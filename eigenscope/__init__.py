@@ -18,10 +18,10 @@ os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 
 
 def __getattr__(name: str) -> str:
-    """``eigenscope.__version__``, read from :mod:`api_schemas._version` (where it is written) only when
+    """``eigenscope.__version__``, read from :mod:`backend.version` (where it is written) only when
     asked: importing ``api_schemas`` loads pydantic, which most commands do not need at start."""
     if name == "__version__":
-        from api_schemas._version import __version__
+        from backend.version import __version__
 
         return __version__
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

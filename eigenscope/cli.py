@@ -61,7 +61,7 @@ class _VersionAction(argparse.Action):
         values: object,
         option_string: str | None = None,
     ) -> None:
-        from api_schemas._version import __version__
+        from backend.version import __version__
 
         print(f"eigenscope {__version__}")
         parser.exit()

@@ -49,7 +49,7 @@ if [ ${#tiers[@]} -eq 0 ]; then
     # Lint and types fail the run as a test does (after the tests, so that one run shows everything).
     lint=0
     echo "== ruff"; { ruff check . && ruff format --check .; } || lint=1
-    echo "== mypy"; mypy api_schemas workers service eigenscope client/src/eigenscope_client || lint=1
+    echo "== mypy"; mypy api_schemas backend workers service eigenscope client/src/eigenscope_client || lint=1
     # Every tier in one pytest run: the workers share out all the tests, so neither waits at the end of
     # a tier for the other's last long test (the report still gives each tier's tests and serial time).
     echo "== pytest: every tier (${ALL_TIERS[*]})"

@@ -1,6 +1,6 @@
 """The FastAPI application factory: ``uvicorn --factory service.app:create_app``.
 
-The app reads its :class:`~service.settings.Settings` from the environment unless given some, keeps its
+The app reads its :class:`~backend.settings.Settings` from the environment unless given some, keeps its
 state in a :class:`~service.context.ServiceContext` on ``app.state.ctx``, and never imports the analysis
 pipeline: jobs are published to the workers by task name.
 """
@@ -14,19 +14,19 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
-from api_schemas._version import __version__
+from backend.logs import configure_logging
+from backend.settings import Settings
+from backend.version import __version__
 from service.bodies import BodyLimits
 from service.context import ServiceContext
-from service.logs import configure_logging
 from service.methods import MethodSemantics, PathMethods
 from service.observability import RequestMiddleware
 from service.openapi import install_openapi
 from service.problems import install_problem_handlers
 from service.routes import clips, health, jobs, page, streams
 from service.routes.docs import install_docs
-from service.settings import Settings
 
-#: The OpenAPI and AsyncAPI ``info.version``: the package version, written once in ``api_schemas/_version``
+#: The OpenAPI and AsyncAPI ``info.version``: the package version, written once in ``backend/version.py``
 #: (the URL's ``/v1`` is the API's major version).
 API_VERSION = __version__
 
@@ -46,7 +46,7 @@ def _operation_id(route: APIRoute) -> str:
 def create_app(settings: Settings | None = None, *, configure_log: bool | None = None) -> FastAPI:
     """Build the API for ``settings`` (from the environment when None).
 
-    ``configure_log`` sets up the process's logging (:mod:`service.logs`); by default it does when the
+    ``configure_log`` sets up the process's logging (:mod:`backend.logs`); by default it does when the
     settings come from the environment, as in the server processes (an app built for a test leaves the
     test's logging alone).
     """

@@ -33,8 +33,8 @@ from pathlib import Path
 
 from starlette.requests import HTTPConnection
 
-from service.errors import QuotaExceededError, UnauthorizedError
-from service.settings import Settings
+from backend.errors import QuotaExceededError, UnauthorizedError
+from backend.settings import Settings
 
 #: Tenant of every request when the service runs without keys.
 OPEN_TENANT = ""

@@ -10,19 +10,18 @@ Every route but the streamed clip upload gets its body read here first, under th
   integer beyond 64 bits) is answered 422, whatever field holds it, before any model sees it.
 
 The upload route streams its body itself (:mod:`service.multipart`); it gets the idle timeout only, as a
-:class:`~service.errors.RequestTimeoutError` raised from ``receive`` that the upload turns into a 408 after
+:class:`~backend.errors.RequestTimeoutError` raised from ``receive`` that the upload turns into a 408 after
 removing its temporary file.
 """
 
 from __future__ import annotations
 
 import asyncio
-import json
-import math
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
-from service.errors import InvalidInputError, PayloadTooLargeError, RequestTimeoutError, ServiceError
+from backend.errors import InvalidInputError, PayloadTooLargeError, RequestTimeoutError, ServiceError
+from backend.strict_json import NonFiniteNumberError, strict_json_loads
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -34,77 +33,6 @@ ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 STREAMED_BODIES = frozenset({("POST", "/v1/clips")})
 #: After a body over the cap, read (and drop) at most this much more, so the client gets to read the 413.
 _DRAIN_BYTES = 128 * 1024 * 1024
-_INT64 = 2**63
-
-
-class NonFiniteNumberError(ValueError):
-    """A JSON number that is not a finite float or a 64-bit integer."""
-
-
-def _constant(name: str) -> Any:
-    raise NonFiniteNumberError(f"{name} is not a number JSON can carry; send finite numbers")
-
-
-def _float(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value):
-        raise NonFiniteNumberError(f"{text} overflows a 64-bit float; send finite numbers")
-    return value
-
-
-def _int(text: str) -> int:
-    value = int(text)
-    if not -_INT64 <= value < _INT64:
-        raise NonFiniteNumberError(f"{text[:40]} overflows a 64-bit integer")
-    return value
-
-
-def strict_json_loads(body: bytes | str) -> Any:
-    """``json.loads`` that refuses ``NaN``, ``Infinity``, overflowing floats and integers beyond 64 bits.
-
-    Raises
-    ------
-    NonFiniteNumberError
-        For such a number (other malformed JSON raises what ``json.loads`` raises).
-    """
-    return json.loads(body, parse_constant=_constant, parse_float=_float, parse_int=_int)
-
-
-def json_depth_error(text: str, max_depth: int) -> str | None:
-    """Why ``text`` must not be parsed: nested deeper than ``max_depth`` arrays and objects (a parser
-    would recurse that deep); None when it may be. Brackets inside strings do not count."""
-    depth = 0
-    in_string = escaped = False
-    for char in text:
-        if in_string:
-            if escaped:
-                escaped = False
-            elif char == "\\":
-                escaped = True
-            elif char == '"':
-                in_string = False
-        elif char == '"':
-            in_string = True
-        elif char in "[{":
-            depth += 1
-            if depth > max_depth:
-                return f"JSON nested more than {max_depth} levels deep"
-        elif char in "]}":
-            depth -= 1
-    return None
-
-
-def loads_shallow(data: bytes | str, *, max_depth: int) -> Any:
-    """``json.loads`` of a message that must be shallow: ``ValueError`` (never ``RecursionError``) for one
-    nested deeper than ``max_depth``, or otherwise malformed."""
-    text = data.decode("utf-8") if isinstance(data, bytes) else data  # UnicodeDecodeError is a ValueError
-    why = json_depth_error(text, max_depth)
-    if why is not None:
-        raise ValueError(why)
-    try:
-        return json.loads(text)
-    except RecursionError:  # pragma: no cover - the depth was checked
-        raise ValueError("JSON nested too deep") from None
 
 
 def _is_json(scope: Scope) -> bool:

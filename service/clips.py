@@ -12,13 +12,13 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
 from api_schemas import ClipInfoModel
+from backend.errors import InsufficientStorageError, InvalidInputError, ServiceError, UnavailableError
+from backend.storage import Quota
+from backend.store import ClipRecord, NewClip, new_id, storage_quota_error
 from service.context import ServiceContext
-from service.errors import InsufficientStorageError, InvalidInputError, ServiceError, UnavailableError
 from service.multipart import receive_file
 from service.probing import SLOW_PROBE_HOLD_S, SLOW_PROBE_MARKER, probe_clip
 from service.retention import expiry
-from service.storage import Quota
-from service.store import ClipRecord, new_id, storage_quota_error
 
 #: Slack for the multipart framing when the Content-Length is compared with a quota.
 _FORM_OVERHEAD = 64 * 1024
@@ -162,8 +162,7 @@ async def _upload_clip(
             raise
         relative = await run_in_threadpool(ctx.storage.keep_clip, sink, clip_id, info.get("format"))
         kept = True
-        record, created = await run_in_threadpool(
-            ctx.store.add_clip,
+        clip = NewClip(
             clip_id=clip_id,
             filename=display_name(received.filename),
             path=relative,
@@ -171,11 +170,10 @@ async def _upload_clip(
             size_bytes=sink.size,
             owner=tenant,
             expires_at=expiry(time.time(), settings.retention_s),
-            max_stored_bytes=settings.max_stored_bytes_per_key,
-            retry_after_s=settings.quota_retry_after_s,
             idempotency_key=idempotency_key,
             content_sha256=sink.sha256,
         )
+        record, created = await run_in_threadpool(ctx.store.add_clip, clip, limits=ctx.tenant_limits)
         sink.release_quota()  # counted as a stored clip from now on
         if not created:  # a concurrent request with the same key and content won the race
             ctx.storage.delete_clip(clip_id)

@@ -11,16 +11,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from backend.broker import ensure_broker_folders
+from backend.errors import UnavailableError
+from backend.settings import Settings
+from backend.storage import Reservations, Storage
+from backend.store import STREAM_ACTIVE, JobRecord, Store, TenantLimits
+from backend.stream_transport import LocalTransport, StreamTransport, transport_for
 from service.auth import FailedAuthLimiter, KeyRing
-from service.broker import ensure_broker_folders
-from service.errors import UnavailableError
 from service.metrics import Metrics
 from service.queue import JobQueue
 from service.retention import cleanup
-from service.settings import Settings
-from service.storage import Reservations, Storage
-from service.store import STREAM_ACTIVE, JobRecord, Store
-from service.stream_transport import LocalTransport, StreamTransport, transport_for
 from service.views import job_view
 from service.webhooks import Dispatcher
 
@@ -125,6 +125,16 @@ class ServiceContext:
         self.queue.close()
         self.stream_transport.close()
         self.store.dispose()
+
+    @property
+    def tenant_limits(self) -> TenantLimits:
+        """What one API key may hold (``EIGENSCOPE_MAX_ACTIVE_JOBS_PER_KEY``,
+        ``EIGENSCOPE_MAX_STORED_MB_PER_KEY``), with the Retry-After of a refusal."""
+        return TenantLimits(
+            max_active_jobs=self.settings.max_active_jobs_per_key,
+            max_stored_bytes=self.settings.max_stored_bytes_per_key,
+            retry_after_s=self.settings.quota_retry_after_s,
+        )
 
     def publish(self, job_id: str) -> bool:
         """Publish a job; on broker trouble leave it for the sweeper (returns False)."""

@@ -11,11 +11,11 @@ from typing import Annotated
 from fastapi import Depends, Header, Query, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from backend.settings import Settings
+from backend.storage import Storage
+from backend.store import Store
 from service.auth import OPEN_TENANT, authenticate, client_address
 from service.context import ServiceContext
-from service.settings import Settings
-from service.storage import Storage
-from service.store import Store
 
 
 async def get_context(request: Request) -> ServiceContext:

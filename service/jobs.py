@@ -10,10 +10,10 @@ from collections.abc import Sequence
 from typing import Any
 
 from api_schemas import AnalysisResult, JobCreate, JobList
+from backend.errors import InvalidInputError, NotFoundError
+from backend.store import ClipRecord, JobRecord, NewJob, dumps_canonical
 from service.context import ServiceContext
-from service.errors import InvalidInputError, NotFoundError
 from service.retention import expiry
-from service.store import ClipRecord, JobRecord, dumps_canonical
 from service.views import excitation_json, job_summary_view, served_result
 from service.webhooks import check_callback_url
 
@@ -98,19 +98,17 @@ def create_job(
     check_against_clip(body, clip)
     if body.callback_url is not None:
         check_callback_url(body.callback_url, ctx.settings)
-    job, created = ctx.store.create_job(
+    new = NewJob(
         clip_id=body.clip_id,
         excitation=excitation_json(body.excitation),
         parameters=body.parameters.model_dump(mode="json", exclude_none=True),
-        idempotency_key=idempotency_key,
-        request_hash=digest,
         owner=tenant,
         expires_at=expiry(time.time(), ctx.settings.retention_s),
-        max_active_jobs=ctx.settings.max_active_jobs_per_key,
-        retry_after_s=ctx.settings.quota_retry_after_s,
         callback_url=body.callback_url,
-        max_stored_bytes=ctx.settings.max_stored_bytes_per_key,
+        idempotency_key=idempotency_key,
+        request_hash=digest,
     )
+    job, created = ctx.store.create_job(new, limits=ctx.tenant_limits)
     if created:
         ctx.metrics.jobs_created.inc()
         ctx.publish(job.id)

@@ -2,7 +2,7 @@
 
 Starlette's form parser spools every upload to a temporary file before the route runs, which doubles
 disk traffic and enforces no size cap until the end. This reader parses the body as it arrives and
-writes the chosen field's bytes to an :class:`~service.storage.UploadSink`, which stops at the cap.
+writes the chosen field's bytes to an :class:`~backend.storage.UploadSink`, which stops at the cap.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
-from service.errors import InvalidInputError, PayloadTooLargeError, QuotaExceededError, UnsupportedMediaError
-from service.storage import UploadSink
+from backend.errors import InvalidInputError, PayloadTooLargeError, QuotaExceededError, UnsupportedMediaError
+from backend.storage import UploadSink
 
 #: Bytes of other (non-file) form fields we accept in total.
 _MAX_OTHER_BYTES = 64 * 1024

@@ -2,9 +2,9 @@
 
 The request id is the incoming ``X-Request-ID`` when it is a sane token (letters, digits and ``._:-``, at
 most 128 characters), else a new one; it is returned in ``X-Request-ID``, set in
-:data:`service.logs.request_id_var` for every log record of the request, and logged with the method,
+:data:`backend.logs.request_id_var` for every log record of the request, and logged with the method,
 route, status and duration at INFO (logger ``service.access``; in JSON logs as fields of their own). The
-W3C ``traceparent`` of the request (or a new trace) is the request's span (:data:`service.logs.trace_var`):
+W3C ``traceparent`` of the request (or a new trace) is the request's span (:data:`backend.logs.trace_var`):
 every record of the request names it, and a job the request creates carries it to its worker.
 """
 
@@ -18,7 +18,7 @@ from typing import Any
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.logs import continue_trace, request_id_var, trace_var
+from backend.logs import continue_trace, request_id_var, trace_var
 from service.methods import ORIGINAL_METHOD, route_of
 from service.metrics import Metrics
 

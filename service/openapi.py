@@ -33,7 +33,7 @@ from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 
 from api_schemas import Problem
-from service.errors import PROBLEM_BASE, PROBLEM_TYPES
+from backend.errors import PROBLEM_BASE, PROBLEM_TYPES
 
 PROBLEM_REF = {"$ref": "#/components/schemas/Problem"}
 
@@ -168,7 +168,7 @@ def _parameters_not_nullable(operation: dict[str, Any]) -> None:
 
 def problem_types_extension() -> dict[str, dict[str, Any]]:
     """Every problem type the server reports, with its status and title (from
-    :data:`service.errors.PROBLEM_TYPES`)."""
+    :data:`backend.errors.PROBLEM_TYPES`)."""
     return {
         PROBLEM_BASE + code: {"status": kind.status, "title": kind.title}
         for code, kind in sorted(PROBLEM_TYPES.items())

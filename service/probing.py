@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from service.errors import InvalidClipError, ServiceError, clip_error
+from backend.errors import InvalidClipError, ServiceError, clip_error
 
 log = logging.getLogger(__name__)
 

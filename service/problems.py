@@ -11,7 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.errors import PROBLEM_BASE, ServiceError, problem_type
+from backend.errors import PROBLEM_BASE, ServiceError, problem_type
 from service.methods import ORIGINAL_METHOD
 from service.validation import field_errors, summary
 
@@ -32,7 +32,7 @@ def _phrase(status: int) -> str:
 
 
 def _head(code: str) -> dict[str, Any]:
-    """``type``, ``title`` and ``status`` of ``code`` (from :data:`service.errors.PROBLEM_TYPES`)."""
+    """``type``, ``title`` and ``status`` of ``code`` (from :data:`backend.errors.PROBLEM_TYPES`)."""
     kind = problem_type(code)
     return {"type": PROBLEM_BASE + code, "title": kind.title, "status": kind.status}
 

@@ -8,9 +8,9 @@ import threading
 import uuid
 from typing import Any
 
-from service.broker import TASK_RUN_JOB, create_producer
-from service.logs import current_traceparent
-from service.settings import Settings
+from backend.broker import TASK_RUN_JOB, create_producer
+from backend.logs import current_traceparent
+from backend.settings import Settings
 
 log = logging.getLogger(__name__)
 

@@ -19,9 +19,9 @@ import logging
 import time
 from dataclasses import dataclass
 
-from service.errors import ConflictError, NotFoundError
-from service.storage import Storage
-from service.store import Store
+from backend.errors import ConflictError, NotFoundError
+from backend.storage import Storage
+from backend.store import Store
 
 log = logging.getLogger(__name__)
 

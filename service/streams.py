@@ -29,21 +29,19 @@ from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from api_schemas import StreamCreate, StreamModel
+from backend.errors import InvalidInputError, ServiceError, UnavailableError, problem_document
+from backend.store import NewClip, NewStream, StreamRecord, new_id
+from backend.stream_transport import DEFAULT_WINDOW_FRAMES, new_token
+from backend.strict_json import loads_shallow
 from service.auth import authenticate, client_address
-from service.bodies import loads_shallow
 from service.context import ServiceContext
-from service.errors import InvalidInputError, ServiceError, UnavailableError, problem_document
 from service.retention import expiry
-from service.store import StreamRecord, new_id
-from service.stream_transport import new_token
 from service.views import excitation_json
 
 log = logging.getLogger(__name__)
 
 #: Parameters of a job that do not apply to a stream.
 _NOT_FOR_STREAMS = ("start_frame", "color_topic", "depth_topic")
-#: The stream worker's analysis window when ``parameters.frames`` is not given (workers/streams.py).
-DEFAULT_WINDOW_FRAMES = 256
 #: Bytes a stream's worker keeps per pixel of each frame in its window: the grey image (1) and the depth
 #: in metres (4) (:class:`workers.pipeline.live.LiveAnalysis`).
 _WINDOW_BYTES_PER_PIXEL = 5
@@ -153,26 +151,23 @@ async def create_stream(
         "has_depth": False,
         "streams": ["live stream " + stream_id],
     }
-    settings = ctx.settings
-    stream, job = await run_in_threadpool(
-        ctx.store.create_stream,
+    new = NewStream(
         stream_id=stream_id,
         owner=tenant,
-        clip={
-            "clip_id": clip_id,
-            "filename": f"stream-{stream_id}.zip",
-            "path": f"clips/{clip_id}/clip.zip",
-            "info": info,
-            "size_bytes": 0,
-        },
-        job={"excitation": excitation_json(body.excitation), "parameters": request["parameters"]},
         token_digest=token_digest(token),
         request=request,
-        expires_at=expiry(time.time(), settings.retention_s),
-        max_active_jobs=settings.max_active_jobs_per_key,
-        retry_after_s=settings.quota_retry_after_s,
-        max_stored_bytes=settings.max_stored_bytes_per_key,
+        expires_at=expiry(time.time(), ctx.settings.retention_s),
+        clip=NewClip(
+            clip_id=clip_id,
+            filename=f"stream-{stream_id}.zip",
+            path=f"clips/{clip_id}/clip.zip",
+            info=info,
+            size_bytes=0,
+        ),
+        excitation=excitation_json(body.excitation),
+        parameters=request["parameters"],
     )
+    stream, job = await run_in_threadpool(ctx.store.create_stream, new, limits=ctx.tenant_limits)
     try:
         await ctx.stream_transport.dispatch(stream_id)
     except Exception as exc:

@@ -1,8 +1,8 @@
-"""How the API shows a job: the pure views of stored job records (JSON models, result summaries, artifact
-and result URLs, webhook state) and the entity tags of representations.
+"""How the API shows a job: the pure views of stored job records (JSON models, result summaries, webhook
+state; artifact and result URLs from :mod:`backend.urls`) and the entity tags of representations.
 
 Nothing here needs a :class:`~service.context.ServiceContext`: the context (for webhooks), the job logic of
-:mod:`service.jobs`, the routes, the streams and the workers' stream sessions all build on these.
+:mod:`service.jobs`, the routes and the streams all build on these.
 """
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import hashlib
 from typing import Any
 
 from api_schemas import JobModel, JobSummary
-from service.store import JobRecord
+from backend.store import JobRecord
+from backend.urls import artifact_url, result_url
 
 
 def excitation_json(spec: Any) -> Any:
@@ -21,10 +22,6 @@ def excitation_json(spec: Any) -> Any:
     if isinstance(spec, list):
         return [item.model_dump(mode="json") for item in spec]
     return spec.model_dump(mode="json")
-
-
-def artifact_url(job_id: str, name: str, *, root_path: str = "") -> str:
-    return f"{root_path}/v1/jobs/{job_id}/artifacts/{name}"
 
 
 def callback_view(job: JobRecord) -> dict[str, Any] | None:
@@ -95,10 +92,6 @@ def result_summary(result: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def result_url(job_id: str, *, root_path: str = "") -> str:
-    return f"{root_path}/v1/jobs/{job_id}/result"
-
-
 def job_summary_view(job: JobRecord, *, root_path: str = "") -> JobSummary:
     """A job as lists show it: no result, its summary and the URLs of the job and of ``result.json``."""
     succeeded = job.status == "succeeded" and job.result is not None
@@ -126,7 +119,6 @@ def etag_matches(if_none_match: str | None, etag: str) -> bool:
 
 
 __all__ = [
-    "artifact_url",
     "callback_view",
     "etag_matches",
     "etag_of",
@@ -134,6 +126,5 @@ __all__ = [
     "job_summary_view",
     "job_view",
     "result_summary",
-    "result_url",
     "served_result",
 ]

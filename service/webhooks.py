@@ -35,9 +35,9 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
 
-from service.errors import InvalidInputError
-from service.settings import Settings
-from service.store import JobRecord, Store
+from backend.errors import InvalidInputError
+from backend.settings import Settings
+from backend.store import JobRecord, Store
 
 log = logging.getLogger(__name__)
 

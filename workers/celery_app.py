@@ -1,7 +1,7 @@
-"""The workers' Celery application, built from :class:`service.settings.Settings` by :func:`create_celery`.
+"""The workers' Celery application, built from :class:`backend.settings.Settings` by :func:`create_celery`.
 
-The broker, queue and reliability settings come from :func:`service.broker.celery_config`, which the API's
-producer app (:func:`service.broker.create_producer`) uses too: the API publishes ``run_job`` by task name
+The broker, queue and reliability settings come from :func:`backend.broker.celery_config`, which the API's
+producer app (:func:`backend.broker.create_producer`) uses too: the API publishes ``run_job`` by task name
 and never imports this package. The module-level app the ``celery`` command line needs lives in
 :mod:`workers.celery_main`.
 """
@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING
 
 from celery import Celery
 
-from service.broker import APP_NAME, celery_config
-from service.settings import Settings
-from service.storage import Storage
-from service.store import Store
+from backend.broker import APP_NAME, celery_config
+from backend.settings import Settings
+from backend.storage import Storage
+from backend.store import Store
 
 if TYPE_CHECKING:
     from workers.metrics import WorkerMetrics

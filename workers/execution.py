@@ -16,7 +16,7 @@ tested with a real store and a stand-in runner. The job row is the source of tru
   same way again) -- fails the job at once with a problem document. Only infrastructure faults (the
   database, the storage or the network failing: ``OSError``, an unavailable database) give the job
   back to the queue, until ``max_attempts`` is reached; a lost worker is taken over by the sweeper or the
-  next delivery (see :meth:`service.store.Store.recover_stale_jobs`).
+  next delivery (see :meth:`backend.store.Store.recover_stale_jobs`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ import os
 import resource
 import shutil
 import signal
-import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -43,9 +42,9 @@ from api_schemas import (
     ImpulseExcitation,
     StepReleaseExcitation,
 )
-from service.errors import PROBLEM_TYPES, UnavailableError, problem_document
-from service.logs import job_id_var
-from service.store import ClaimOutcome, ClipRecord, JobRecord, Store, lease_owner_token
+from backend.errors import PROBLEM_TYPES, UnavailableError, problem_document
+from backend.logs import job_id_var
+from backend.store import ClaimOutcome, ClipRecord, JobRecord, Lease, Store, lease_owner_token
 
 log = logging.getLogger(__name__)
 
@@ -215,38 +214,10 @@ def is_infrastructure_fault(exc: BaseException) -> bool:
     )
 
 
-class _Lease:
-    """Renews the job's lease in a background thread; remembers if it was lost."""
-
-    def __init__(self, store: Store, job_id: str, owner: str) -> None:
-        self.store, self.job_id, self.owner = store, job_id, owner
-        self.lost = threading.Event()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"lease-{job_id[:8]}", daemon=True)
-
-    def __enter__(self) -> _Lease:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-
-    def _run(self) -> None:
-        interval = max(self.store.lease_s / 3.0, 0.5)
-        while not self._stop.wait(interval):
-            try:
-                if not self.store.renew_lease(self.job_id, self.owner):
-                    self.lost.set()
-                    return
-            except Exception:  # the database blinked: try again; the lease outlives a few misses
-                log.warning("job %s: lease renewal failed", self.job_id, exc_info=True)
-
-
 class _Progress:
     """The ``progress(stage, fraction)`` callback: throttled writes; raises :class:`JobAbortedError`."""
 
-    def __init__(self, store: Store, job_id: str, owner: str, lease: _Lease, interval_s: float) -> None:
+    def __init__(self, store: Store, job_id: str, owner: str, lease: Lease, interval_s: float) -> None:
         self.store, self.job_id, self.owner, self.lease = store, job_id, owner, lease
         self.interval_s = interval_s
         self._last_write = 0.0
@@ -296,7 +267,7 @@ def execute_job(
     observer : JobObserver, optional
         Told when the job is claimed and how the delivery ended (the worker's metrics).
 
-    Every log record of the delivery carries the job id (:data:`service.logs.job_id_var`).
+    Every log record of the delivery carries the job id (:data:`backend.logs.job_id_var`).
     """
     token = job_id_var.set(job_id)
     report = _Report(observer)
@@ -331,7 +302,7 @@ def _execute(
     memory_budget_mb: int,
     report: _Report,
 ) -> Outcome:
-    from service.storage import Storage, tree_bytes
+    from backend.storage import Storage, tree_bytes
 
     storage = Storage(storage_root)
     owner = lease_owner_token()
@@ -373,7 +344,7 @@ def _execute(
         log.info("job %s: removed the folders of an abandoned attempt", job_id)
     workdir = storage.new_job_workdir(job_id, job.attempts)
     try:
-        with _Lease(store, job_id, owner) as lease:
+        with Lease(store, job_id, owner) as lease:
             callback = _Progress(store, job_id, owner, lease, progress_interval_s)
             try:
                 callback("starting", 0.0)

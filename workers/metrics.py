@@ -28,8 +28,8 @@ from typing import Any
 
 from prometheus_client import CollectorRegistry
 
-from service.metrics import WORKER_FAMILIES, WithDefaults
-from service.store import JobRecord
+from backend.metrics import WORKER_FAMILIES, WithDefaults
+from backend.store import JobRecord
 
 
 class WorkerMetrics:
@@ -96,7 +96,7 @@ def serve_metrics(port: int, *, host: str = "0.0.0.0") -> Any:
     """Serve every pool process's metrics (and the build info) on ``port``; returns the server."""
     from prometheus_client import start_http_server
 
-    from service.metrics import BuildInfoCollector, multiprocess_collector
+    from backend.metrics import BuildInfoCollector, multiprocess_collector
 
     registry = CollectorRegistry(auto_describe=False)
     shared = multiprocess_collector()

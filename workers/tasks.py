@@ -12,8 +12,8 @@ from typing import Any
 from celery import Task, shared_task
 from celery.exceptions import MaxRetriesExceededError, SoftTimeLimitExceeded
 
-from service.broker import TASK_RUN_JOB
-from service.logs import traced
+from backend.broker import TASK_RUN_JOB
+from backend.logs import traced
 from workers.celery_app import EigenscopeCelery
 from workers.execution import execute_job
 from workers.runner import job_runner

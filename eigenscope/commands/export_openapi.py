@@ -29,8 +29,8 @@ def register(subparsers: Any) -> None:
 
 def render_spec() -> str:
     """The app's OpenAPI document as the exact text kept in ``openapi/openapi.json``."""
+    from backend.settings import Settings
     from service.app import create_app
-    from service.settings import Settings
 
     app = create_app(Settings(data_dir=Path("/nonexistent/eigenscope-openapi-export")))
     return json.dumps(app.openapi(), indent=2, ensure_ascii=False) + "\n"

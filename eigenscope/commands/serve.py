@@ -24,18 +24,18 @@ import tempfile
 import time
 from typing import TYPE_CHECKING, Any
 
+from backend.logs import console
 from eigenscope.cli import UsageError
-from service.logs import console
 
 if TYPE_CHECKING:
-    from service.settings import Settings
+    from backend.settings import Settings
 
 
 def load_settings(**overrides: Any) -> Settings:
     """Settings from the environment with non-None ``overrides``; bad values become a one-line error."""
     from pydantic import ValidationError
 
-    from service.settings import Settings
+    from backend.settings import Settings
 
     values = {k: v for k, v in overrides.items() if v is not None}
     try:
@@ -244,9 +244,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     check_exposure(args.host, settings, keys=ring.enabled)
 
-    from service.broker import ensure_broker_folders
-    from service.storage import Storage
-    from service.store import Store
+    from backend.broker import ensure_broker_folders
+    from backend.storage import Storage
+    from backend.store import Store
 
     # Prepare the shared state once, before children race for it.
     Storage(settings.data_path).ensure()

@@ -32,10 +32,10 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from backend.logs import configure_logging
+    from backend.store import Store
     from eigenscope.cli import UsageError
     from eigenscope.commands.serve import load_settings
-    from service.logs import configure_logging
-    from service.store import Store
     from workers.streams import run_stream_worker
 
     if args.sessions is not None and args.sessions < 1:

@@ -81,7 +81,7 @@ class StreamWorkerChild:
         self.proc = subprocess.Popen(self.cmd, preexec_fn=_die_with_parent)
 
     def _watch(self) -> None:
-        from service.logs import console
+        from backend.logs import console
 
         while not self.stopping.wait(0.5):
             code = self.proc.poll()
@@ -168,9 +168,9 @@ def _celery_says_through_logging() -> None:
 def _run_worker(args: argparse.Namespace, settings: Any, port: int | None) -> int:
     from celery import signals
 
-    from service.logs import configure_logging
-    from service.storage import Storage
-    from service.store import Store
+    from backend.logs import configure_logging
+    from backend.storage import Storage
+    from backend.store import Store
     from workers.celery_app import create_celery
     from workers.metrics import process_stopped, serve_metrics
 

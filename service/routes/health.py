@@ -9,9 +9,9 @@ from fastapi import APIRouter, Request, Response
 from pydantic import BaseModel, ConfigDict
 from starlette.concurrency import run_in_threadpool
 
+from backend.errors import UnauthorizedError, UnavailableError
 from service.auth import check_metrics_token
 from service.deps import ContextDep
-from service.errors import UnauthorizedError, UnavailableError
 from service.openapi import problem_responses
 
 router = APIRouter(tags=["health"])

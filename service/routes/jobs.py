@@ -12,10 +12,10 @@ from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
 
 from api_schemas import ARTIFACT_NAMES, AnalysisResult, JobCreate, JobList, JobModel, JobStatus
+from backend.store import TERMINAL
 from service import jobs, views
 from service.deps import ContextDep, Cursor, IdempotencyKey, PageSize, TenantDep
 from service.openapi import ETAG_HEADER, RETRY_AFTER_HEADER, problem_responses
-from service.store import TERMINAL
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 

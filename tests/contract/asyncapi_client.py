@@ -24,7 +24,7 @@ import httpx
 import jsonschema_rs
 from websockets.sync.client import connect
 
-PROJECT = ("api_schemas", "service", "workers", "eigenscope", "eigenscope_client")
+PROJECT = ("api_schemas", "backend", "service", "workers", "eigenscope", "eigenscope_client")
 
 
 def validators(doc: dict[str, Any]) -> dict[str, Any]:

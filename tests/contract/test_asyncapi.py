@@ -21,10 +21,10 @@ import service_harness as h
 from conftest import LIVE
 
 from api_schemas.stream import FLOW_CONTROL
+from backend.settings import Settings
 from eigenscope.commands.export_openapi import render_asyncapi
 from service.app import create_app
 from service.asyncapi import SERVER_MESSAGES
-from service.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC_PATH = ROOT / "openapi" / "asyncapi.json"

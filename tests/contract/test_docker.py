@@ -80,7 +80,7 @@ def published_hosts(service: dict[str, Any], env: dict[str, str]) -> list[str]:
 
 
 def api_settings(compose: dict[str, Any], env: dict[str, str]) -> Any:
-    from service.settings import Settings
+    from backend.settings import Settings
 
     api_env = interpolate(compose["services"]["api"]["environment"], env)
     prefix = "EIGENSCOPE_"
@@ -147,8 +147,8 @@ def _exposed_metric_names(tmp_path: Path) -> set[str]:
     """Every sample name the API's and a worker's /metrics can show."""
     from prometheus_client import generate_latest
 
+    from backend.store import Store
     from service.metrics import Metrics
-    from service.store import Store
     from workers.metrics import WorkerMetrics
 
     store = Store(f"sqlite:///{tmp_path / 'm.db'}")

@@ -22,13 +22,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from api_schemas._version import __version__
+from backend.version import __version__
 from tests.contract.wheels import build_wheel, copy_sources
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The typed packages of each distribution.
 PACKAGES = {
-    ROOT: ("api_schemas", "eigenscope", "service", "workers"),
+    ROOT: ("api_schemas", "backend", "eigenscope", "service", "workers"),
     ROOT / "client": ("eigenscope_client",),
 }
 
@@ -154,9 +154,9 @@ def test_one_version_everywhere() -> None:
     import eigenscope_client
 
     import eigenscope
+    from backend.metrics import BuildInfoCollector
+    from backend.settings import Settings
     from service.app import create_app
-    from service.metrics import BuildInfoCollector
-    from service.settings import Settings
 
     version = eigenscope.__version__
     assert importlib.metadata.version("eigenscope") == version

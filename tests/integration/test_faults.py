@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 import service_harness as h
 
-from service.store import Store
+from backend.store import Store
 from workers.execution import KILL_WORKER_MARKER
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

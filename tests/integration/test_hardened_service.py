@@ -18,8 +18,8 @@ import pytest
 import service_harness as h
 from fastapi.testclient import TestClient
 
+from backend.settings import Settings
 from service.app import create_app
-from service.settings import Settings
 from tests.unit.clipio.bombs import npz_bomb, png_bomb_zip
 from tests.unit.service.test_hardening import BrokenQueue, check_non_finite_refused
 

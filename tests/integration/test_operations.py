@@ -48,7 +48,8 @@ def two_apis(tmp_path_factory: pytest.TempPathFactory) -> Iterator[h.LiveService
 
 def test_every_metric_family_is_there_from_the_start(two_apis: h.LiveService) -> None:
     """Before any job, upload or stream: every family the API and its worker declare is in the scrape."""
-    from service.metrics import API_FAMILIES, WORKER_FAMILIES
+    from backend.metrics import WORKER_FAMILIES
+    from service.metrics import API_FAMILIES
 
     text = httpx.get(f"{two_apis.base_url}/metrics").text
     declared = {

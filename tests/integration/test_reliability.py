@@ -137,7 +137,7 @@ def test_api_process_never_imports_the_pipeline(tmp_path: Path, truth_clip: tupl
         import json, sys
         from fastapi.testclient import TestClient
         from service.app import create_app
-        from service.settings import Settings
+        from backend.settings import Settings
 
         app = create_app(Settings(data_dir=sys.argv[1]))
         with TestClient(app) as client:

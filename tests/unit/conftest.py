@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.settings import Settings
-from service.store import Store
+from backend.settings import Settings
+from backend.store import Store
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""The version is written once, in ``api_schemas/_version.py``; the installed metadata and
+"""The version is written once, in ``backend/version.py``; the installed metadata and
 ``eigenscope.__version__`` read it from there."""
 
 from __future__ import annotations

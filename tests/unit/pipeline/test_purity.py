@@ -29,6 +29,7 @@ FORBIDDEN_MODULES = frozenset(
         "redis",
         "kombu",
         "service",
+        "backend",
         "api_schemas",
     }
 )

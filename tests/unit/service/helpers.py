@@ -8,8 +8,8 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
+from backend.settings import Settings
 from service.app import create_app
-from service.settings import Settings
 
 #: The result a job run by hand records (:func:`finish`).
 RESULT: dict[str, Any] = {

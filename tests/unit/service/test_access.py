@@ -13,10 +13,10 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from backend.errors import UnauthorizedError
+from backend.settings import Settings
 from service.auth import KeyConfigError, KeyRing, key_digest
-from service.errors import UnauthorizedError
 from service.retention import cleanup
-from service.settings import Settings
 from tests.unit.service.helpers import finish, make_client, upload
 
 KEY_A = "alpha-key-0123456789abcdef"
@@ -191,12 +191,12 @@ def test_retention_removes_records_and_files_together(tmp_path: Path, small_clip
 def test_failed_record_write_leaves_no_file(
     tmp_path: Path, small_clip: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from service.errors import DatabaseUnavailableError
+    from backend.errors import DatabaseUnavailableError
 
     with make_client(Settings(data_dir=tmp_path / "data")) as client:
         ctx = client.app.state.ctx  # type: ignore[attr-defined]
 
-        def broken(**_: Any) -> None:
+        def broken(*_: Any, **__: Any) -> None:
             raise DatabaseUnavailableError("the job database is unavailable (test)")
 
         monkeypatch.setattr(ctx.store, "add_clip", broken)

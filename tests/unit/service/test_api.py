@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from service.settings import Settings
+from backend.settings import Settings
 from tests.unit.service.helpers import RecordingQueue, finish, make_client
 from tests.unit.service.helpers import upload as upload_response
 

@@ -11,8 +11,8 @@ from typing import Any
 
 from kombu import Connection
 
-from service.broker import celery_config
-from service.settings import Settings
+from backend.broker import celery_config
+from backend.settings import Settings
 
 _watch: dict[str, Any] = {"folder": None, "busy": False, "seen": []}
 

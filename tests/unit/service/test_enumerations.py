@@ -56,7 +56,7 @@ def test_stages_are_every_stage_reported_timed_or_recorded() -> None:
 
     reported = {
         _constant(c.args[0])
-        for folder in ("workers", "service")
+        for folder in ("workers", "service", "backend")
         for name in ("progress", "report")
         for c in _calls(ROOT / folder, name)
         if c.args and isinstance(c.args[0], ast.Constant) and isinstance(c.args[0].value, str)
@@ -67,7 +67,7 @@ def test_stages_are_every_stage_reported_timed_or_recorded() -> None:
         if c.args and isinstance(c.args[0], ast.Constant)
     }
     timed |= {"survey", "decode", "flow", "rendering"}  # stream_lap's, and workers.runner's own
-    store = (ROOT / "service" / "store.py").read_text()
+    store = "".join(path.read_text() for path in sorted((ROOT / "backend" / "store").glob("*.py")))
     recorded = {
         s
         for s in ("queued", "starting", "requeued", "retrying", "done", "failed", "cancelled")

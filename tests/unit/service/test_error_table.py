@@ -1,6 +1,6 @@
-"""One table maps error codes to HTTP status and title (``service.errors.PROBLEM_TYPES``): every code the
-service or the workers report is in it, nothing else assigns a status or a title, and the OpenAPI document
-lists exactly the table."""
+"""One table maps error codes to HTTP status and title (``backend.errors.PROBLEM_TYPES``): every code the
+service, the back end or the workers report is in it, nothing else assigns a status or a title, and the
+OpenAPI document lists exactly the table."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from service.errors import (
+from backend.errors import (
     PROBLEM_BASE,
     PROBLEM_TYPES,
     InvalidClipError,
@@ -21,7 +21,9 @@ from service.errors import (
 from service.openapi import problem_types_extension
 
 ROOT = Path(__file__).resolve().parents[3]
-SOURCES = sorted([*(ROOT / "service").rglob("*.py"), *(ROOT / "workers").rglob("*.py")])
+SOURCES = sorted(
+    path for package in ("backend", "service", "workers") for path in (ROOT / package).rglob("*.py")
+)
 #: Functions, and methods called on ``self``, whose first argument is an error code.
 CODE_FUNCTIONS = {"problem_document", "problem_type", "_head"}
 CODE_METHODS = {"error", "fatal"}
@@ -89,7 +91,7 @@ def test_every_code_in_use_is_in_the_table() -> None:
     used = _used_codes()
     assert len(used) > 40, used
     missing = {code: where for code, where in used.items() if code not in PROBLEM_TYPES}
-    assert not missing, f"add these codes to service.errors.PROBLEM_TYPES: {missing}"
+    assert not missing, f"add these codes to backend.errors.PROBLEM_TYPES: {missing}"
 
 
 def test_the_table_has_no_dead_entries() -> None:
@@ -110,7 +112,7 @@ def test_no_other_module_writes_a_problem_document_by_hand() -> None:
     """A dict literal with a literal ``title`` or ``status`` is a second table in the making."""
     offenders = []
     for path in SOURCES:
-        if path.name == "errors.py" and path.parent.name == "service":
+        if path.name == "errors.py" and path.parent.name == "backend":
             continue
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Dict):
@@ -122,7 +124,7 @@ def test_no_other_module_writes_a_problem_document_by_hand() -> None:
                 literal = [m for m in ("title", "status") if isinstance(members.get(m), ast.Constant)]
                 if {"type", "title", "status"} <= members.keys() and literal:
                     offenders.append(f"{path.relative_to(ROOT)}:{node.lineno}")
-    assert not offenders, f"take status and title from service.errors.PROBLEM_TYPES: {offenders}"
+    assert not offenders, f"take status and title from backend.errors.PROBLEM_TYPES: {offenders}"
 
 
 @pytest.mark.parametrize("code", sorted(PROBLEM_TYPES))

@@ -14,11 +14,12 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from backend.errors import InvalidClipError, QuotaExceededError, redact_paths
+from backend.settings import Settings
+from backend.store import NewClip, NewJob
+from backend.strict_json import NonFiniteNumberError, strict_json_loads
 from service.app import create_app
 from service.auth import FailedAuthLimiter
-from service.bodies import NonFiniteNumberError, strict_json_loads
-from service.errors import InvalidClipError, QuotaExceededError, redact_paths
-from service.settings import Settings
 from tests.unit.service.helpers import make_client
 
 KEY = "hardening-key-0123456789abcdef"
@@ -93,9 +94,9 @@ def test_store_refuses_non_finite_json(client: TestClient) -> None:
     """Defence in depth: a non-finite number never reaches a JSON column (PostgreSQL refused it with a
     500; SQLite stored it and served it back as null)."""
     store = client.app.state.ctx.store  # type: ignore[attr-defined]
-    store.add_clip(clip_id="c1", filename="a.npz", path="clips/c1/clip.npz", info={}, size_bytes=1)
+    store.add_clip(NewClip(clip_id="c1", filename="a.npz", path="clips/c1/clip.npz", info={}, size_bytes=1))
     with pytest.raises(Exception, match="Out of range float values are not JSON compliant"):
-        store.create_job(clip_id="c1", excitation=None, parameters={"fps": float("inf")})
+        store.create_job(NewJob(clip_id="c1", excitation=None, parameters={"fps": float("inf")}))
 
 
 def test_strict_json() -> None:

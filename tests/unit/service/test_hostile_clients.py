@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from service.settings import Settings
+from backend.settings import Settings
 from tests.unit.service.helpers import make_client, upload
 
 KEY_A = "alpha-key-0123456789abcdef"
@@ -244,7 +244,7 @@ def test_abandoned_uploads_go_at_start_and_after_their_idle_timeout(tmp_path: Pa
     import sys
     import time
 
-    from service.storage import Storage
+    from backend.storage import Storage
 
     settings = Settings(data_dir=tmp_path / "data", body_idle_timeout_s=30, probe_timeout_s=120)
     storage = Storage(settings.data_path)
@@ -351,7 +351,7 @@ def test_an_upload_without_content_length_stops_at_the_quota(
 ) -> None:
     """Item 11: four concurrent 49 MB bodies without Content-Length wrote about 185 MB before their
     429s; now the bytes are counted as they arrive, with the key's other uploads."""
-    from service.storage import Storage
+    from backend.storage import Storage
 
     ctx = one_mib_quota.app.state.ctx  # type: ignore[attr-defined]
     written: list[Any] = []

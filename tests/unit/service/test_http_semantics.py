@@ -12,8 +12,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from service.errors import PROBLEM_BASE, PROBLEM_TYPES
-from service.settings import Settings
+from backend.errors import PROBLEM_BASE, PROBLEM_TYPES
+from backend.settings import Settings
 from tests.unit.service.helpers import RESULT, finish, make_client, upload
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -148,7 +148,7 @@ def test_field_errors_are_in_the_users_words(
 
 
 def test_problem_types_follow_one_scheme(client: TestClient) -> None:
-    from service.errors import RENAMED
+    from backend.errors import RENAMED
 
     for code, kind in PROBLEM_TYPES.items():
         if kind.status == 404:

@@ -9,9 +9,9 @@ from html.parser import HTMLParser
 import pytest
 from fastapi.testclient import TestClient
 
+from backend.settings import Settings
 from service.app import create_app
 from service.routes.page import STATIC_DIR
-from service.settings import Settings
 
 ASSETS = {
     "app.js": "text/javascript",
@@ -130,8 +130,8 @@ def test_the_page_loads_nothing_from_another_origin() -> None:
 def test_docs_are_served_without_a_cdn(tmp_path):
     from fastapi.testclient import TestClient
 
+    from backend.settings import Settings
     from service.app import create_app
-    from service.settings import Settings
 
     app = create_app(Settings(data_dir=tmp_path))
     with TestClient(app) as client:

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from service.settings import Settings
+from backend.settings import Settings
 from tests.unit.service.helpers import finish, make_client, upload
 
 pytestmark = pytest.mark.timeout(60)

@@ -8,41 +8,49 @@ from pathlib import Path
 
 import pytest
 
-from service.errors import ConflictError, InvalidInputError, NotFoundError
-from service.store import ClaimOutcome, Store, lease_owner_token, owner_is_dead_here
+from backend.errors import ConflictError, InvalidInputError, NotFoundError
+from backend.store import ClaimOutcome, NewClip, NewJob, Store, lease_owner_token, owner_is_dead_here
 
 
 def add_clip(store: Store, clip_id: str = "c1") -> str:
     store.add_clip(
-        clip_id=clip_id, filename="a.npz", path=f"clips/{clip_id}/clip.npz", info={"frames": 16}, size_bytes=1
+        NewClip(
+            clip_id=clip_id,
+            filename="a.npz",
+            path=f"clips/{clip_id}/clip.npz",
+            info={"frames": 16},
+            size_bytes=1,
+        )
     )
     return clip_id
 
 
-def new_job(store: Store, clip_id: str = "c1", **kw: object) -> str:
-    job, created = store.create_job(clip_id=clip_id, excitation=None, parameters={}, **kw)  # type: ignore[arg-type]
+def new_job(store: Store, clip_id: str = "c1") -> str:
+    job, created = store.create_job(NewJob(clip_id=clip_id, excitation=None, parameters={}))
     assert created
     return job.id
 
 
 def test_job_needs_an_existing_clip(store: Store) -> None:
     with pytest.raises(InvalidInputError, match="does not exist"):
-        store.create_job(clip_id="nope", excitation=None, parameters={})
+        store.create_job(NewJob(clip_id="nope", excitation=None, parameters={}))
 
 
 def test_idempotency_key_same_and_different_body(store: Store) -> None:
     add_clip(store)
     a, created_a = store.create_job(
-        clip_id="c1", excitation=None, parameters={}, idempotency_key="k", request_hash="h1"
+        NewJob(clip_id="c1", excitation=None, parameters={}, idempotency_key="k", request_hash="h1")
     )
     b, created_b = store.create_job(
-        clip_id="c1", excitation=None, parameters={}, idempotency_key="k", request_hash="h1"
+        NewJob(clip_id="c1", excitation=None, parameters={}, idempotency_key="k", request_hash="h1")
     )
     assert created_a
     assert not created_b
     assert a.id == b.id
     with pytest.raises(InvalidInputError, match="different request body"):
-        store.create_job(clip_id="c1", excitation=None, parameters={}, idempotency_key="k", request_hash="h2")
+        store.create_job(
+            NewJob(clip_id="c1", excitation=None, parameters={}, idempotency_key="k", request_hash="h2")
+        )
 
 
 def test_list_newest_first_with_cursor_and_status(store: Store) -> None:
@@ -121,7 +129,7 @@ def test_dead_owner_is_taken_over_and_attempts_are_bounded(store: Store) -> None
     with store._tx() as s:  # expire the lease
         from sqlalchemy import update
 
-        from service.store import JobRow
+        from backend.store.schema import JobRow
 
         s.execute(update(JobRow).where(JobRow.id == job_id).values(lease_until=time.time() - 1))
     exhausted = store.claim_job(job_id, lease_owner_token())
@@ -140,7 +148,7 @@ def test_recover_requeues_expired_leases(store: Store) -> None:
     assert store.recover_stale_jobs(requeue_after_s=3600) == []
     from sqlalchemy import update
 
-    from service.store import JobRow
+    from backend.store.schema import JobRow
 
     with store._tx() as s:
         s.execute(update(JobRow).where(JobRow.id == job_id).values(lease_until=time.time() - 1))
@@ -191,7 +199,7 @@ def test_tables_of_an_older_release_get_the_new_columns(tmp_path: Path) -> None:
         store.create_schema()  # idempotent
         clip = store.get_clip("c0", "")
         assert (clip.owner, clip.expires_at, clip.size_bytes) == ("", None, 10)
-        job, _ = store.create_job(clip_id="c0", excitation=None, parameters={}, owner="")
+        job, _ = store.create_job(NewJob(clip_id="c0", excitation=None, parameters={}, owner=""))
         assert store.get_job(job.id, "").output_bytes == 0
         assert store.usage("").stored_bytes == 10
     finally:

@@ -11,9 +11,9 @@ from typing import Any
 
 import pytest
 
+from backend.settings import Settings
+from backend.store import StreamRecord
 from service.metrics import Metrics
-from service.settings import Settings
-from service.store import StreamRecord
 from service.streams import Relay
 
 

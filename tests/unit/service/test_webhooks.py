@@ -13,8 +13,8 @@ from typing import Any
 import httpx
 import pytest
 
-from service.settings import Settings
-from service.store import Store
+from backend.settings import Settings
+from backend.store import NewClip, NewJob, Store
 from service.webhooks import Dispatcher, allowed, retry_delay, sign, verify
 from tests.webhook_receiver import Receiver
 
@@ -80,8 +80,10 @@ def receiver() -> Iterator[Receiver]:
 
 
 def _ended_job(store: Store, url: str, n: int = 1) -> str:
-    store.add_clip(clip_id=f"c{n}", filename="a.npz", path=f"clips/c{n}/clip.npz", info={}, size_bytes=1)
-    job, _ = store.create_job(clip_id=f"c{n}", excitation=None, parameters={}, callback_url=url)
+    store.add_clip(
+        NewClip(clip_id=f"c{n}", filename="a.npz", path=f"clips/c{n}/clip.npz", info={}, size_bytes=1)
+    )
+    job, _ = store.create_job(NewJob(clip_id=f"c{n}", excitation=None, parameters={}, callback_url=url))
     assert store.claim_job(job.id, "w/1/x").job is not None
     assert store.fail_job(
         job.id, "w/1/x", {"type": "about:blank", "title": "x", "status": 422, "detail": "d"}
@@ -280,7 +282,7 @@ def test_a_callback_whose_last_attempt_never_reported_is_given_up(store: Store) 
 def _leased(store: Store, job_id: str) -> bool:
     from sqlalchemy import select
 
-    from service.store import JobRow
+    from backend.store.schema import JobRow
 
     with store.engine.connect() as conn:
         until = conn.execute(select(JobRow.callback_lease_until).where(JobRow.id == job_id)).scalar()

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from api_schemas import AnalysisResult, Spectrum
-from service.settings import Settings
-from service.storage import Storage
-from service.store import Store
+from backend.settings import Settings
+from backend.storage import Storage
+from backend.store import NewClip, NewJob, Store
 from workers.execution import execute_job
 from workers.pipeline.errors import ClipError
 
@@ -38,9 +38,9 @@ def job_id(store: Store, settings: Settings, small_clip: Path) -> str:
     storage.ensure()
     (storage.root / "clips" / "c1").mkdir(parents=True)
     (storage.root / "clips" / "c1" / "clip.npz").write_bytes(small_clip.read_bytes())
-    store.add_clip(clip_id="c1", filename="a.npz", path="clips/c1/clip.npz", info={}, size_bytes=1)
+    store.add_clip(NewClip(clip_id="c1", filename="a.npz", path="clips/c1/clip.npz", info={}, size_bytes=1))
     job, _ = store.create_job(
-        clip_id="c1", excitation={"type": "step_release", "force_n": 2.0}, parameters={"frames": 16}
+        NewJob(clip_id="c1", excitation={"type": "step_release", "force_n": 2.0}, parameters={"frames": 16})
     )
     return job.id
 
@@ -183,7 +183,7 @@ def test_abandoned_attempt_folders_are_removed(store: Store, settings: Settings,
 
     storage = Storage(settings.data_path)
     tmp = storage.root / "tmp"
-    other = store.create_job(clip_id="c1", excitation=None, parameters={})[0].id
+    other = store.create_job(NewJob(clip_id="c1", excitation=None, parameters={}))[0].id
 
     def abandoned(job: str, attempt: int) -> list[Path]:
         folders = [tmp / f"job-{job}-{attempt}-0123abcd", tmp / f"job-{job}-{attempt}-0123abcd-scratch"]
@@ -257,9 +257,15 @@ def test_kill_hook_is_inert_without_test_hooks(store: Store, settings: Settings,
     (storage.root / "clips" / "k1").mkdir(parents=True)
     (storage.root / "clips" / "k1" / "clip.npz").write_bytes(small_clip.read_bytes())
     store.add_clip(
-        clip_id="k1", filename=KILL_WORKER_MARKER + ".npz", path="clips/k1/clip.npz", info={}, size_bytes=1
+        NewClip(
+            clip_id="k1",
+            filename=KILL_WORKER_MARKER + ".npz",
+            path="clips/k1/clip.npz",
+            info={},
+            size_bytes=1,
+        )
     )
-    job, _ = store.create_job(clip_id="k1", excitation=None, parameters={})
+    job, _ = store.create_job(NewJob(clip_id="k1", excitation=None, parameters={}))
 
     def runner(clip_path: Any, out_dir: Any, **_: Any) -> AnalysisResult:
         (Path(out_dir) / "mask.png").write_bytes(b"\x89PNG12345")

@@ -9,29 +9,32 @@ from typing import Any
 
 import pytest
 
-from service.settings import Settings
-from service.storage import Storage
-from service.store import Store, StreamRecord
-from service.stream_transport import LocalTransport
+from backend.settings import Settings
+from backend.storage import Storage
+from backend.store import NewClip, NewStream, Store, StreamRecord
+from backend.stream_transport import LocalTransport
 
 PROBLEM = {"type": "about:blank", "title": "x", "status": 503, "detail": "no worker", "code": "no-worker"}
 
 
 def new_stream(store: Store, stream_id: str = "s1") -> StreamRecord:
     stream, _job = store.create_stream(
-        stream_id=stream_id,
-        owner="",
-        clip={
-            "clip_id": f"c{stream_id}",
-            "filename": "stream.zip",
-            "path": f"clips/c{stream_id}/clip.zip",
-            "info": {},
-            "size_bytes": 0,
-        },
-        job={"excitation": None, "parameters": {}},
-        token_digest="0" * 64,
-        request={"width": 320, "height": 240},
-        expires_at=None,
+        NewStream(
+            stream_id=stream_id,
+            owner="",
+            token_digest="0" * 64,
+            request={"width": 320, "height": 240},
+            expires_at=None,
+            clip=NewClip(
+                clip_id=f"c{stream_id}",
+                filename="stream.zip",
+                path=f"clips/c{stream_id}/clip.zip",
+                info={},
+                size_bytes=0,
+            ),
+            excitation=None,
+            parameters={},
+        )
     )
     return stream
 
@@ -111,8 +114,8 @@ def test_deleting_a_streams_job_deletes_its_stream_and_retention_covers_the_rest
 ) -> None:
     from sqlalchemy import delete
 
+    from backend.store.schema import JobRow
     from service.retention import cleanup
-    from service.store import JobRow
 
     deleted, orphan = new_stream(store, "s1"), new_stream(store, "s2")
     store.update_stream(deleted.id, last_estimate={"eigenfrequency_hz": 4.0})

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
-from service.errors import (
+from backend.errors import (
     InsufficientStorageError,
     NotFoundError,
     PayloadTooLargeError,

@@ -31,13 +31,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
-from service.settings import Settings
+from backend.settings import Settings
 
 #: Keys of a session's Redis entries expire this long after their last write (insurance: a session that
 #: ends normally deletes them at once).
 KEY_TTL_S = 3600
 #: Worker messages kept per session (older ones are trimmed; a relay reads them within milliseconds).
 OUT_KEEP = 1024
+#: A stream's analysis window when ``parameters.frames`` is not given: what its worker keeps
+#: (``workers/streams.py``) and what the API checks against the job memory budget when the stream is
+#: created (``service/streams.py``).
+DEFAULT_WINDOW_FRAMES = 256
 
 
 @dataclass(frozen=True, slots=True)

@@ -139,7 +139,7 @@ def problem_type(code: str) -> ProblemType:
     try:
         return PROBLEM_TYPES[code]
     except KeyError:
-        raise KeyError(f"error code {code!r} is not in service.errors.PROBLEM_TYPES; add it there") from None
+        raise KeyError(f"error code {code!r} is not in backend.errors.PROBLEM_TYPES; add it there") from None
 
 
 def problem_document(code: str, detail: str, **extra: Any) -> dict[str, Any]:

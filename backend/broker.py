@@ -22,7 +22,7 @@ from typing import Any
 from kombu.transport import filesystem
 from kombu.utils.json import dumps
 
-from service.settings import Settings
+from backend.settings import Settings
 
 #: The one task the API publishes: ``run_job(job_id)`` (registered by :mod:`workers.tasks`).
 TASK_RUN_JOB = "eigenscope.run_job"
