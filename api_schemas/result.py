@@ -76,6 +76,37 @@ class RingdownResult(BaseModel):
     decay_per_s: float | None = Field(default=None, description="Fitted envelope decay rate σ = ζ ω_n, 1/s.")
 
 
+class ModeResult(BaseModel):
+    """One mode of an object: a narrow-band component of its pixels' motion, with a shape of its own."""
+
+    model_config = ConfigDict(title="Mode", **RESPONSE)
+
+    frequency_hz: float = Field(description="Damped frequency of the mode, Hz.")
+    frequency_uncertainty_hz: float | None = Field(default=None, description="Standard uncertainty, Hz.")
+    damping_ratio: float | None = Field(default=None, description="Null when the mode does not decay.")
+    damping_ratio_uncertainty: float | None = None
+    energy_share: float = Field(ge=0, le=1, description="Share of the object's motion energy in this mode.")
+    regime: Regime = Field(description="`ring_down`, `steady` or `growing`, as for the object.")
+    complexity: float = Field(
+        ge=0,
+        le=1,
+        description="How far the mode's shape is from a real (standing) one: 0 for a real mode, up to 1 "
+        "for a travelling wave.",
+    )
+
+
+class ModeHarmonicResult(BaseModel):
+    """A line of an object's motion at an integer multiple of one of its modes, with that mode's shape: the
+    motion is periodic but not sinusoidal (the evidence is the MAC between the two shapes)."""
+
+    model_config = ConfigDict(title="ModeHarmonic", **RESPONSE)
+
+    frequency_hz: float
+    fundamental_hz: float = Field(description="The mode's frequency, Hz.")
+    order: int = Field(ge=2)
+    mac: float = Field(ge=0, le=1, description="MAC between the line's shape and the mode's.")
+
+
 class ObjectResult(BaseModel):
     """One vibrating object found in the clip."""
 
@@ -131,6 +162,22 @@ class ObjectResult(BaseModel):
         "motion along the line of sight.",
     )
     ringdown: RingdownResult | None = None
+    modes: list[ModeResult] = Field(
+        default_factory=list,
+        description="The narrow-band components of the object's motion, strongest first, each with its "
+        "frequency, damping and share of the motion (their shapes are in the `modes` artifact). A line at "
+        "an integer multiple of a mode with the same shape is one of `mode_harmonics` instead.",
+    )
+    mode_harmonics: list[ModeHarmonicResult] = Field(
+        default_factory=list,
+        description="Lines at integer multiples of a mode that move with its shape (MAC at least 0.8): "
+        "harmonics of a non-sinusoidal motion, not modes.",
+    )
+    mode_mac: list[list[float]] | None = Field(
+        default=None,
+        description="MAC (modal assurance criterion) between the modes' shapes, in the order of `modes`: 1 "
+        "for the same shape, 0 for orthogonal ones.",
+    )
 
 
 class RejectedPeakResult(BaseModel):
@@ -194,6 +241,7 @@ ArtifactName = Literal[
     "spectrum.png",
     "displacement.png",
     "ringdown.png",
+    "modes.npz",
     "result.json",
 ]
 ARTIFACT_NAMES: tuple[str, ...] = ArtifactName.__args__  # type: ignore[attr-defined]
@@ -230,6 +278,13 @@ class Artifacts(BaseModel):
         "release instant (PNG).",
     )
     ringdown: str | None = Field(default=None, description="Spectrogram of each object's ring-down (PNG).")
+    modes: str | None = Field(
+        default=None,
+        description="Each object's mode shapes and frequencies (NumPy .npz): `object_<id>_shapes`, float32 "
+        "(modes, H, W, 2), displacement in input pixels, NaN outside the object; "
+        "`object_<id>_frequencies_hz`, `object_<id>_damping_ratio`, `object_<id>_energy_share` and "
+        "`object_<id>_mac`, in the order of the object's `modes`.",
+    )
     result: str = Field(
         default="result.json", description="This result as a file (JSON, an `AnalysisResult`)."
     )

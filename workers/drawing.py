@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from workers.pipeline.model import Analysis
 
 #: Every artifact key, in the order :func:`draw_all` writes them: the mask first, then the figures.
-ALL_KEYS = ("mask", "overlay", "frequency_map", "spectrum", "displacement", "ringdown")
+ALL_KEYS = ("mask", "overlay", "frequency_map", "spectrum", "displacement", "ringdown", "modes")
 
 
 def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None = None) -> dict[str, str]:
@@ -38,7 +38,9 @@ def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None
         :data:`workers.pipeline.figures.ARTIFACT_FILES`.
     keys : iterable of str, optional
         Artifact keys among :data:`ALL_KEYS` (default all of them): ``mask`` is the label image
-        (``analysis.labels``), the others the figures of :data:`workers.pipeline.figures.FIGURES`.
+        (``analysis.labels``), ``modes`` the objects' mode shapes
+        (:mod:`workers.pipeline.figures.modes_file`), the others the figures of
+        :data:`workers.pipeline.figures.FIGURES`.
 
     Returns
     -------
@@ -53,6 +55,7 @@ def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None
         When a file cannot be written (e.g. ``out_dir`` is a file); images already written stay in place.
     """
     from workers.pipeline.figures import ARTIFACT_FILES, FIGURES, PHOTO_FIGURES, write_label_png, write_png
+    from workers.pipeline.figures.modes_file import write_modes_npz
 
     wanted = ALL_KEYS if keys is None else tuple(keys)
     unknown = [k for k in wanted if k not in ARTIFACT_FILES]
@@ -68,6 +71,8 @@ def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None
                 path = out / ARTIFACT_FILES[key]
                 if key == "mask":
                     pending.append(pool.submit(write_label_png, path, analysis.labels))
+                elif key == "modes":
+                    pending.append(pool.submit(write_modes_npz, path, analysis))
                 else:
                     image = FIGURES[key](analysis)
                     pending.append(pool.submit(write_png, path, image, photo=key in PHOTO_FIGURES))

@@ -20,6 +20,8 @@ from api_schemas import (
     Artifacts,
     Detection,
     ImpulseExcitation,
+    ModeHarmonicResult,
+    ModeResult,
     ObjectResult,
     QualityFlag,
     RejectedPeakResult,
@@ -29,7 +31,7 @@ from api_schemas import (
 )
 
 if TYPE_CHECKING:
-    from service.settings import Settings
+    from backend.settings import Settings
     from workers.pipeline.analysis import Analysis, ObjectMeasurement
     from workers.pipeline.analysis import AnalysisConfig as PipelineConfig
     from workers.pipeline.analysis import Excitation as PipelineExcitation
@@ -43,7 +45,7 @@ MASK_FILE = "mask.png"
 
 
 def _version() -> str:
-    from api_schemas._version import __version__
+    from backend.version import __version__
 
     return __version__
 
@@ -247,17 +249,35 @@ def _object_result(o: ObjectMeasurement) -> ObjectResult:
     """An object as the API gives it: the pipeline's measurement carries the API's names and units, so its
     fields are copied by name (non-finite numbers become null, tuples lists), and its ring-down series
     sampled for the result."""
-    values: dict[str, Any] = {}
-    for name in ObjectResult.model_fields:
-        if name == "ringdown" or not hasattr(o, name):
-            continue
-        value = getattr(o, name)
-        if isinstance(value, float) and not math.isfinite(value):
-            value = None
-        elif isinstance(value, tuple):
-            value = list(value)
-        values[name] = value
-    return ObjectResult(**values, ringdown=_ringdown(o))
+    values = {
+        name: _finite(getattr(o, name))
+        for name in ObjectResult.model_fields
+        if name not in ("ringdown", "modes", "mode_mac", "mode_harmonics") and hasattr(o, name)
+    }
+    return ObjectResult(**values, ringdown=_ringdown(o), **_modes(o))
+
+
+def _finite(value: Any) -> Any:
+    """A value as JSON takes it: a non-finite number becomes None, a tuple a list."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return list(value) if isinstance(value, tuple) else value
+
+
+def _modes(o: ObjectMeasurement) -> dict[str, Any]:
+    """The object's modes as the API gives them (the pipeline's names are the API's), and the MAC between
+    their shapes when there are two or more."""
+    if o.modes is None:
+        return {"modes": [], "mode_mac": None, "mode_harmonics": []}
+    found = o.modes.found
+    fields = ModeResult.model_fields
+    modes = [ModeResult(**{name: _finite(getattr(m, name)) for name in fields}) for m in found.modes]
+    mac = [[round(float(v), 4) for v in row] for row in found.mac] if len(found.modes) > 1 else None
+    harmonics = [
+        ModeHarmonicResult(**{name: getattr(h, name) for name in ModeHarmonicResult.model_fields})
+        for h in found.harmonics
+    ]
+    return {"modes": modes, "mode_mac": mac, "mode_harmonics": harmonics}
 
 
 def build_result(

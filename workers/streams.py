@@ -1,6 +1,6 @@
 """Live stream sessions on a worker: frames in, estimates out, a job and a clip at the end.
 
-:func:`run_stream_worker` takes sessions from the stream transport (:mod:`service.stream_transport`) and
+:func:`run_stream_worker` takes sessions from the stream transport (:mod:`backend.stream_transport`) and
 runs up to ``Settings.stream_sessions_per_worker`` of them at once, each on a thread of its own
 (:class:`Session`). A session:
 
@@ -38,12 +38,12 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from api_schemas import AnalysisParameters, FrameHeader, StreamCreate
-from service.bodies import loads_shallow
-from service.errors import PROBLEM_TYPES, problem_document
-from service.settings import Settings
-from service.storage import Storage, tree_bytes
-from service.store import ClaimOutcome, Store, StreamRecord, lease_owner_token
-from service.stream_transport import Item, StreamTransport, transport_for
+from backend.errors import PROBLEM_TYPES, problem_document
+from backend.settings import Settings
+from backend.storage import Storage, tree_bytes
+from backend.store import ClaimOutcome, Store, StreamRecord, lease_owner_token
+from backend.stream_transport import Item, StreamTransport, transport_for
+from backend.strict_json import loads_shallow
 
 if TYPE_CHECKING:
     from workers.metrics import WorkerMetrics
@@ -280,7 +280,7 @@ class Session:
                 # nobody reads its messages any more.
                 self.transport.cleanup(self.stream_id)
             return
-        from workers.execution import _Lease
+        from backend.store import Lease
 
         if self.metrics is not None and claim.job is not None:
             wait = max(time.time() - claim.job.enqueued_at, 0.0) if claim.job.enqueued_at else 0.0
@@ -290,7 +290,7 @@ class Session:
         beat = threading.Thread(target=self._heartbeat, name=f"stream-{self.stream_id}-beat", daemon=True)
         beat.start()
         try:
-            with _Lease(self.store, record.job_id, owner) as lease:
+            with Lease(self.store, record.job_id, owner) as lease:
                 request = StreamCreate.model_validate(record.request)
                 self._size = (request.width, request.height)  # declared, checked at creation
                 used = self.store.usage(record.owner).stored_bytes
@@ -608,7 +608,7 @@ class Session:
         )
 
     def _start_live(self, request: StreamCreate, width: int, height: int) -> None:
-        from service.streams import DEFAULT_WINDOW_FRAMES
+        from backend.stream_transport import DEFAULT_WINDOW_FRAMES
         from workers.pipeline.clipio.types import Intrinsics
         from workers.pipeline.live import LiveAnalysis, LiveConfig
         from workers.runner import pipeline_excitations, requested_excitations
@@ -691,7 +691,7 @@ class Session:
         about as long as the analysis): the job, with its images, completes a moment later, so a client
         that wants the images waits for the job (``GET /v1/jobs/{id}?wait=``).
         """
-        from service.views import artifact_url
+        from backend.urls import artifact_url
         from workers.drawing import draw_all
         from workers.pipeline.errors import EigenscopeError
         from workers.pipeline.figures import ARTIFACT_FILES

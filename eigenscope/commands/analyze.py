@@ -166,9 +166,19 @@ def run(args: argparse.Namespace) -> int:
             line += f", k = {o.stiffness_n_per_m:.4g} N/m, m = {o.mass_kg:.4g} kg"
         line += f", {o.pixel_count} px"
         print(line)
+        if len(o.modes) > 1:
+            print("  modes: " + "; ".join(_mode_text(m) for m in o.modes))
         for reason in o.null_reasons:
             print(f"  note: {reason}")
     for q in result.quality:
         print(f"{q.severity}: {q.message}")
     print(f"wrote {args.out}/result.json and {args.out}/{result.artifacts.mask}")
     return 0
+
+
+def _mode_text(mode: Any) -> str:
+    """One mode for the summary: its frequency, damping where it decays, and its share of the motion."""
+    text = f"{mode.frequency_hz:.4g} Hz"
+    if mode.damping_ratio is not None:
+        text += f" ζ = {mode.damping_ratio:.3g}"
+    return text + f" ({mode.energy_share * 100:.0f} %)"

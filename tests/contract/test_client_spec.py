@@ -25,6 +25,8 @@ MODELS = [
     ec.Spectrum,
     ec.QualityFlag,
     ec.Ringdown,
+    ec.Mode,
+    ec.ModeHarmonic,
     ec.Callback,
     ec.CameraIntrinsics,
     ec.Problem,

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.model import ObjectMeasurement, QualityNote, RejectedPeak, Survey
 from workers.pipeline.peaks import Peak, PeakPolicy, interpolate_peak
-from workers.pipeline.ringdown import Ringdown
+from workers.pipeline.ringdown import MIN_DECAY
 from workers.pipeline.segmentation import Segmentation
 from workers.pipeline.significance import MAX_FALSE_ALARM, MotionScan
 
@@ -58,11 +58,6 @@ MIN_COHERENCE = 0.5
 SECOND_MOTION_SHARE = 0.2
 #: No object is reported whose frequency's standard uncertainty is this fraction of it or more.
 MAX_RELATIVE_SD = 0.25
-#: A decay over the fitted span of at least this (nepers: 5 % of the amplitude), three standard
-#: uncertainties clear of zero, makes a ring-down; less is steady.
-MIN_DECAY = 0.05
-#: An envelope that grows by this factor over the window, clearly, is ``growing``.
-MIN_GROWTH = 1.25
 #: The main object spans at least this many periods of its frequency in the window.
 MIN_PERIODS = 2.0
 #: A peak's fundamental is sought at these fractions of it ...
@@ -859,30 +854,6 @@ def clip_regime(obj: ObjectMeasurement, survey: Survey | None, *, clip_s: float)
     return obj.regime
 
 
-def regime_of(ring: Ringdown | None, *, decay: float, decay_sd: float) -> str:
-    """``ring_down``, ``steady`` or ``growing``: how an object's oscillation evolved over the window.
-
-    Parameters
-    ----------
-    ring : Ringdown or None
-        The object's sliding-window amplitude, when it has one (for growth).
-    decay, decay_sd : float
-        The fitted envelope's decay over the fitted span and its standard uncertainty, nepers.
-    """
-    if decay >= MIN_DECAY and decay >= 3 * decay_sd:
-        return "ring_down"
-    if ring is not None and len(ring.amplitude) >= 4:
-        amp = np.asarray(ring.amplitude, np.float64)
-        ok = amp > 0
-        if ok.sum() >= 4:
-            t = np.asarray(ring.times_s, np.float64)[ok]
-            slope, _ = np.polyfit(t, np.log(amp[ok]), 1)
-            span = float(t[-1] - t[0])
-            if slope * span >= math.log(MIN_GROWTH) and float(amp[ok][-1]) > float(amp[ok][0]):
-                return "growing"
-    return "steady"
-
-
 def drop_objects(
     objects: list[ObjectMeasurement],
     labels: NDArray[np.uint16],
@@ -919,7 +890,6 @@ __all__ = [
     "held_verdict",
     "judge_objects",
     "oscillation_verdict",
-    "regime_of",
     "shared_region",
     "significance_verdict",
     "significant_bins",

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import threading
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
@@ -26,7 +25,6 @@ from numpy.typing import NDArray
 from workers.pipeline.artefacts import keyframe_maps, repair_keyframe_maps
 from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader
 from workers.pipeline.errors import AnalysisError
-from workers.pipeline.fft import warm_up as spectrum_warm_up
 from workers.pipeline.flow import FlowConfig, flow_stream
 from workers.pipeline.look import Look
 from workers.pipeline.model import Progress, report_progress
@@ -295,7 +293,6 @@ def stream_roi(
     AnalysisError
         When fewer than :data:`~workers.pipeline.clipio.types.MIN_FRAMES` frames decode.
     """
-    threading.Thread(target=spectrum_warm_up, name="spectrum-warm-up", daemon=True).start()
     n = look.count
     if isinstance(source, Look):
         has_depth = source.kept is not None and source.kept.depth_shape is not None

@@ -38,11 +38,17 @@ from workers.pipeline.clipio.types import ClipInfo, Intrinsics
 from workers.pipeline.errors import AnalysisError, ClipError, ParameterError
 from workers.pipeline.flow import FlowConfig, flow_stream, prepare_gray
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
-from workers.pipeline.measure import FREQUENCY_REL_FLOOR, damping_sd, frequency_sd_hz, object_mechanics
+from workers.pipeline.measure import object_mechanics
 from workers.pipeline.mechanics import detect_release, release_amplitude, release_instant
 from workers.pipeline.metric import DepthContext, ImageAmplitude, MetricAmplitude, metric_amplitude
 from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, QualityNote, Stopwatch
-from workers.pipeline.ringdown import RingdownFit, fit_ringdown
+from workers.pipeline.ringdown import (
+    FREQUENCY_REL_FLOOR,
+    RingdownFit,
+    damping_sd,
+    fit_ringdown,
+    frequency_sd_hz,
+)
 from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.window import Plan, band_edges
 

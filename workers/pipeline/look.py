@@ -44,6 +44,7 @@ from workers.pipeline.camera import CameraRing, remove_camera_motion
 from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader
 from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.errors import AnalysisError
+from workers.pipeline.fft import warm_up as spectrum_warm_up
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
 from workers.pipeline.model import Progress, report_progress
 
@@ -297,6 +298,9 @@ def look_at(
     AnalysisError
         When fewer than :data:`MIN_FRAMES` frames decode.
     """
+    # The FFT library's import (a third of a second, cold) overlaps this pass's decoding and flow instead
+    # of delaying the scan that follows it.
+    threading.Thread(target=spectrum_warm_up, name="spectrum-warm-up", daemon=True).start()
     info = reader.info
     grid = CoarseGrid.for_frame(info.height, info.width, width_px=width_px)
     n = stop - start - 1

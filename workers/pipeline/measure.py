@@ -13,44 +13,22 @@ from numpy.typing import NDArray
 
 from workers.pipeline.clipio.types import Intrinsics
 from workers.pipeline.confidence import Confidence
-from workers.pipeline.detection import regime_of
-from workers.pipeline.errors import ParameterError
+from workers.pipeline.errors import AnalysisError, ParameterError
 from workers.pipeline.mechanics import Mechanics, release_amplitude, release_instant, stiffness_and_mass
 from workers.pipeline.metric import DepthContext, ImageAmplitude, MetricAmplitude, metric_amplitude
-from workers.pipeline.model import Excitation, ObjectMeasurement
+from workers.pipeline.model import BAND_NYQUIST_FRACTION, Excitation, ObjectMeasurement
+from workers.pipeline.modes import ObjectModeShapes, object_modes
 from workers.pipeline.peaks import Peak
-from workers.pipeline.ringdown import Ringdown, RingdownFit, sliding_ringdown
+from workers.pipeline.ringdown import (
+    Ringdown,
+    RingdownFit,
+    damping_sd,
+    frequency_sd_hz,
+    regime_of_fit,
+    sliding_ringdown,
+)
 from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.tracking import CoarseView, Track, second_motion, track_object
-
-#: Systematic floors on the ring-down fit's statistical uncertainties (model mismatch: projection
-#: nonlinearity, registration errors correlated with the motion), measured on randomised ground truth.
-FREQUENCY_REL_FLOOR = 3e-4
-#: ... and, for a strongly damped object, this fraction of its resonance's half-power width (2 zeta f):
-#: model mismatch shifts a broad resonance further (a clear 8-10 Hz object at zeta 0.09 is 8e-4 off).
-FREQUENCY_LINEWIDTH_FLOOR = 0.005
-DAMPING_REL_FLOOR = 0.015
-DAMPING_ABS_FLOOR = 3e-4
-
-
-def frequency_sd_hz(
-    fit: RingdownFit, *, rel_floor: float = FREQUENCY_REL_FLOOR, t_factor: float = 1.0
-) -> float:
-    """The frequency's standard uncertainty: the fit's own, times ``t_factor`` (an early live estimate's
-    few degrees of freedom), with the systematic floors added (``rel_floor`` of the frequency, or a
-    fraction of the resonance's width). A fit that could not state its own counts as 100 %."""
-    f_floor = max(rel_floor, FREQUENCY_LINEWIDTH_FLOOR * 2 * abs(fit.damping_ratio))
-    stat = fit.frequency_sd_hz if math.isfinite(fit.frequency_sd_hz) else fit.frequency_hz
-    return math.hypot(stat * t_factor, f_floor * fit.frequency_hz)
-
-
-def damping_sd(fit: RingdownFit, *, t_factor: float = 1.0) -> float:
-    """The damping ratio's standard uncertainty: the fit's own, times ``t_factor``, with the systematic
-    floors added. A fit that could not state its own counts as 1."""
-    stat = fit.damping_sd if math.isfinite(fit.damping_sd) else 1.0
-    return math.sqrt(
-        (stat * t_factor) ** 2 + (DAMPING_REL_FLOOR * fit.damping_ratio) ** 2 + DAMPING_ABS_FLOOR**2
-    )
 
 
 def bounding_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int]:
@@ -161,9 +139,7 @@ def measure_object(
     metric = _metric(track, release, region, window)
     mech = object_mechanics(fit, metric, excitation, frequency_sd_hz=frequency_sd_hz(fit))
     ringdown = _ringdown(track, window)
-    # Whether it decays is judged on the fit's own (statistical) uncertainty, before systematic floors.
-    decay_sd = fit.damping_sd * 2 * math.pi * fit.natural_frequency_hz * fit.duration_s
-    regime = regime_of(ringdown, decay=fit.decay, decay_sd=decay_sd)
+    regime = regime_of_fit(fit, ringdown)
     ringing = regime == "ring_down"
     displacement, model = _displacements(track, release)
     return ObjectMeasurement(
@@ -208,7 +184,25 @@ def measure_object(
         model_displacement_px=model,
         axis_px=track.axis_px,
         regime=regime,
+        modes=_modes(track, region, window),
     )
+
+
+def _modes(track: Track, region: Region, window: WindowContext) -> ObjectModeShapes | None:
+    """The object's modes and their shapes over its mask (:mod:`workers.pipeline.modes`), from its
+    motion's onset; None when the window is too short to seek them."""
+    band = window.band_hz or (0.0, BAND_NYQUIST_FRACTION * window.sample_rate_hz / 2)
+    try:
+        return object_modes(
+            window.buffers.flow,
+            region.mask,
+            sample_rate_hz=window.sample_rate_hz,
+            band_hz=band,
+            start_index=track.onset,
+            roi=window.buffers.box(region.full_mask.shape),
+        )
+    except (AnalysisError, ParameterError):
+        return None
 
 
 def _release(track: Track, window: WindowContext, excitation: Excitation | None) -> _Release:
@@ -378,8 +372,6 @@ __all__ = [
     "WindowContext",
     "assign_excitations",
     "bounding_box",
-    "damping_sd",
-    "frequency_sd_hz",
     "measure_object",
     "object_mechanics",
 ]

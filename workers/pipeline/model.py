@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.flow import FlowConfig
+from workers.pipeline.modes import ObjectModeShapes
 from workers.pipeline.peaks import Peak
 from workers.pipeline.ringdown import Ringdown
 from workers.pipeline.segmentation import SegmentationConfig
@@ -256,6 +257,8 @@ class ObjectMeasurement:
     model_displacement_px: NDArray[np.float64] | None = None
     #: ``ring_down`` (decays in the window: damping measured), ``steady`` (sustained or forced: no decay
     #: in the window, damping null), ``growing`` or ``beating`` (two close, unresolved frequencies).
+    #: The object's modes and their shapes (None when its window was too short to seek them).
+    modes: ObjectModeShapes | None = None
     regime: str = "ring_down"
     #: Unit vector of the motion's axis in the image (x right, y down), when measured.
     axis_px: tuple[float, float] | None = None

@@ -29,14 +29,15 @@ from numpy.typing import NDArray
 
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.peaks import interpolate_peak, noise_floor
-from workers.pipeline.ringdown import RingdownFit, fit_ringdown
+from workers.pipeline.ringdown import RingdownFit, damping_sd, fit_ringdown, frequency_sd_hz, regime_of_fit
+from workers.pipeline.roi import Roi
 from workers.pipeline.significance import tukey
 
 #: A peak of the object's summed spectrum is a candidate mode when it stands this far above the
 #: spectrum's running median (its floor), dB.
 MIN_MODE_DB = 10.0
 #: ... and holds at least this share of the strongest peak's power (weaker lines are leakage and noise).
-MIN_MODE_SHARE = 1e-3
+MIN_MODE_SHARE = 0.01
 #: Running-median width of the floor, bins (odd).
 FLOOR_WIDTH_BINS = 31
 #: A peak at n times a stronger one (within this relative tolerance, or 1.5 bins) whose shape has a MAC
@@ -60,16 +61,14 @@ class Mode:
     ----------
     frequency_hz : float
         Damped frequency, Hz (from the fit of its modal coordinate).
-    frequency_sd_hz : float
-        Its standard uncertainty (the fit's own), Hz.
-    damping_ratio : float
-    damping_sd : float
-        Its standard uncertainty (the fit's own).
+    frequency_uncertainty_hz : float
+        Its standard uncertainty (the fit's own with the systematic floors of an object's), Hz.
+    damping_ratio, damping_ratio_uncertainty : float or None
+        None when the mode does not decay in the window (its regime is not ``ring_down``).
     energy_share : float
         Share of the object's motion energy (its pixels' summed power over the band) in this mode's line.
-    decay : float
-        How far the modal coordinate's envelope decays over the fitted span, nepers (its regime's
-        evidence).
+    regime : str
+        ``ring_down``, ``steady`` or ``growing`` (:func:`workers.pipeline.ringdown.regime_of_fit`).
     shape : ndarray of complex128, shape (P, 2)
         Complex amplitude of each pixel's motion (x, y) at the mode's frequency, flow units, phase-aligned
         so that its largest real part is positive and its imaginary part is as small as can be.
@@ -78,11 +77,11 @@ class Mode:
     """
 
     frequency_hz: float
-    frequency_sd_hz: float
-    damping_ratio: float
-    damping_sd: float
+    frequency_uncertainty_hz: float
+    damping_ratio: float | None
+    damping_ratio_uncertainty: float | None
     energy_share: float
-    decay: float
+    regime: str
     shape: NDArray[np.complex128]
     fit: RingdownFit
 
@@ -236,6 +235,125 @@ def find_modes(
     return ObjectModes(modes=modes, harmonics=harmonics, mac=mac_matrix([m.shape for m in modes]))
 
 
+#: Modes are sought on at most this many of an object's pixels (evenly spread over it); every pixel's
+#: shape is then taken at the modes' frequencies.
+MAX_MODE_PIXELS = 2048
+
+
+@dataclass(frozen=True)
+class ObjectModeShapes:
+    """An object's modes with their shapes over every pixel of its mask.
+
+    Attributes
+    ----------
+    found : ObjectModes
+        The modes (their ``shape`` on the pixels they were sought on).
+    pixels : ndarray of intp, shape (P,)
+        Flat indices of the mask's pixels on the flow grid.
+    shapes : ndarray of complex64, shape (M, P, 2)
+        Each mode's complex amplitude (x, y, flow units) at every pixel of the mask, phase-aligned.
+    """
+
+    found: ObjectModes
+    pixels: NDArray[np.intp]
+    shapes: NDArray[np.complex64]
+    sample_rate_hz: float = 1.0
+    roi: Roi | None = None
+
+    def frame_shapes(self, full_mask: NDArray[np.bool_]) -> NDArray[np.float32]:
+        """The modes' real shapes as displacement in input pixels over the whole frame (M, H, W, 2), NaN
+        off the object (``full_mask``, (H, W)): each pixel's share of the mode (its real, phase-aligned
+        shape) times the modal coordinate's fitted amplitude at the motion's start (the modal filter's
+        basis is that same shape, so the product is the pixel's displacement whatever the shape's scale),
+        times the input pixels per grid pixel, placed in the box the grid covers (``roi``)."""
+        if self.roi is None:
+            raise ParameterError("frame_shapes: the shapes were found without the box their grid covers")
+        grid = self.images(self.roi.grid_shape)
+        out = np.full((len(self.found.modes), *full_mask.shape, 2), np.nan, np.float32)
+        for m, mode in enumerate(self.found.modes):
+            gain = self.roi.pixel_scale * abs(mode.fit.amplitude)
+            for c in range(2):
+                out[m, ..., c] = self.roi.to_frame(grid[m, ..., c] * np.float32(gain), fill=np.nan)
+        out[:, ~full_mask, :] = np.nan
+        return out
+
+    def images(self, grid_shape: tuple[int, int]) -> NDArray[np.float32]:
+        """The modes' real shapes on the grid, (M, h, w, 2), NaN outside the mask."""
+        out = np.full((len(self.found.modes), grid_shape[0] * grid_shape[1], 2), np.nan, np.float32)
+        out[:, self.pixels, :] = self.shapes.real
+        return out.reshape(len(self.found.modes), *grid_shape, 2)
+
+
+def object_modes(
+    flow: NDArray[np.floating],
+    mask: NDArray[np.bool_],
+    *,
+    sample_rate_hz: float,
+    band_hz: tuple[float, float],
+    start_index: int = 0,
+    max_modes: int = 6,
+    roi: Roi | None = None,
+) -> ObjectModeShapes:
+    """The modes of the object on ``mask`` in a window's ``flow``, with their shapes on all its pixels.
+
+    Parameters
+    ----------
+    flow : ndarray of float16 or float32, shape (N, h, w, 2)
+    mask : ndarray of bool, shape (h, w)
+    sample_rate_hz : float
+    band_hz : (low, high)
+    start_index : int
+        First sample of the motion.
+    max_modes : int
+    roi : Roi, optional
+        The box of the frame the grid covers (for :meth:`ObjectModeShapes.frame_shapes`).
+
+    Returns
+    -------
+    ObjectModeShapes
+    """
+    pixels = np.flatnonzero(mask.ravel())
+    flat = flow.reshape(len(flow), -1, flow.shape[-1])
+    sample = pixels
+    if len(pixels) > MAX_MODE_PIXELS:
+        sample = pixels[np.linspace(0, len(pixels) - 1, MAX_MODE_PIXELS).astype(np.intp)]
+    found = find_modes(
+        flat[:, sample, :].astype(np.float64),
+        sample_rate_hz=sample_rate_hz,
+        band_hz=band_hz,
+        max_modes=max_modes,
+        start_index=start_index,
+    )
+    shapes = _shapes_at(flat, pixels, [m.frequency_hz / sample_rate_hz for m in found.modes])
+    return ObjectModeShapes(found=found, pixels=pixels, shapes=shapes, sample_rate_hz=sample_rate_hz, roi=roi)
+
+
+def _shapes_at(
+    flat: NDArray[np.floating], pixels: NDArray[np.intp], cycles_per_sample: list[float]
+) -> NDArray[np.complex64]:
+    """Each pixel's tapered DFT (x, y) at each frequency, phase-aligned per frequency: (M, P, 2). Taken a
+    block of pixels at a time, in single precision (a large object's whole window would not fit twice)."""
+    n = len(flat)
+    out = np.zeros((len(cycles_per_sample), len(pixels), 2), np.complex64)
+    if not cycles_per_sample:
+        return out
+    taper = tukey(n, TAPER_ALPHA).astype(np.float64)
+    k = np.arange(n)
+    kernel = (taper[None, :] * np.exp(-2j * np.pi * np.outer(cycles_per_sample, k))).astype(np.complex64)
+    for first in range(0, len(pixels), _SHAPE_BLOCK):
+        block = flat[:, pixels[first : first + _SHAPE_BLOCK], :].astype(np.float32)
+        block = block.reshape(n, -1)
+        block -= block.mean(axis=0, dtype=np.float64).astype(np.float32)
+        out[:, first : first + _SHAPE_BLOCK, :] = (kernel @ block).reshape(len(cycles_per_sample), -1, 2)
+    for m in range(len(cycles_per_sample)):
+        out[m] = align_phase(out[m].astype(np.complex128)).astype(np.complex64)
+    return out
+
+
+#: Pixels per block of :func:`_shapes_at`.
+_SHAPE_BLOCK = 4096
+
+
 def _series(motion: NDArray[np.floating], sample_rate_hz: float) -> NDArray[np.float64]:
     """``motion`` (N, P, 2) as (N, 2P) float64 columns, checked."""
     arr = np.asarray(motion)
@@ -344,13 +462,14 @@ def _fit_mode(
         start_index=start_index,
         band_hz=(max(f - half, 0.5 * bin_hz), f + half),
     )
+    ringing = regime_of_fit(fit) == "ring_down"
     return Mode(
         frequency_hz=fit.frequency_hz,
-        frequency_sd_hz=fit.frequency_sd_hz,
-        damping_ratio=fit.damping_ratio,
-        damping_sd=fit.damping_sd,
+        frequency_uncertainty_hz=frequency_sd_hz(fit),
+        damping_ratio=fit.damping_ratio if ringing else None,
+        damping_ratio_uncertainty=damping_sd(fit) if ringing else None,
         energy_share=min(share, 1.0),
-        decay=fit.decay,
+        regime=regime_of_fit(fit),
         shape=shape,
         fit=fit,
     )
@@ -358,12 +477,15 @@ def _fit_mode(
 
 __all__ = [
     "HARMONIC_MAC",
+    "MAX_MODE_PIXELS",
     "MIN_MODE_DB",
     "Harmonic",
     "Mode",
+    "ObjectModeShapes",
     "ObjectModes",
     "align_phase",
     "find_modes",
     "mac",
     "mac_matrix",
+    "object_modes",
 ]

@@ -137,11 +137,41 @@ class Ringdown(_Model):
 
 
 @dataclass(frozen=True)
+class Mode(_Model):
+    """One mode of an object: a narrow-band component of its motion with a shape of its own (the shapes
+    are in the ``modes`` artifact, an npz archive)."""
+
+    schema: ClassVar[str] = "Mode"
+    frequency_hz: float
+    energy_share: float
+    regime: str
+    complexity: float
+    frequency_uncertainty_hz: float | None = None
+    damping_ratio: float | None = None
+    damping_ratio_uncertainty: float | None = None
+
+
+@dataclass(frozen=True)
+class ModeHarmonic(_Model):
+    """A line at an integer multiple of a mode that moves with the mode's shape (a harmonic, not a mode)."""
+
+    schema: ClassVar[str] = "ModeHarmonic"
+    frequency_hz: float
+    fundamental_hz: float
+    order: int
+    mac: float
+
+
+@dataclass(frozen=True)
 class ObjectResult(_Model):
     """One vibrating object: its frequency, damping, amplitude, stiffness and mass (with uncertainties)."""
 
     schema: ClassVar[str] = "ObjectResult"
-    convert: ClassVar[dict[str, Callable[[Any], Any]]] = {"ringdown": _optional(Ringdown.from_dict)}
+    convert: ClassVar[dict[str, Callable[[Any], Any]]] = {
+        "ringdown": _optional(Ringdown.from_dict),
+        "modes": _list_of(Mode.from_dict),
+        "mode_harmonics": _list_of(ModeHarmonic.from_dict),
+    }
     id: int
     eigenfrequency_hz: float
     angular_frequency_rad_s: float
@@ -169,6 +199,9 @@ class ObjectResult(_Model):
     null_reasons: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     ringdown: Ringdown | None = None
+    modes: list[Mode] = field(default_factory=list)
+    mode_mac: list[list[float]] | None = None
+    mode_harmonics: list[ModeHarmonic] = field(default_factory=list)
 
 
 @dataclass(frozen=True)

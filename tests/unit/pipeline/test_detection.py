@@ -12,9 +12,9 @@ import pytest
 
 from workers.pipeline.artefacts import WindowEvidence
 from workers.pipeline.camera import CameraRing
-from workers.pipeline.detection import Footing, held_verdict, oscillation_verdict, regime_of
+from workers.pipeline.detection import Footing, held_verdict, oscillation_verdict
 from workers.pipeline.model import ObjectMeasurement
-from workers.pipeline.ringdown import Ringdown, fit_ringdown
+from workers.pipeline.ringdown import Ringdown, fit_ringdown, regime_of
 from workers.pipeline.tracking import follow_region, second_motion
 
 FPS = 30.0

@@ -11,22 +11,18 @@ import pytest
 
 from workers.pipeline.clipio.types import Intrinsics
 from workers.pipeline.errors import ParameterError
-from workers.pipeline.measure import (
+from workers.pipeline.measure import Region, WindowContext, assign_excitations, bounding_box, measure_object
+from workers.pipeline.model import Excitation
+from workers.pipeline.peaks import Peak
+from workers.pipeline.ringdown import (
     DAMPING_ABS_FLOOR,
     DAMPING_REL_FLOOR,
     FREQUENCY_LINEWIDTH_FLOOR,
     FREQUENCY_REL_FLOOR,
-    Region,
-    WindowContext,
-    assign_excitations,
-    bounding_box,
+    RingdownFit,
     damping_sd,
     frequency_sd_hz,
-    measure_object,
 )
-from workers.pipeline.model import Excitation
-from workers.pipeline.peaks import Peak
-from workers.pipeline.ringdown import RingdownFit
 from workers.pipeline.stream import FrameBuffers
 
 FPS, N, H, W = 40.0, 160, 24, 32

@@ -65,6 +65,8 @@ def test_a_struck_cantilever_gives_its_three_bending_modes_with_their_shapes() -
     by_f = sorted(found.modes, key=lambda m: m.frequency_hz)
     for mode, f, zeta, shape in zip(by_f, freqs, zetas, shapes, strict=True):
         assert mode.frequency_hz == pytest.approx(f, rel=0.005)
+        assert abs(mode.frequency_hz - f) <= 3 * mode.frequency_uncertainty_hz
+        assert mode.regime == "ring_down"
         assert mode.damping_ratio == pytest.approx(zeta, rel=0.3)
         assert mac(mode.shape[:, 1], shape) >= 0.98
         assert mode.complexity < 0.05  # light damping: a real (standing) mode
@@ -96,6 +98,8 @@ def test_a_rigid_object_moving_periodically_but_not_sinusoidally_has_one_mode_an
     found = find_modes(flow, sample_rate_hz=fs, band_hz=(1.0, 100.0))
     assert len(found.modes) == 1
     assert found.modes[0].frequency_hz == pytest.approx(f0, rel=0.002)
+    assert found.modes[0].regime == "steady"  # a sustained motion: no damping to measure
+    assert found.modes[0].damping_ratio is None
     assert len(found.harmonics) == 1
     harmonic = found.harmonics[0]
     assert harmonic.order == 2
@@ -148,3 +152,51 @@ def test_mac_and_phase_alignment() -> None:
 def test_bad_input_says_what_to_give(shape: tuple[int, ...], rate: float, message: str) -> None:
     with pytest.raises(ParameterError, match=message):
         find_modes(np.zeros(shape, np.float32), sample_rate_hz=rate, band_hz=(1.0, 40.0))
+
+
+def test_shapes_over_a_whole_mask_from_modes_sought_on_some_of_its_pixels(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The beam lies along a row of a (h, w) grid; the modes are sought on a subsample of its pixels and
+    their shapes then taken on every pixel: each matches the analytic shape, NaN off the beam."""
+    import workers.pipeline.modes as modes_module
+
+    monkeypatch.setattr(modes_module, "MAX_MODE_PIXELS", 20)
+    motion, freqs, shapes = cantilever_motion(pixels=60)
+    grid = np.zeros((len(motion), 5, 64, 2), np.float16)
+    grid[:, 2, 2:62, :] = motion
+    mask = np.zeros((5, 64), bool)
+    mask[2, 2:62] = True
+    result = modes_module.object_modes(grid, mask, sample_rate_hz=240.0, band_hz=(1.0, 117.0))
+    assert len(result.found.modes) == 3
+    images = result.images((5, 64))
+    assert images.shape == (3, 5, 64, 2)
+    assert np.isnan(images[:, 0]).all()
+    for m, mode in enumerate(result.found.modes):
+        truth = shapes[int(np.argmin([abs(f - mode.frequency_hz) for f in freqs]))]
+        assert mac(images[m, 2, 2:62, 1], truth) >= 0.98
+
+
+def test_frame_shapes_are_displacements_in_input_pixels_placed_in_the_box() -> None:
+    """A block of a box's grid (2 input px per grid px) moves 0.5 grid px (x) at 3 Hz: its shape over the
+    frame is 1.0 input px on the block's frame pixels, NaN elsewhere."""
+    from workers.pipeline.modes import object_modes
+    from workers.pipeline.roi import Roi
+
+    fs, n = 60.0, 600
+    roi = Roi(x=20, y=10, width=32, height=20, grid_shape=(10, 16), frame_shape=(40, 60))
+    displacement = 0.5 * np.sin(2 * np.pi * 3.0 * np.arange(n + 1) / fs)
+    flow = np.random.default_rng(4).normal(0, 0.002, (n, 10, 16, 2)).astype(np.float32)
+    flow[:, 3:7, 5:11, 0] += np.diff(displacement)[:, None, None]
+    mask = np.zeros((10, 16), bool)
+    mask[3:7, 5:11] = True
+    result = object_modes(flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi)
+    assert [round(m.frequency_hz, 2) for m in result.found.modes] == [3.0]
+    full_mask = np.zeros((40, 60), bool)
+    full_mask[10 + 6 : 10 + 14, 20 + 10 : 20 + 22] = True  # the block's grid pixels, at 2 px each
+    shapes = result.frame_shapes(full_mask)
+    assert shapes.shape == (1, 40, 60, 2)
+    inside = shapes[0][full_mask]
+    np.testing.assert_allclose(np.abs(inside[:, 0]), 1.0, rtol=0.03)
+    assert np.all(np.abs(inside[:, 1]) < 0.05)
+    assert np.isnan(shapes[0][~full_mask]).all()

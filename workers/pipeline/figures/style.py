@@ -45,6 +45,7 @@ ARTIFACT_FILES: dict[str, str] = {
     "spectrum": "spectrum.png",
     "displacement": "displacement.png",
     "ringdown": "ringdown.png",
+    "modes": "modes.npz",
 }
 
 NO_OBJECT_NOTE = "no object found"

@@ -1,0 +1,54 @@
+"""The ``modes`` artifact: every object's mode shapes and frequencies as a NumPy ``.npz`` archive.
+
+Per object ``i`` (its id in ``mask.png``) with at least one mode:
+
+- ``object_<i>_shapes``: float32, shape (modes, H, W, 2): each mode's displacement shape (x, y) in input
+  pixels over the whole frame, real (phase-aligned), NaN outside the object;
+- ``object_<i>_frequencies_hz``: float64, shape (modes,);
+- ``object_<i>_damping_ratio``: float64, shape (modes,), NaN where a mode does not decay;
+- ``object_<i>_energy_share``: float64, shape (modes,);
+- ``object_<i>_mac``: float64, shape (modes, modes), the MAC between the shapes.
+
+The modes are in the order of the result's ``objects[].modes``.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from workers.pipeline._files import write_atomically
+
+if TYPE_CHECKING:
+    from workers.pipeline.model import Analysis
+
+
+def modes_arrays(analysis: Analysis) -> dict[str, NDArray[np.generic]]:
+    """The arrays of the ``modes`` artifact (see the module docstring) of ``analysis``."""
+    out: dict[str, NDArray[np.generic]] = {}
+    for obj in analysis.objects:
+        if obj.modes is None or not obj.modes.found.modes or obj.modes.roi is None:
+            continue
+        modes = obj.modes.found.modes
+        key = f"object_{obj.id}"
+        out[f"{key}_shapes"] = obj.modes.frame_shapes(analysis.labels == obj.id)
+        out[f"{key}_frequencies_hz"] = np.array([m.frequency_hz for m in modes], np.float64)
+        damping = [np.nan if m.damping_ratio is None else m.damping_ratio for m in modes]
+        out[f"{key}_damping_ratio"] = np.array(damping, np.float64)
+        out[f"{key}_energy_share"] = np.array([m.energy_share for m in modes], np.float64)
+        out[f"{key}_mac"] = np.asarray(obj.modes.found.mac, np.float64)
+    return out
+
+
+def write_modes_npz(path: str | Path, analysis: Analysis) -> Path:
+    """Write the ``modes`` artifact of ``analysis`` to ``path`` (compressed, atomically)."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **modes_arrays(analysis))  # type: ignore[arg-type]
+    return write_atomically(path, buffer.getvalue())
+
+
+__all__ = ["modes_arrays", "write_modes_npz"]
