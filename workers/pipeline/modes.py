@@ -257,7 +257,6 @@ class ObjectModeShapes:
     found: ObjectModes
     pixels: NDArray[np.intp]
     shapes: NDArray[np.complex64]
-    sample_rate_hz: float = 1.0
     roi: Roi | None = None
 
     def frame_shapes(self, full_mask: NDArray[np.bool_]) -> NDArray[np.float32]:
@@ -325,7 +324,7 @@ def object_modes(
         start_index=start_index,
     )
     shapes = _shapes_at(flat, pixels, [m.frequency_hz / sample_rate_hz for m in found.modes])
-    return ObjectModeShapes(found=found, pixels=pixels, shapes=shapes, sample_rate_hz=sample_rate_hz, roi=roi)
+    return ObjectModeShapes(found=found, pixels=pixels, shapes=shapes, roi=roi)
 
 
 def _shapes_at(
