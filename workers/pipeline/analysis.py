@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.artefacts import Suspect, artefact_verdict, block_coverage, camera_intermodulation
+from workers.pipeline.bodies import join_bodies
 from workers.pipeline.clipio.types import ClipInfo, ClipReader
 from workers.pipeline.confidence import Confidence, flow_confidence, tensor_sqrt
 from workers.pipeline.detection import (
@@ -380,6 +381,8 @@ def _segment(
             ),
             order=peaks,
         )
+    # Parts of one body ringing in several modes are one object (its modes are sought on it later).
+    seg = join_bodies(seg, spectra.pixels.power, frequencies_hz=spectra.pixels.frequencies_hz)
     # The segmentation may hand back copies of the peaks (with folded harmonics): match by frequency.
     candidates = [_candidate_of(p, front.candidates.found) for p in seg.peaks]
     labels_grid = seg.labels

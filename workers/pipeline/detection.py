@@ -438,11 +438,23 @@ def _comb_fundamental(
         strongest = max(float(own.statistic[own.peak_bin(f, half_width_bins=1.0)]) for f in lines)
         if float(own.statistic[own.peak_bin(f0, half_width_bins=1.0)]) < FUNDAMENTAL_SHARE * strongest:
             return None  # a faint trace at f0 beside strong lines: the lines are the motions
-        present = any(abs(f - f0) <= tol for f, tol in zip(lines, slack, strict=True))
-        if present or _line_at(own, f0, bound=MAX_FALSE_ALARM / len(SUBHARMONIC_ORDERS)):
-            return f0
+        present = [f for f, tol in zip(lines, slack, strict=True) if abs(f - f0) <= tol]
+        if present:
+            # The fundamental is one of the lines, measured: its overtones are its multiples.
+            if _multiples(lines, min(present, key=lambda f: abs(f - f0)), slack):
+                return f0
+            continue
+        if _line_at(own, f0, bound=MAX_FALSE_ALARM / len(SUBHARMONIC_ORDERS)):
+            measured = _peak_at(scan, own.peak_bin(f0, half_width_bins=1.0)).frequency_hz
+            return f0 if _multiples(lines, measured, slack) else None
         return None  # the highest common fundamental is not on these pixels: lower ones are guesses
     return None
+
+
+def _multiples(lines: list[float], f0: float, slack: list[float]) -> bool:
+    """Whether every one of ``lines`` is a whole multiple of ``f0`` within its ``slack`` (a cantilever's
+    second mode, 6.27 times its first, is no overtone of it, though it is of a frequency half a bin off)."""
+    return all(abs(f - round(f / f0) * f0) <= tol for f, tol in zip(lines, slack, strict=True))
 
 
 def _subharmonic_trace(cand: Candidate, kept: list[Candidate], scan: MotionScan) -> RejectedPeak | None:

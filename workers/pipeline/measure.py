@@ -192,6 +192,8 @@ def _modes(track: Track, region: Region, window: WindowContext) -> ObjectModeSha
     """The object's modes and their shapes over its mask (:mod:`workers.pipeline.modes`), from its
     motion's onset; None when the window is too short to seek them."""
     band = window.band_hz or (0.0, BAND_NYQUIST_FRACTION * window.sample_rate_hz / 2)
+    intrinsics = window.intrinsics
+    depth = window.buffers.depth if window.buffers.depth is not None else window.depth_override_m
     try:
         return object_modes(
             window.buffers.flow,
@@ -200,6 +202,8 @@ def _modes(track: Track, region: Region, window: WindowContext) -> ObjectModeSha
             band_hz=band,
             start_index=track.onset,
             roi=window.buffers.box(region.full_mask.shape),
+            depth=depth,
+            focal_px=None if intrinsics is None else (intrinsics.fx, intrinsics.fy),
         )
     except (AnalysisError, ParameterError):
         return None

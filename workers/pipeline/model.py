@@ -326,6 +326,9 @@ class Survey:
         The peaks (among ``peaks``) that are seen over the whole picture.
     flicker_hz : list of float
         The peaks (among ``peaks``) at which the picture's brightness oscillates: lighting flicker.
+    local_lines_hz : list of float
+        Lines of the local spectrum (motion on a small share of the pixels: a small object, a mode of a
+        larger one), which the summed spectra may hide; the window's stride keeps them.
     """
 
     fps: float
@@ -348,6 +351,7 @@ class Survey:
     peaks: list[Peak]
     global_peaks_hz: list[float]
     flicker_hz: list[float] = field(default_factory=list)
+    local_lines_hz: list[float] = field(default_factory=list)
 
     @property
     def bin_hz(self) -> float:

@@ -22,6 +22,7 @@ equal up to a complex factor, 0 for orthogonal ones.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +39,11 @@ from workers.pipeline.significance import tukey
 MIN_MODE_DB = 10.0
 #: ... and holds at least this share of the strongest peak's power (weaker lines are leakage and noise).
 MIN_MODE_SHARE = 0.01
+#: A line at a whole multiple of a stronger mode is a mode only when its modal coordinate is fitted with
+#: at least this signal-to-residual ratio per sample, dB (the bending modes of the rendered cantilevers:
+#: 10.8-20 dB; a distortion product at twice the first mode's frequency, -4 dB, its shape's MAC with the
+#: first 0.75 from noise alone).
+MIN_MODE_FIT_DB = 0.0
 #: Running-median width of the floor, bins (odd).
 FLOOR_WIDTH_BINS = 31
 #: A peak at n times a stronger one (within this relative tolerance, or 1.5 bins) whose shape has a MAC
@@ -163,12 +169,16 @@ def align_phase(shape: NDArray[np.complex128]) -> NDArray[np.complex128]:
     """``shape`` times the unit factor that makes it as real as it can be (the angle that maximises the
     real part's energy: half the angle of the sum of its squares), its largest real component positive."""
     z = np.asarray(shape, np.complex128)
-    theta = 0.5 * float(np.angle(np.sum(z**2)))
-    out = z * np.exp(-1j * theta)
-    flat = out.real.ravel()
+    return np.asarray(z * _alignment(z), np.complex128)
+
+
+def _alignment(z: NDArray[np.complex128]) -> complex:
+    """The unit factor of :func:`align_phase` for ``z``."""
+    factor = complex(np.exp(-0.5j * float(np.angle(np.sum(z**2)))))
+    flat = (z * factor).real.ravel()
     if flat.size and flat[int(np.argmax(np.abs(flat)))] < 0:
-        out = -out
-    return np.asarray(out, np.complex128)
+        factor = -factor
+    return factor
 
 
 def find_modes(
@@ -231,6 +241,8 @@ def find_modes(
         )
         for k, i in enumerate(modal)
     ]
+    modes, noisy = _noisy_overtones(modes, bin_hz=bin_hz)
+    harmonics += noisy
     modes.sort(key=lambda m: -m.energy_share)
     return ObjectModes(modes=modes, harmonics=harmonics, mac=mac_matrix([m.shape for m in modes]))
 
@@ -238,6 +250,27 @@ def find_modes(
 #: Modes are sought on at most this many of an object's pixels (evenly spread over it); every pixel's
 #: shape is then taken at the modes' frequencies.
 MAX_MODE_PIXELS = 2048
+
+
+@dataclass(frozen=True)
+class ModeDepth:
+    """What depth tells of an object's modes, for their shapes in metres.
+
+    Attributes
+    ----------
+    depth_m : ndarray of float32, shape (P,)
+        Each of the mask's pixels' depth (median over the window), metres; NaN without a reading.
+    fx, fy : float
+        Focal lengths, input pixels.
+    line_of_sight : ndarray of complex64, shape (M, P), or None
+        Each mode's complex amplitude of each pixel's depth change per sample (metres), phase-aligned
+        with the mode's shape; None with one depth for the whole clip (no series to read it from).
+    """
+
+    depth_m: NDArray[np.float32]
+    fx: float
+    fy: float
+    line_of_sight: NDArray[np.complex64] | None = None
 
 
 @dataclass(frozen=True)
@@ -258,6 +291,36 @@ class ObjectModeShapes:
     pixels: NDArray[np.intp]
     shapes: NDArray[np.complex64]
     roi: Roi | None = None
+    depth: ModeDepth | None = None
+
+    def frame_shapes_m(self, full_mask: NDArray[np.bool_]) -> NDArray[np.float32] | None:
+        """The modes' real shapes in metres over the whole frame (M, H, W, 3): x and y across the line of
+        sight (input pixels times each pixel's depth over the focal length) and z along it (the depth's
+        own oscillation at the mode's frequency, positive away from the camera; NaN without a depth
+        series), NaN off the object or where depth has no reading; None without depth or intrinsics."""
+        if self.depth is None or self.roi is None:
+            return None
+        lateral = self.frame_shapes(full_mask)
+        grid_depth = self._grid(self.depth.depth_m[None, :].astype(np.complex64))[0]
+        depth = np.asarray(self.roi.to_frame(grid_depth, fill=np.nan), np.float32)
+        out = np.full((*lateral.shape[:-1], 3), np.nan, np.float32)
+        out[..., 0] = lateral[..., 0] * depth / np.float32(self.depth.fx)
+        out[..., 1] = lateral[..., 1] * depth / np.float32(self.depth.fy)
+        if self.depth.line_of_sight is not None:
+            along = self._grid(self.depth.line_of_sight)
+            for m, mode in enumerate(self.found.modes):
+                out[m, ..., 2] = self.roi.to_frame(
+                    along[m] * np.float32(abs(mode.fit.amplitude)), fill=np.nan
+                )
+        out[:, ~full_mask, :] = np.nan
+        return out
+
+    def _grid(self, values: NDArray[np.complex64]) -> NDArray[np.float32]:
+        """Per-pixel values (M, P) as real images of the grid (M, h, w), NaN off the mask."""
+        assert self.roi is not None
+        out = np.full((len(values), self.roi.grid_shape[0] * self.roi.grid_shape[1]), np.nan, np.float32)
+        out[:, self.pixels] = values.real
+        return out.reshape(len(values), *self.roi.grid_shape)
 
     def frame_shapes(self, full_mask: NDArray[np.bool_]) -> NDArray[np.float32]:
         """The modes' real shapes as displacement in input pixels over the whole frame (M, H, W, 2), NaN
@@ -292,6 +355,8 @@ def object_modes(
     start_index: int = 0,
     max_modes: int = 6,
     roi: Roi | None = None,
+    depth: NDArray[np.float32] | float | None = None,
+    focal_px: tuple[float, float] | None = None,
 ) -> ObjectModeShapes:
     """The modes of the object on ``mask`` in a window's ``flow``, with their shapes on all its pixels.
 
@@ -306,6 +371,10 @@ def object_modes(
     max_modes : int
     roi : Roi, optional
         The box of the frame the grid covers (for :meth:`ObjectModeShapes.frame_shapes`).
+    depth : ndarray of float32, shape (N + 1, h, w), or float, optional
+        Depth on the grid (metres, NaN invalid), or one distance for the whole clip: with ``focal_px``,
+        the shapes are also given in metres (:meth:`ObjectModeShapes.frame_shapes_m`).
+    focal_px : (fx, fy), optional
 
     Returns
     -------
@@ -323,19 +392,57 @@ def object_modes(
         max_modes=max_modes,
         start_index=start_index,
     )
-    shapes = _shapes_at(flat, pixels, [m.frequency_hz / sample_rate_hz for m in found.modes])
-    return ObjectModeShapes(found=found, pixels=pixels, shapes=shapes, roi=roi)
+    cycles = [m.frequency_hz / sample_rate_hz for m in found.modes]
+    shapes, factors = _shapes_at(flat, pixels, cycles)
+    seen = None
+    if depth is not None and focal_px is not None:
+        seen = _mode_depth(depth, pixels, cycles, factors, focal_px=focal_px)
+    return ObjectModeShapes(found=found, pixels=pixels, shapes=shapes, roi=roi, depth=seen)
+
+
+def _mode_depth(
+    depth: NDArray[np.float32] | float,
+    pixels: NDArray[np.intp],
+    cycles_per_sample: list[float],
+    factors: NDArray[np.complex64],
+    *,
+    focal_px: tuple[float, float],
+) -> ModeDepth:
+    """Each pixel's depth and, from a depth series, each mode's line-of-sight shape: the tapered DFT of
+    the pixel's depth change per sample (the flow's own units, so that the modal coordinate's amplitude
+    scales both alike), turned by the mode's phase factor."""
+    if np.ndim(depth) == 0:
+        return ModeDepth(np.full(len(pixels), float(depth), np.float32), *focal_px)
+    series = np.asarray(depth, np.float32).reshape(len(depth), -1)[:, pixels]  # type: ignore[arg-type]
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        median = np.nanmedian(series, axis=0).astype(np.float32)
+        spread = np.nanmax(series, axis=0) - np.nanmin(series, axis=0)
+    filled = np.where(np.isfinite(series), series, median[None, :])
+    change = np.nan_to_num(np.diff(filled, axis=0))[:, :, None]
+    along, _ = _shapes_at(change, np.arange(len(pixels)), cycles_per_sample, factors=factors)
+    # A pixel on the object's edge sees the object and the background in turn: its depth jumps by their
+    # distance, which is no motion along the line of sight.
+    mixed = ~(spread <= np.maximum(MAX_DEPTH_SPREAD_M, MAX_DEPTH_SPREAD * median))
+    along[:, mixed, :] = np.nan
+    return ModeDepth(median, *focal_px, line_of_sight=along[..., 0])
 
 
 def _shapes_at(
-    flat: NDArray[np.floating], pixels: NDArray[np.intp], cycles_per_sample: list[float]
-) -> NDArray[np.complex64]:
-    """Each pixel's tapered DFT (x, y) at each frequency, phase-aligned per frequency: (M, P, 2). Taken a
-    block of pixels at a time, in single precision (a large object's whole window would not fit twice)."""
-    n = len(flat)
-    out = np.zeros((len(cycles_per_sample), len(pixels), 2), np.complex64)
+    flat: NDArray[np.floating],
+    pixels: NDArray[np.intp],
+    cycles_per_sample: list[float],
+    *,
+    factors: NDArray[np.complex64] | None = None,
+) -> tuple[NDArray[np.complex64], NDArray[np.complex64]]:
+    """Each pixel's tapered DFT (C components: x and y) at each frequency, phase-aligned per frequency,
+    (M, P, C), and the phase factors applied (M,): the given ``factors``, or those that align each
+    frequency's shape (:func:`align_phase`). Taken a block of pixels at a time, in single precision (a
+    large object's whole window would not fit twice)."""
+    n, channels = len(flat), flat.shape[-1]
+    out = np.zeros((len(cycles_per_sample), len(pixels), channels), np.complex64)
     if not cycles_per_sample:
-        return out
+        return out, np.ones(0, np.complex64)
     taper = tukey(n, TAPER_ALPHA).astype(np.float64)
     k = np.arange(n)
     kernel = (taper[None, :] * np.exp(-2j * np.pi * np.outer(cycles_per_sample, k))).astype(np.complex64)
@@ -343,11 +450,19 @@ def _shapes_at(
         block = flat[:, pixels[first : first + _SHAPE_BLOCK], :].astype(np.float32)
         block = block.reshape(n, -1)
         block -= block.mean(axis=0, dtype=np.float64).astype(np.float32)
-        out[:, first : first + _SHAPE_BLOCK, :] = (kernel @ block).reshape(len(cycles_per_sample), -1, 2)
-    for m in range(len(cycles_per_sample)):
-        out[m] = align_phase(out[m].astype(np.complex128)).astype(np.complex64)
-    return out
+        out[:, first : first + _SHAPE_BLOCK, :] = (kernel @ block).reshape(
+            len(cycles_per_sample), -1, channels
+        )
+    if factors is None:
+        factors = np.array([_alignment(out[m].astype(np.complex128)) for m in range(len(out))], np.complex64)
+    return out * factors[:, None, None], factors
 
+
+#: A pixel whose depth spans more than this over the window (metres, or this share of its depth,
+#: whichever is more) saw the object and what lies behind it in turn: its depth
+#: series tells nothing of the motion along the line of sight.
+MAX_DEPTH_SPREAD_M = 0.05
+MAX_DEPTH_SPREAD = 0.05
 
 #: Pixels per block of :func:`_shapes_at`.
 _SHAPE_BLOCK = 4096
@@ -411,10 +526,8 @@ def _sort_out(
         found = None
         for j in modal:
             f0 = lines[j][0]
-            order = round(f / f0)
-            if not 2 <= order <= MAX_HARMONIC_ORDER:
-                continue
-            if abs(f - order * f0) > max(HARMONIC_TOLERANCE * f, 1.5 * bin_hz):
+            order = _order(f, f0, bin_hz)
+            if order is None:
                 continue
             similarity = mac(shapes[i], shapes[j])
             if similarity >= HARMONIC_MAC:
@@ -425,6 +538,32 @@ def _sort_out(
         else:
             harmonics.append(found)
     return modal, harmonics
+
+
+def _noisy_overtones(modes: list[Mode], *, bin_hz: float) -> tuple[list[Mode], list[Harmonic]]:
+    """The modes, and those moved to the harmonics: a line at a whole multiple of a stronger mode whose
+    modal coordinate the damped oscillation does not explain (noise outweighs it, per sample) is that
+    mode's faint overtone (a distortion product), its shape too noisy for the MAC to show it."""
+    kept: list[Mode] = []
+    moved: list[Harmonic] = []
+    for mode in sorted(modes, key=lambda m: -m.energy_share):
+        base = next((k for k in kept if _order(mode.frequency_hz, k.frequency_hz, bin_hz) is not None), None)
+        if base is None or mode.fit.snr_db >= MIN_MODE_FIT_DB:
+            kept.append(mode)
+            continue
+        order = _order(mode.frequency_hz, base.frequency_hz, bin_hz)
+        assert order is not None
+        moved.append(Harmonic(mode.frequency_hz, base.frequency_hz, order, mac(mode.shape, base.shape)))
+    return kept, moved
+
+
+def _order(f: float, f0: float, bin_hz: float) -> int | None:
+    """The harmonic order of ``f`` over ``f0`` (2 to :data:`MAX_HARMONIC_ORDER`, within the tolerance),
+    or None."""
+    order = round(f / f0)
+    if not 2 <= order <= MAX_HARMONIC_ORDER:
+        return None
+    return order if abs(f - order * f0) <= max(HARMONIC_TOLERANCE * f, 1.5 * bin_hz) else None
 
 
 def _modal_coordinates(x: NDArray[np.float64], shapes: list[NDArray[np.complex128]]) -> NDArray[np.float64]:
@@ -480,6 +619,7 @@ __all__ = [
     "MIN_MODE_DB",
     "Harmonic",
     "Mode",
+    "ModeDepth",
     "ObjectModeShapes",
     "ObjectModes",
     "align_phase",

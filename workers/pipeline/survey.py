@@ -12,7 +12,11 @@ keeps only summaries whose size does not depend on the clip's length:
 - each segment's summed spectrum, merged pairwise when there are too many, so the time course of each
   frequency is known;
 - the motion energy per block of frames, merged the same way;
-- the largest per-frame motion, which bounds how many frames may be skipped between flow maps.
+- the largest per-frame motion, which bounds how many frames may be skipped between flow maps;
+- a local spectrum: per bin, the power a small share of the pixels sees (the 99th percentile over the
+  pixels of their whitened power, the most over the segments), whose lines are motion that the summed
+  spectra hide (a small object, a fast mode of a larger one that rings down within a segment): the stride
+  keeps them.
 
 :func:`plan_window` then chooses the main analysis window: from where the strongest ring-down starts,
 long enough for enough periods of the lowest confidently seen frequency, within a budget of flow maps,
@@ -35,7 +39,7 @@ from workers.pipeline.detection import SURVEY_PEAKS
 from workers.pipeline.errors import ParameterError
 from workers.pipeline.light import FLICKER_ROWS, block_brightness, flickering_rows
 from workers.pipeline.model import BAND_NYQUIST_FRACTION, Survey
-from workers.pipeline.peaks import Peak, PeakSpectra, detect_peaks
+from workers.pipeline.peaks import Peak, PeakSpectra, detect_peaks, noise_floor
 
 #: Floats held by the survey's segment buffer (flow of every survey pixel over one Welch segment).
 SURVEY_BUFFER_FLOATS = 8_000_000
@@ -45,6 +49,15 @@ MAX_BLOCKS = 2048
 #: A peak whose whitened power at the median pixel exceeds this (power over the pixel's own noise) is seen
 #: over the static background too: camera motion, flicker or codec pulses rather than an object.
 GLOBAL_MEDIAN_SNR = 2.5
+#: The local spectrum (see :meth:`_WelchAccumulator.local_spectrum`) is read at this quantile over the
+#: survey's pixels: a motion on 1 % of the picture (a small object, one mode of a larger one) shows there
+#: even when the summed spectra hide it among the still pixels.
+LOCAL_QUANTILE = 0.99
+#: A maximum of the local spectrum this far above its running median (dB, over 31 bins) is a local line:
+#: the window's stride keeps it below the Nyquist rate (:func:`workers.pipeline.window.plan_window`). Noise
+#: of real footage and codecs stood at most 8.6 dB above it (the shared forks and compressor); a cantilever's
+#: third mode at a quarter of a pixel, 10.5-13.4 dB.
+LOCAL_LINE_DB = 10.0
 
 
 def survey_factor(height: int, width: int, *, segment_frames: int, width_px: int = 96) -> int:
@@ -153,6 +166,7 @@ def _summary(
     spectra = (power, background, whitened, median_snr)
     peaks = _survey_peaks(acc.frequencies_hz, spectra, bin_hz=bin_hz, min_snr_db=min_snr_db, band_hz=band_hz)
     starts, span, seg_power = acc.segments_stored()
+    flicker = _flicker(np.asarray(flows.brightness, np.float32), fps=fps, peaks=peaks, bin_hz=bin_hz)
     return Survey(
         fps=fps,
         first_frame=acc.first_frame,
@@ -173,8 +187,36 @@ def _summary(
         max_step_px=acc.steps.quantile(0.9),
         peaks=peaks,
         global_peaks_hz=[p.frequency_hz for p in peaks if median_snr[p.bin] > GLOBAL_MEDIAN_SNR],
-        flicker_hz=_flicker(np.asarray(flows.brightness, np.float32), fps=fps, peaks=peaks, bin_hz=bin_hz),
+        flicker_hz=flicker,
+        local_lines_hz=_local_lines(acc, median_snr=median_snr, flicker_hz=flicker),
     )
+
+
+def _local_lines(
+    acc: _WelchAccumulator, *, median_snr: NDArray[np.float64], flicker_hz: list[float]
+) -> list[float]:
+    """Frequencies of the local spectrum's lines (see :data:`LOCAL_LINE_DB`), in the band the survey
+    searches, that the still background does not share (its median pixel's whitened power is noise's) and
+    that are not lighting flicker or its harmonics."""
+    local, freqs = acc.local_spectrum(), acc.frequencies_hz
+    if len(local) < 5 or float(local.max()) <= 0:
+        return []
+    bin_hz = float(freqs[1] - freqs[0])
+    stand = local / np.maximum(noise_floor(local, width=31), 1e-30)
+    inner = np.arange(1, len(local) - 1)
+    is_max = (local[inner] >= local[inner - 1]) & (local[inner] >= local[inner + 1])
+    lines = inner[
+        is_max
+        & (stand[inner] >= 10 ** (LOCAL_LINE_DB / 10))
+        & (median_snr[inner] <= GLOBAL_MEDIAN_SNR)
+        & (freqs[inner] >= 2 * bin_hz)
+        & (freqs[inner] <= BAND_NYQUIST_FRACTION * float(freqs[-1]))
+    ]
+
+    def flicker(f: float) -> bool:
+        return any(abs(f / g - round(f / g)) * g <= 1.5 * bin_hz for g in flicker_hz if g > 0)
+
+    return [float(freqs[k]) for k in lines if not flicker(float(freqs[k]))]
 
 
 def _checked_length(fps: float, total_frames: int, segment_frames: int | None) -> int:
@@ -381,6 +423,7 @@ class _WelchAccumulator:
         self._whitened = np.zeros(n_freq)
         self._median = np.zeros(n_freq)
         self._background = np.zeros(n_freq)
+        self._local: NDArray[np.float32] | None = None
         self._starts: list[int] = []
         self._seg: list[NDArray[np.float32]] = []
         self._merge = 1
@@ -429,6 +472,7 @@ class _WelchAccumulator:
             self._whitened = np.zeros(n_freq)
             self._median = np.zeros(n_freq)
             self._background = np.zeros(n_freq)
+            self._local = None
             self._segment(0, n)
 
     def _segment(self, first_sample: int, n: int) -> None:
@@ -468,6 +512,8 @@ class _WelchAccumulator:
         summed = power.sum(axis=1, dtype=np.float64)
         self._power += summed
         self._whitened += (power @ scale).astype(np.float64)
+        local = np.quantile(power * scale[None, :], LOCAL_QUANTILE, axis=1).astype(np.float32)
+        self._local = local if self._local is None else np.maximum(self._local, local)
         step = max(1, power.shape[1] // 1000)
         sample = power[:, ::step]
         self._median += np.median(sample * scale[::step], axis=1) * math.log(2)
@@ -496,6 +542,13 @@ class _WelchAccumulator:
         span = self.length + (self._merge - 1) * self.hop
         power = np.asarray(self._seg, np.float32).reshape(len(self._seg), -1)
         return np.asarray(self._starts, np.int64), span, power
+
+    def local_spectrum(self) -> NDArray[np.float64]:
+        """Per bin, the most over the segments of the :data:`LOCAL_QUANTILE` over the pixels of their
+        whitened power (F,)."""
+        if self._local is None:
+            return np.zeros(len(self.frequencies_hz))
+        return self._local.astype(np.float64)
 
     def averages(
         self,

@@ -477,8 +477,9 @@ def _frame_step(
     """Frames skipped between analysed frames: as few as keep a window of ``length`` frames near the
     default size, provided each frequency seen keeps at least ``rules.samples_per_period`` samples per
     period (its strong harmonics stay below the Nyquist rate; lighting flicker may fold back, it is
-    rejected anyway), the motion between analysed frames stays below ``rules.max_step_grid_px``, and the
-    band's top (``top_hz``) stays below the Nyquist rate of the analysed frames."""
+    rejected anyway), the motion between analysed frames stays below ``rules.max_step_grid_px``, the
+    band's top (``top_hz``) stays below the Nyquist rate of the analysed frames, and so does every local
+    line below it (``survey.local_lines_hz``, :data:`LINE_SAMPLES` samples per period)."""
     step = max(1, math.ceil((length - 1) / max(default_frames - 1, 1)))
     step_max_rate = _max_step_for_rate(survey, samples_per_period=rules.samples_per_period)
     per_frame_grid_px = survey.max_step_px * grid_scale
@@ -489,7 +490,10 @@ def _frame_step(
         if math.isfinite(top_hz)
         else 1 << 30
     )
-    return max(1, min(step, step_max_rate, step_max_motion, step_max_band))
+    # ... nor a line on a few pixels that the summed spectra hide (an object's faster mode).
+    lines = [f for f in survey.local_lines_hz if f <= top_hz]
+    step_max_lines = max(1, math.floor(survey.fps / (LINE_SAMPLES * max(lines)))) if lines else 1 << 30
+    return max(1, min(step, step_max_rate, step_max_motion, step_max_band, step_max_lines))
 
 
 def _placed(onset: int, length: int, step: int, total_frames: int) -> tuple[int, int]:
@@ -595,6 +599,10 @@ def _max_step_for_rate(
                 step = min(step, fps / (harmonic_samples * f))
     return max(1, math.floor(step)) if math.isfinite(step) else 1
 
+
+#: Fewest analysed frames per period of a local line of the survey (a mode the window must keep; 2.5
+#: keeps it below 0.8 of the Nyquist rate, inside the band the analysis searches).
+LINE_SAMPLES = 2.5
 
 #: Memory an automatically chosen window takes per flow map and pixel of the look's grid, bytes (its flow, 8;
 #: the front's half-precision copy of the moving box, at most 4; the scan's levels, about 4).

@@ -200,3 +200,50 @@ def test_frame_shapes_are_displacements_in_input_pixels_placed_in_the_box() -> N
     np.testing.assert_allclose(np.abs(inside[:, 0]), 1.0, rtol=0.03)
     assert np.all(np.abs(inside[:, 1]) < 0.05)
     assert np.isnan(shapes[0][~full_mask]).all()
+
+
+def test_shapes_in_metres_across_and_along_the_line_of_sight() -> None:
+    """A block 1.5 m away moves 0.5 grid px (1 input px) across the line of sight and 3 mm along it, in
+    phase, at 3 Hz; one column of its pixels sees the background (2 m) half the time. Across: 1 input px
+    times depth over focal length; along: 3 mm from the depth series, same sign; NaN where the depth
+    jumps between object and background, and off the object."""
+    from workers.pipeline.modes import object_modes
+    from workers.pipeline.roi import Roi
+
+    fs, n, focal = 60.0, 600, 500.0
+    roi = Roi(x=20, y=10, width=32, height=20, grid_shape=(10, 16), frame_shape=(40, 60))
+    phase = np.sin(2 * np.pi * 3.0 * np.arange(n + 1) / fs)
+    rng = np.random.default_rng(5)
+    flow = rng.normal(0, 0.002, (n, 10, 16, 2)).astype(np.float32)
+    flow[:, 3:7, 5:11, 0] += np.diff(0.5 * phase)[:, None, None]
+    depth = np.full((n + 1, 10, 16), 2.0, np.float32)
+    depth[:, 3:7, 5:11] = (1.5 + 0.003 * phase)[:, None, None]
+    depth[phase > 0, 3:7, 10] = 2.0  # the block's edge column: the background shows through half the time
+    depth += rng.normal(0, 0.0005, depth.shape).astype(np.float32)
+    mask = np.zeros((10, 16), bool)
+    mask[3:7, 5:11] = True
+    result = object_modes(
+        flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=depth, focal_px=(focal, focal)
+    )
+    full_mask = np.zeros((40, 60), bool)
+    full_mask[16:24, 30:42] = True
+    metres = result.frame_shapes_m(full_mask)
+    assert metres is not None
+    assert metres.shape == (1, 40, 60, 3)
+    assert metres.dtype == np.float32
+    inside = metres[0][full_mask]
+    interior = metres[0][16:24, 30:40]
+    np.testing.assert_allclose(np.abs(inside[:, 0]), 1.0 * 1.5 / focal, rtol=0.04)
+    np.testing.assert_allclose(interior[..., 2], 0.003 * np.sign(interior[..., 0]), rtol=0.05)
+    assert np.isnan(metres[0][16:24, 40:42, 2]).all()  # the edge column: no line-of-sight reading
+    assert np.isnan(metres[0][~full_mask]).all()
+    # One distance for the whole clip: across only, nothing along the line of sight.
+    fixed = object_modes(
+        flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=1.5, focal_px=(focal, focal)
+    ).frame_shapes_m(full_mask)
+    assert fixed is not None
+    np.testing.assert_allclose(np.abs(fixed[0][full_mask][:, 0]), 1.5 / focal, rtol=0.04)
+    assert np.isnan(fixed[0][..., 2]).all()
+    # No intrinsics: no shapes in metres.
+    plain = object_modes(flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=depth)
+    assert plain.frame_shapes_m(full_mask) is None

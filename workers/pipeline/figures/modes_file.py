@@ -7,7 +7,11 @@ Per object ``i`` (its id in ``mask.png``) with at least one mode:
 - ``object_<i>_frequencies_hz``: float64, shape (modes,);
 - ``object_<i>_damping_ratio``: float64, shape (modes,), NaN where a mode does not decay;
 - ``object_<i>_energy_share``: float64, shape (modes,);
-- ``object_<i>_mac``: float64, shape (modes, modes), the MAC between the shapes.
+- ``object_<i>_mac``: float64, shape (modes, modes), the MAC between the shapes;
+- ``object_<i>_shapes_m``: float32, shape (modes, H, W, 3), where depth (or a given distance) and the
+  camera's intrinsics allow: the same displacement in metres, x and y across the line of sight and z along
+  it (positive away from the camera; NaN without a depth series), NaN off the object or without a depth
+  reading.
 
 The modes are in the order of the result's ``objects[].modes``.
 """
@@ -41,6 +45,9 @@ def modes_arrays(analysis: Analysis) -> dict[str, NDArray[np.generic]]:
         out[f"{key}_damping_ratio"] = np.array(damping, np.float64)
         out[f"{key}_energy_share"] = np.array([m.energy_share for m in modes], np.float64)
         out[f"{key}_mac"] = np.asarray(obj.modes.found.mac, np.float64)
+        metres = obj.modes.frame_shapes_m(analysis.labels == obj.id)
+        if metres is not None:
+            out[f"{key}_shapes_m"] = metres
     return out
 
 
