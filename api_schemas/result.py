@@ -165,8 +165,9 @@ class ObjectResult(BaseModel):
     modes: list[ModeResult] = Field(
         default_factory=list,
         description="The narrow-band components of the object's motion, strongest first, each with its "
-        "frequency, damping and share of the motion (their shapes are in the `modes` artifact). A line at "
-        "an integer multiple of a mode with the same shape is one of `mode_harmonics` instead.",
+        "frequency, damping and share of the motion (their shapes are in the `modes` artifact, drawn in "
+        "`mode_shapes` and `mode_animation`). A line at an integer multiple of a mode with the same shape "
+        "is one of `mode_harmonics` instead.",
     )
     mode_harmonics: list[ModeHarmonicResult] = Field(
         default_factory=list,
@@ -242,6 +243,8 @@ ArtifactName = Literal[
     "displacement.png",
     "ringdown.png",
     "modes.npz",
+    "modes.png",
+    "modes.gif",
     "result.json",
 ]
 ARTIFACT_NAMES: tuple[str, ...] = ArtifactName.__args__  # type: ignore[attr-defined]
@@ -283,7 +286,21 @@ class Artifacts(BaseModel):
         description="Each object's mode shapes and frequencies (NumPy .npz): `object_<id>_shapes`, float32 "
         "(modes, H, W, 2), displacement in input pixels, NaN outside the object; "
         "`object_<id>_frequencies_hz`, `object_<id>_damping_ratio`, `object_<id>_energy_share` and "
-        "`object_<id>_mac`, in the order of the object's `modes`.",
+        "`object_<id>_mac`, in the order of the object's `modes`; where depth (or a given distance) and "
+        "intrinsics allow, `object_<id>_shapes_m`, float32 (modes, H, W, 3): the displacement in metres, x "
+        "and y across the line of sight, z along it (from the depth series; NaN without one).",
+    )
+    mode_shapes: str | None = Field(
+        default=None,
+        description="Each object's mode shapes over its crop of the frame (PNG): one row per object, one "
+        "panel per mode, the frame dimmed with the shape drawn as arrows and a deformed outline in the "
+        "object's colour, magnified (the factor is in the label), labelled with the object's id, the "
+        "mode's number, its frequency and its damping ratio (or steady); a note when no object has modes.",
+    )
+    mode_animation: str | None = Field(
+        default=None,
+        description="The same panels animated (looping GIF): each object's pixels moving in the mode's "
+        "magnified shape, one cycle of every mode in step.",
     )
     result: str = Field(
         default="result.json", description="This result as a file (JSON, an `AnalysisResult`)."

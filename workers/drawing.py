@@ -3,7 +3,8 @@
 :mod:`workers.pipeline.figures` holds the figures as pure functions (an analysis in, pixels out). This
 module decides how a process runs them: :func:`draw_all` draws each figure in the calling thread, one
 after the other, while one helper thread encodes and writes the previous figure's PNG (encoding and
-writing release the GIL; matplotlib does not). :func:`warm_up` imports matplotlib in a background thread
+writing release the GIL; matplotlib does not); the mode animation's frames are drawn the same way, the
+helper thread encoding them as a GIF. :func:`warm_up` imports matplotlib in a background thread
 while an analysis runs, so the figures after it do not pay for the import.
 
 Drawing in a helper process, forking a child per render or a child forked as the command line starts,
@@ -24,7 +25,17 @@ if TYPE_CHECKING:
     from workers.pipeline.model import Analysis
 
 #: Every artifact key, in the order :func:`draw_all` writes them: the mask first, then the figures.
-ALL_KEYS = ("mask", "overlay", "frequency_map", "spectrum", "displacement", "ringdown", "modes")
+ALL_KEYS = (
+    "mask",
+    "overlay",
+    "frequency_map",
+    "spectrum",
+    "displacement",
+    "ringdown",
+    "modes",
+    "mode_shapes",
+    "mode_animation",
+)
 
 
 def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None = None) -> dict[str, str]:
@@ -39,7 +50,8 @@ def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None
     keys : iterable of str, optional
         Artifact keys among :data:`ALL_KEYS` (default all of them): ``mask`` is the label image
         (``analysis.labels``), ``modes`` the objects' mode shapes
-        (:mod:`workers.pipeline.figures.modes_file`), the others the figures of
+        (:mod:`workers.pipeline.figures.modes_file`), ``mode_animation`` the same shapes as a looping GIF
+        (:mod:`workers.pipeline.figures.mode_animation`), the others the figures of
         :data:`workers.pipeline.figures.FIGURES`.
 
     Returns
@@ -55,6 +67,7 @@ def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None
         When a file cannot be written (e.g. ``out_dir`` is a file); images already written stay in place.
     """
     from workers.pipeline.figures import ARTIFACT_FILES, FIGURES, PHOTO_FIGURES, write_label_png, write_png
+    from workers.pipeline.figures.mode_animation import mode_animation_frames, write_gif
     from workers.pipeline.figures.modes_file import write_modes_npz
 
     wanted = ALL_KEYS if keys is None else tuple(keys)
@@ -73,6 +86,8 @@ def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None
                     pending.append(pool.submit(write_label_png, path, analysis.labels))
                 elif key == "modes":
                     pending.append(pool.submit(write_modes_npz, path, analysis))
+                elif key == "mode_animation":
+                    pending.append(pool.submit(write_gif, path, mode_animation_frames(analysis)))
                 else:
                     image = FIGURES[key](analysis)
                     pending.append(pool.submit(write_png, path, image, photo=key in PHOTO_FIGURES))

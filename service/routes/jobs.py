@@ -248,23 +248,24 @@ async def get_job_result(
     name="get_job_artifact",
     summary="Download an artifact",
     description=(
-        "A file the analysis produced, by name: the images (`image/png`) and `result.json` (the job's "
-        "result as the analysis wrote it, `application/json`; `get_job_result` serves it as a typed "
-        "document), with an `ETag`: with `If-None-Match` naming it the answer is 304 without a body. The "
-        "result's `artifacts` give each file's URL."
+        "A file the analysis produced, by name: the images (`image/png`, the mode animation `image/gif`), "
+        "the mode shapes (`modes.npz`, `application/octet-stream`) and `result.json` (the job's result as "
+        "the analysis wrote it, `application/json`; `get_job_result` serves it as a typed document), with "
+        "an `ETag`: with `If-None-Match` naming it the answer is 304 without a body. The result's "
+        "`artifacts` give each file's URL."
     ),
     response_class=FileResponse,
     responses={
         200: {
-            "description": "The file, with its media type (`image/png` for images, `application/json` "
-            "for `result.json`).",
+            "description": "The file, with its media type (`image/png` for images, `image/gif` for "
+            "`modes.gif`, `application/json` for `result.json`).",
             "headers": {"ETag": ETAG_HEADER},
             # Files (binary) whatever their type, the images first and application/octet-stream before
             # application/json: generators (openapi-python-client takes the first media type it knows) then
             # return the bytes of any artifact. The result as a typed document is `get_job_result`.
             "content": {
                 media: {"schema": {"type": "string", "format": "binary", "contentMediaType": media}}
-                for media in ("image/png", "application/octet-stream", "application/json")
+                for media in ("image/png", "image/gif", "application/octet-stream", "application/json")
             },
         },
         304: {

@@ -17,6 +17,8 @@
     "spectrum.png": "Spectrum: summed motion power against frequency on a log scale, with the eigenfrequencies, harmonics, noise floor and rejected peaks marked",
     "displacement.png": "Displacement: each object's motion against time, with the fitted damped oscillation and the release instant",
     "ringdown.png": "Ring-down spectrogram: each object's motion power by frequency over time as its oscillation decays",
+    "modes.png": "Mode shapes: for each object, one panel per mode showing its part of the frame dimmed, with the mode's shape drawn as arrows and a deformed outline in the object's colour, magnified, and labelled with the mode's frequency and damping ratio",
+    "modes.gif": "Mode animation: the mode shapes' panels, each object's pixels moving back and forth in the mode's magnified shape",
     "mask.png": "Segmentation mask: each object's pixels in its own colour (the file stores object ids)",
   };
 

@@ -592,6 +592,8 @@ def test_image_alt_texts_describe_their_figures(
         "spectrum.png": ("spectrum", "noise floor"),
         "frequency_map.png": ("frequency_map", "colour bar"),
         "overlay.png": ("overlay", "outlined"),
+        "modes.png": ("mode_shapes", "arrows"),
+        "modes.gif": ("mode_animation", "magnified shape"),
     }
     for name, (key, words) in keys.items():
         assert words in described[key]["description"].lower(), key

@@ -77,6 +77,9 @@ def _check_result(
         "spectrum",
         "displacement",
         "ringdown",
+        "modes",
+        "mode_shapes",
+        "mode_animation",
         "result",
     }
     for key, url in job["result"]["artifacts"].items():
@@ -86,6 +89,8 @@ def _check_result(
             assert response.json()["eigenfrequency_hz"] == result["eigenfrequency_hz"]
         elif key == "modes":
             assert response.content[:4] == b"PK\x03\x04"  # an npz archive
+        elif key == "mode_animation":
+            assert response.content[:6] == b"GIF89a"
         else:
             assert response.content[:8] == b"\x89PNG\r\n\x1a\n"
     listed = service.client.get("/v1/jobs", params={"limit": 100}).json()["items"]

@@ -139,7 +139,8 @@ class Ringdown(_Model):
 @dataclass(frozen=True)
 class Mode(_Model):
     """One mode of an object: a narrow-band component of its motion with a shape of its own (the shapes
-    are in the ``modes`` artifact, an npz archive)."""
+    are in the ``modes`` artifact, an npz archive, drawn in ``mode_shapes`` (PNG) and ``mode_animation``
+    (GIF))."""
 
     schema: ClassVar[str] = "Mode"
     frequency_hz: float
@@ -241,7 +242,8 @@ class Detection(_Model):
 
 @dataclass(frozen=True)
 class AnalysisResult(_Model):
-    """Everything one analysis measured. ``artifacts`` maps image keys (``mask``, ``overlay`` ...) to URLs."""
+    """Everything one analysis measured. ``artifacts`` maps artifact keys (``mask``, ``overlay`` ...,
+    ``modes``, ``mode_shapes``, ``mode_animation``, ``result``) to URLs."""
 
     schema: ClassVar[str] = "AnalysisResult"
     convert: ClassVar[dict[str, Callable[[Any], Any]]] = {

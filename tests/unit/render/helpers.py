@@ -1,12 +1,16 @@
-"""Reading rendered PNGs back for the render tests."""
+"""Reading rendered PNGs (and the mode animation's GIF) back for the render tests."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from workers.pipeline.model import Analysis
 
 
 def decode(path: Path) -> NDArray[np.uint8]:
@@ -51,3 +55,25 @@ def palette_indices(path: Path) -> NDArray[np.uint8]:
     with Image.open(path) as img:
         assert img.mode == "P", f"{path.name}: expected a palette image, got mode {img.mode}"
         return np.asarray(img, dtype=np.uint8)
+
+
+def gif_frames(path: Path) -> tuple[list[NDArray[np.uint8]], dict[str, object]]:
+    """Every frame of the GIF at ``path`` as RGB (each as a viewer shows it, over the frames before it) and
+    the file's info (``loop``, ``duration``), read with Pillow; fails if it does not decode."""
+    from PIL import Image, ImageSequence
+
+    with Image.open(path) as img:
+        assert img.format == "GIF", f"{path.name}: expected a GIF, got {img.format}"
+        info = dict(img.info)
+        frames = [np.asarray(frame.convert("RGB"), np.uint8) for frame in ImageSequence.Iterator(img)]
+    return frames, info
+
+
+def mode_panels_of(analysis: Analysis) -> tuple[int, int]:
+    """(rows, columns) of ``modes.png``: the objects with modes, and the most modes one of them has."""
+    counts = [
+        len(o.modes.found.modes)
+        for o in analysis.objects
+        if o.modes is not None and o.modes.found.modes and o.modes.roi is not None
+    ]
+    return (len(counts), max(counts, default=0))

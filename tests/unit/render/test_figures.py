@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from tests.unit.render.conftest import Analysed
-from tests.unit.render.helpers import decode
+from tests.unit.render.helpers import decode, mode_panels_of
 from workers.drawing import ALL_KEYS, draw_all
 from workers.pipeline.figures import (
     ARTIFACT_FILES,
@@ -21,12 +21,13 @@ from workers.pipeline.figures import (
     PLOT_SIZE_PX,
     display_size,
     frequency_map_size,
+    mode_shapes_size,
     panel_figure_size,
 )
 
 
-def test_every_artifact_but_the_mask_and_the_mode_shapes_is_a_figure():
-    assert list(FIGURES) == [k for k in ARTIFACT_FILES if k not in ("mask", "modes")]
+def test_every_artifact_but_the_mask_the_mode_shapes_and_their_animation_is_a_figure():
+    assert list(FIGURES) == [k for k in ARTIFACT_FILES if k not in ("mask", "modes", "mode_animation")]
     assert tuple(ARTIFACT_FILES) == ALL_KEYS
 
 
@@ -41,6 +42,7 @@ def test_figures_are_rgb_arrays_of_their_stated_size_and_deterministic(
         "spectrum": PLOT_SIZE_PX,
         "displacement": panel_figure_size(len(a.objects)),
         "ringdown": panel_figure_size(len(a.objects)),
+        "mode_shapes": mode_shapes_size(*mode_panels_of(a)),
     }
     monkeypatch.chdir(tmp_path)
     for key, draw in FIGURES.items():

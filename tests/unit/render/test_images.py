@@ -1,7 +1,7 @@
 """Every image of an analysis: decodes, has its stated size, is not blank, and tells the truth.
 
 Sizes come from the public size functions (``display_size``, ``frequency_map_size``, ``PLOT_SIZE_PX``,
-``panel_figure_size``), whose values are also pinned here for a 640x480 frame.
+``panel_figure_size``, ``mode_shapes_size``), whose values are also pinned here for a 640x480 frame.
 """
 
 from __future__ import annotations
@@ -17,24 +17,37 @@ import numpy as np
 import pytest
 
 from tests.unit.render.conftest import Analysed
-from tests.unit.render.helpers import assert_not_blank, colour_mask, decode, size_of
+from tests.unit.render.helpers import (
+    assert_not_blank,
+    colour_mask,
+    decode,
+    gif_frames,
+    mode_panels_of,
+    size_of,
+)
 from workers.drawing import draw_all
 from workers.pipeline.analysis import Analysis
 from workers.pipeline.figures import (
     ARTIFACT_FILES,
+    NO_MODES_NOTE,
     NO_OBJECT_NOTE,
     PLOT_SIZE_PX,
     display_size,
     frequency_map_size,
+    mode_shapes_size,
     object_color,
     panel_figure_size,
     write_displacement_png,
     write_frequency_map_png,
     write_label_png,
+    write_mode_animation,
+    write_mode_shapes_png,
     write_overlay_png,
     write_ringdown_png,
     write_spectrum_png,
 )
+from workers.pipeline.figures.mode_animation import ANIMATION_FRAMES, animation_size
+from workers.pipeline.figures.mode_shapes import panel_origin
 
 
 def expected_sizes(analysis: Analysis) -> dict[str, tuple[int, int]]:
@@ -47,7 +60,24 @@ def expected_sizes(analysis: Analysis) -> dict[str, tuple[int, int]]:
         "spectrum": PLOT_SIZE_PX,
         "displacement": panel_figure_size(n),
         "ringdown": panel_figure_size(n),
+        "mode_shapes": mode_shapes_size(*mode_panels_of(analysis)),
     }
+
+
+def check_animation(analysis: Analysis, path: Path) -> list[np.ndarray]:
+    """The mode animation at ``path``: a looping GIF of modes.png's layout (shrunk to its budget), one
+    cycle of frames that differ when an object has modes, a still note when none has."""
+    frames, info = gif_frames(path)
+    assert info["loop"] == 0
+    size = animation_size(*expected_sizes(analysis)["mode_shapes"])
+    assert all(size_of(f) == size for f in frames)
+    if mode_panels_of(analysis)[0]:
+        assert len(frames) == ANIMATION_FRAMES
+        assert len({f.tobytes() for f in frames}) > ANIMATION_FRAMES // 2
+    else:
+        assert len(frames) == 1
+    assert path.stat().st_size < 400_000
+    return frames
 
 
 def check_all(analysis: Analysis, out: Path) -> dict[str, np.ndarray]:
@@ -55,6 +85,7 @@ def check_all(analysis: Analysis, out: Path) -> dict[str, np.ndarray]:
     assert names == ARTIFACT_FILES
     images = {}
     shapes = np.load(out / names.pop("modes"))  # the mode shapes: data, not an image
+    check_animation(analysis, out / names.pop("mode_animation"))  # an animation, not a still image
     for obj in analysis.objects:
         if obj.modes is not None and obj.modes.found.modes:
             assert shapes[f"object_{obj.id}_shapes"].shape == (
@@ -98,6 +129,11 @@ def test_sizes_for_a_vga_frame_are_the_documented_ones():
     assert display_size(320, 240) == (640, 480)
     assert display_size(160, 120) == (640, 480)
     assert display_size(1920, 1080) == (1280, 720)
+    # One 320 x 240 panel per mode under its label, one row per object; the animation within 360 000 px.
+    assert mode_shapes_size(0, 0) == mode_shapes_size(1, 1) == (340, 320)
+    assert mode_shapes_size(2, 3) == (1000, 610)
+    assert animation_size(340, 320) == (340, 320)
+    assert animation_size(1000, 610) == (768, 468)
 
 
 def test_one_object_every_image(one_object: Analysed, tmp_path: Path, texts: list[str]):
@@ -122,6 +158,13 @@ def test_one_object_every_image(one_object: Analysed, tmp_path: Path, texts: lis
     # Axes are labelled with units.
     for axis_label in ("frequency (Hz)", "time (s)", "dominant frequency (Hz)"):
         assert axis_label in texts
+    # The mode shapes: the object's mode, labelled, drawn in its colour in its panel.
+    assert obj.modes is not None
+    assert mode_panels_of(a) == (1, len(obj.modes.found.modes))
+    assert any(t.startswith("#1  mode 1   f = ") for t in texts)
+    x, y = panel_origin(0, 0)
+    panel = images["mode_shapes"][y + 4 : y + 236, x + 4 : x + 316]
+    assert colour_mask(panel, object_color(1)).sum() > 300
 
 
 def test_mask_is_a_palette_png_any_viewer_shows_in_colour(tmp_path: Path):
@@ -176,10 +219,14 @@ def test_each_image_has_its_own_writer(one_object: Analysed, tmp_path: Path):
         "spectrum": write_spectrum_png,
         "displacement": write_displacement_png,
         "ringdown": write_ringdown_png,
+        "mode_shapes": write_mode_shapes_png,
     }.items():
         path = writer(tmp_path / f"{key}.png", a)
         assert path == tmp_path / f"{key}.png"
         assert size_of(decode(path)) == sizes[key]
+    path = write_mode_animation(tmp_path / "modes.gif", a)
+    assert path == tmp_path / "modes.gif"
+    check_animation(a, path)
 
 
 def test_two_objects_keep_their_own_colour_in_every_image(two_objects: Analysed, tmp_path: Path):
@@ -217,6 +264,14 @@ def test_two_objects_keep_their_own_colour_in_every_image(two_objects: Analysed,
     for colour in (c1, c2):
         assert colour_mask(images["frequency_map"], colour).sum() > 200
 
+    # Mode shapes: object 1's modes in the top row, object 2's in the one below, each in its colour.
+    assert mode_panels_of(a)[0] == 2
+    for row, colour in enumerate((c1, c2)):
+        x, y = panel_origin(row, 0)
+        panel = images["mode_shapes"][y + 4 : y + 236, x + 4 : x + 316]
+        assert colour_mask(panel, colour).sum() > 200, row
+        assert colour_mask(panel, (c2, c1)[row]).sum() == 0, row
+
 
 def test_no_object_still_renders_every_image(no_object: Analysed, tmp_path: Path, texts: list[str]):
     a = no_object.analysis
@@ -225,6 +280,8 @@ def test_no_object_still_renders_every_image(no_object: Analysed, tmp_path: Path
     notes = [t for t in texts if t.startswith(NO_OBJECT_NOTE)]
     # overlay, frequency map, spectrum, displacement and ring-down each carry the note
     assert len(notes) >= 5, notes
+    # the mode shapes (and their animation, drawn from the same page) theirs
+    assert texts.count(NO_MODES_NOTE) >= 2
     # The overlay's note is a light box in the middle of the frame.
     h, w = images["overlay"].shape[:2]
     centre = images["overlay"][h // 2 - 10 : h // 2 + 10, w // 4 : 3 * w // 4]
@@ -262,6 +319,7 @@ def test_rendering_is_thread_safe_and_deterministic(two_objects: Analysed, tmp_p
     a = two_objects.analysis
     drawn = draw_all(a, tmp_path / "ref")
     reference = {k: decode(tmp_path / "ref" / v) for k, v in drawn.items() if v.endswith(".png")}
+    animation = (tmp_path / "ref" / ARTIFACT_FILES["mode_animation"]).read_bytes()
     errors: list[BaseException] = []
 
     def work(i: int) -> None:
@@ -280,6 +338,7 @@ def test_rendering_is_thread_safe_and_deterministic(two_objects: Analysed, tmp_p
         for key in reference:
             name = ARTIFACT_FILES[key]
             np.testing.assert_array_equal(decode(tmp_path / f"t{i}" / name), reference[key], err_msg=key)
+        assert (tmp_path / f"t{i}" / ARTIFACT_FILES["mode_animation"]).read_bytes() == animation
 
 
 def test_write_errors_surface(one_object: Analysed, tmp_path: Path):

@@ -9,7 +9,7 @@ import numpy as np
 
 from api_schemas import AnalysisParameters, StepReleaseExcitation
 from tests.unit.render.conftest import Analysed
-from tests.unit.render.helpers import decode
+from tests.unit.render.helpers import decode, gif_frames
 from workers.pipeline.figures import ARTIFACT_FILES
 from workers.runner import MASK_FILE, RESULT_FILE, run_analysis
 
@@ -28,6 +28,9 @@ def test_run_analysis_lists_every_image(small: Analysed, tmp_path: Path):
     for name in ARTIFACT_FILES.values():
         if name.endswith(".npz"):
             np.load(tmp_path / name)  # the mode shapes: an archive, not an image
+        elif name.endswith(".gif"):
+            frames, _ = gif_frames(tmp_path / name)  # their animation
+            assert len(frames) > 1
         else:
             decode(tmp_path / name)
     written = json.loads((tmp_path / RESULT_FILE).read_text())

@@ -8,6 +8,9 @@ Sizes (pixels, width x height), fixed so that tests and clients can rely on them
 * ``spectrum.png`` - :data:`PLOT_SIZE_PX` (1000 x 600).
 * ``displacement.png`` and ``ringdown.png`` - one panel per object, :func:`panel_figure_size` (1000 x 600
   for one or two objects, taller for more).
+* ``modes.png`` - one row per object with modes, one :data:`MODE_CELL_PX` panel per mode under a
+  :data:`MODE_LABEL_PX` label, :func:`mode_shapes_size` (one panel with a note when no object has modes).
+* ``modes.gif`` - the same layout, shrunk to at most :data:`MAX_ANIMATION_PIXELS` pixels a frame.
 * ``mask.png`` - the frame size, a palette image: 0 = background, i = object i, shown in its colour.
 
 One object has one colour in every image: :func:`object_color` is the palette.
@@ -36,6 +39,14 @@ MAP_MARGIN_PX = (150, 50)
 MIN_DISPLAY_PX = 640
 #: Width above which a frame is shrunk for display.
 MAX_DISPLAY_WIDTH_PX = 1280
+#: (width, height) of one mode's panel in ``modes.png`` / ``modes.gif``: the object's box, cropped with a
+#: margin to this aspect; the label strip above it, the gap between panels and the title strip, pixels.
+MODE_CELL_PX = (320, 240)
+MODE_LABEL_PX = 40
+MODE_GAP_PX = 10
+MODE_TITLE_PX = 30
+#: A ``modes.gif`` frame larger than this many pixels is shrunk to it (the file stays small).
+MAX_ANIMATION_PIXELS = 360_000
 
 #: Artifact key -> file name, in the order :func:`workers.drawing.draw_all` writes them.
 ARTIFACT_FILES: dict[str, str] = {
@@ -46,9 +57,12 @@ ARTIFACT_FILES: dict[str, str] = {
     "displacement": "displacement.png",
     "ringdown": "ringdown.png",
     "modes": "modes.npz",
+    "mode_shapes": "modes.png",
+    "mode_animation": "modes.gif",
 }
 
 NO_OBJECT_NOTE = "no object found"
+NO_MODES_NOTE = "no modes found"
 #: Colour maps of the frequency map and of the spectrogram (dB).
 FREQUENCY_CMAP = "viridis"
 SPECTROGRAM_CMAP = "magma"
@@ -133,6 +147,20 @@ def panel_figure_size(n_objects: int) -> tuple[int, int]:
     """
     n = max(1, n_objects)
     return (PLOT_SIZE_PX[0], max(PLOT_SIZE_PX[1], 100 + PANEL_HEIGHT_PX * n))
+
+
+def mode_shapes_size(rows: int, columns: int) -> tuple[int, int]:
+    """(width, height) in pixels of ``modes.png`` with ``rows`` objects of at most ``columns`` modes.
+
+    Each panel is :data:`MODE_CELL_PX` under a :data:`MODE_LABEL_PX` label, :data:`MODE_GAP_PX` apart, under
+    a :data:`MODE_TITLE_PX` title; no row (no object has modes) gives the size of one panel (the note).
+    """
+    rows, columns = (rows, columns) if rows > 0 and columns > 0 else (1, 1)
+    cell_w, cell_h = MODE_CELL_PX
+    return (
+        MODE_GAP_PX + columns * (cell_w + MODE_GAP_PX),
+        MODE_TITLE_PX + rows * (MODE_LABEL_PX + cell_h + MODE_GAP_PX),
+    )
 
 
 def format_quantity(value: float | None, sd: float | None, unit: str) -> str:
