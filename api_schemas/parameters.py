@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 
 class StepReleaseExcitation(BaseModel):
@@ -48,6 +48,49 @@ Excitation = Annotated[StepReleaseExcitation | ImpulseExcitation, Field(discrimi
 ExcitationSpec = Excitation | Annotated[list[Excitation], Field(min_length=1, max_length=16)]
 
 
+#: Most samples of a force log sent with a request (10 minutes at 1 kHz would be 600,000).
+MAX_FORCE_SAMPLES = 200_000
+
+
+class ForceLog(BaseModel):
+    """A force sensor's log sent with the clip: its push, hold and release, or its strike, is the
+    excitation (a typed one overrides it). Either the three components ``fx``, ``fy``, ``fz`` (the force's
+    magnitude along its dominant direction is used) or one signed magnitude ``force_n``."""
+
+    model_config = ConfigDict(title="ForceLog", allow_inf_nan=False, extra="forbid")
+
+    time_s: list[float] = Field(
+        min_length=8,
+        max_length=MAX_FORCE_SAMPLES,
+        description="Sample times, seconds, strictly increasing; 0 is the clip's first frame (see "
+        "`offset_s`).",
+    )
+    fx: list[float] | None = Field(default=None, description="Force components, newtons.")
+    fy: list[float] | None = None
+    fz: list[float] | None = None
+    force_n: list[float] | None = Field(default=None, description="... or one signed magnitude, newtons.")
+    offset_s: float = Field(
+        default=0.0, description="Added to every time: minus the log's time at the clip's first frame."
+    )
+    frame_id: str | None = Field(default=None, max_length=256, description="The sensor's frame, if known.")
+    name: str = Field(default="force log", max_length=256, description="Where the log came from (a file).")
+
+    @model_validator(mode="after")
+    def _one_form(self) -> ForceLog:
+        """Three components or one magnitude, each as long as ``time_s``."""
+        given = [c for c in (self.fx, self.fy, self.fz) if c is not None]
+        if self.force_n is not None and given:
+            raise ValueError("give either fx, fy and fz or force_n, not both")
+        if self.force_n is None and len(given) != 3:
+            raise ValueError("give all three of fx, fy and fz, or force_n alone")
+        for column in [self.force_n] if self.force_n is not None else given:
+            if len(column) != len(self.time_s):
+                raise ValueError(
+                    f"every column must have one value per time ({len(self.time_s)}), got {len(column)}"
+                )
+        return self
+
+
 #: Fewest frames of an analysis window (the pipeline's ``workers.pipeline.clipio.types.MIN_FRAMES``, which
 #: a test holds equal: 16 frames give 15 flow maps and 7 frequencies above zero).
 MIN_WINDOW_FRAMES = 16
@@ -87,6 +130,13 @@ class AnalysisParameters(BaseModel):
         default=None,
         max_length=256,
         description="Bag topic of the depth images (default: chosen automatically; `none` ignores depth).",
+    )
+    force_topic: str | None = Field(
+        default=None,
+        max_length=256,
+        description="Bag topic of the wrist force/torque sensor (geometry_msgs/WrenchStamped or Wrench) "
+        "whose push, hold and release or strike is the excitation (default: the bag's one force topic, "
+        "if any; a typed excitation overrides it).",
     )
     min_frequency_hz: float | None = Field(default=None, ge=0)
     max_frequency_hz: float | None = Field(default=None, gt=0)

@@ -18,6 +18,7 @@ QualityCode = Literal[
     "close_frequencies",
     "damaged_file",
     "few_periods",
+    "force_recording",
     "frame_rate",
     "longer_window",
     "low_snr",
@@ -74,6 +75,30 @@ class RingdownResult(BaseModel):
     amplitude_px: list[float] = Field(description="Displacement amplitude at the object's frequency, pixels.")
     frequency_hz: list[float] = Field(description="Strongest frequency in each window.")
     decay_per_s: float | None = Field(default=None, description="Fitted envelope decay rate σ = ζ ω_n, 1/s.")
+
+
+class ExcitationUsed(BaseModel):
+    """The excitation an object's stiffness and mass were measured with, and where it came from."""
+
+    model_config = ConfigDict(title="ExcitationUsed", **RESPONSE)
+
+    type: Literal["step_release", "impulse"]
+    value: float = Field(description="Held force, newtons (step_release), or impulse, newton-seconds.")
+    uncertainty: float = Field(ge=0, description="Its standard uncertainty, same unit.")
+    release_time_s: float | None = Field(
+        default=None,
+        description="When the force sensor saw it let go (step_release) or struck (impulse), seconds from "
+        "the clip's first frame: the fit's release instant. Null for a typed excitation.",
+    )
+    source: str = Field(
+        description="`request` (typed), or the recording: `topic <name>` of a bag, `log <name>` of a force "
+        "log."
+    )
+    notes: list[str] = Field(
+        default_factory=list,
+        description="E.g. the direction the force was taken along, or a typed value overriding a recorded "
+        "one.",
+    )
 
 
 class ModeResult(BaseModel):
@@ -144,6 +169,9 @@ class ObjectResult(BaseModel):
     bbox_px: list[int] = Field(description="[x, y, w, h] of the object's mask, pixels.")
     harmonics_hz: list[float] = Field(default_factory=list)
     release_time_s: float | None = Field(default=None, description="When the object was released.")
+    excitation: ExcitationUsed | None = Field(
+        default=None, description="The excitation its stiffness and mass were measured with (null: none)."
+    )
     snr_db: float | None = None
     false_alarm_probability: float | None = Field(
         default=None,

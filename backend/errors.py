@@ -54,6 +54,7 @@ PROBLEM_TYPES: Mapping[str, ProblemType] = {
     # Requests
     "invalid-request": ProblemType(422, "Unprocessable content"),
     "invalid-parameter": ProblemType(422, "Invalid parameter"),
+    "invalid-force": ProblemType(422, "Invalid force recording"),
     "invalid-form": ProblemType(422, "Invalid form"),
     "invalid-cursor": ProblemType(422, "Invalid cursor"),
     "idempotency-key-reused": ProblemType(422, "Idempotency key reused"),

@@ -2,7 +2,7 @@
 ``bench/modes_peer.py`` with a Python that has both: the ``bench`` extra, never a runtime dependency).
 
 The grey frames (a ``.npy`` array, T x H x W) are tracked by Lucas-Kanade on points placed by hand along the
-beam's centre line; the displacements' spectra (a free decay after a strike: its spectrum is the
+beam's centre line; the displacements' spectra from the strike on (a free decay: its spectrum is the
 receptance times the strike's flat spectrum) go to sdypy-EMA's LSCF for the poles, the poles nearest the
 frequencies a user reads off the stabilisation chart are picked (given here, as a user would type them),
 and LSFD gives the mode shapes. Prints one JSON line: seconds, and per mode the natural frequency, damping
@@ -29,6 +29,7 @@ def main() -> None:
         int(sys.argv[6]),
     )
     picks = [float(v) for v in sys.argv[7].split(",")]
+    strike = int(sys.argv[8])
     started = time.perf_counter()
     video_array = np.load(frames_path)
     from pyidi import LucasKanade, VideoReader
@@ -42,18 +43,19 @@ def main() -> None:
     displacements = idi.get_displacements()  # (points, frames, 2): (y, x)
     tracked_s = time.perf_counter() - started
     motion = displacements[:, :, 0]
-    motion = motion - motion.mean(axis=1, keepdims=True)
-    n = motion.shape[1]
-    spectrum = np.fft.rfft(motion * np.hanning(n)[None, :], axis=1)
-    freq = np.fft.rfftfreq(n, 1 / fps)
+    motion = motion - motion[:, :strike].mean(axis=1, keepdims=True)  # from the rest position
+    motion = motion[:, strike:]  # the free decay, from the strike (a user sees it in the video)
+    spectrum = np.fft.rfft(motion, axis=1)
+    freq = np.fft.rfftfreq(motion.shape[1], 1 / fps)
 
     from sdypy import EMA
 
     model = EMA.Model(
-        frf=spectrum, freq=freq, lower=1.0, upper=0.45 * fps, pol_order_high=40, frf_type="receptance"
+        frf=spectrum, freq=freq, lower=2.0, upper=0.42 * fps, pol_order_high=60, frf_form="receptance"
     )
     model.get_poles(show_progress=False)
-    model.select_closest_poles(picks, f_window=max(1.0, 0.1 * min(picks)))
+    # A narrow search window: sdypy's default (50 Hz) lets a low pick slide to the masked 0 Hz entries.
+    model.select_closest_poles(picks, f_window=7)
     _, shapes = model.get_constants(whose_poles="own")
     elapsed = time.perf_counter() - started
     modes = []

@@ -85,6 +85,7 @@ def main() -> None:
         str(y0),
         str(args.points),
         ",".join(f"{beam.natural_hz(r):.3f}" for r in range(len(beam.damping_ratios))),
+        str(beam.strike_frame),
     ]
     ours = [sys.executable, "-m", "eigenscope", "analyze", str(clip_path), "--out", str(work / "out")]
     times: dict[str, list[float]] = {"eigenscope": [], "pyidi+EMA": []}

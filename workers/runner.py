@@ -19,6 +19,8 @@ from api_schemas import (
     AnalysisResult,
     Artifacts,
     Detection,
+    ExcitationUsed,
+    ForceLog,
     ImpulseExcitation,
     ModeHarmonicResult,
     ModeResult,
@@ -36,6 +38,8 @@ if TYPE_CHECKING:
     from workers.pipeline.analysis import AnalysisConfig as PipelineConfig
     from workers.pipeline.analysis import Excitation as PipelineExcitation
     from workers.pipeline.clipio import ReadLimits
+    from workers.pipeline.clipio.types import ClipReader
+    from workers.pipeline.force import ForceSeries
 
 #: ``progress(stage, fraction)`` with fraction in [0, 1] over the whole analysis.
 ProgressCallback = Callable[[str, float], None]
@@ -121,8 +125,13 @@ def run_analysis(
     scratch_dir: str | Path | None = None,
     flow_threads: int | None = None,
     limits: ReadLimits | None = None,
+    force_log: ForceLog | None = None,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
+
+    The excitation is the typed one (``excitation``), else what the robot's force sensor recorded: a
+    ``force_log`` sent with the clip, or the bag's force topic (``parameters.force_topic``, or the bag's one
+    force topic): see :func:`recorded_force`.
 
     Files are written to a temporary name and renamed, so a reader never sees half a result.
     ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``scratch_dir`` is where a
@@ -141,6 +150,8 @@ def run_analysis(
     from workers.drawing import warm_up
     from workers.pipeline.analysis import analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
+    from workers.pipeline.force import chosen_excitations
+    from workers.pipeline.model import QualityNote
 
     report = _warming_up_for_images(progress, warm_up)
 
@@ -164,7 +175,10 @@ def run_analysis(
     with open_clip(
         clip_path, overrides=overrides, limits=limits, depth=depth_path, scratch_dir=scratch_dir
     ) as reader:
-        analysis = analyze(reader, config=config, excitation=exc, progress=report)
+        recorded, notes = recorded_force(reader, params, force_log)
+        chosen = chosen_excitations(exc, recorded)
+        analysis = analyze(reader, config=config, excitation=chosen, progress=report)
+    analysis.quality.extend(QualityNote("force_recording", n, "info") for n in notes)
     report("rendering", 0.97)
     result = write_result(
         analysis,
@@ -174,6 +188,55 @@ def run_analysis(
     )
     report("done", 1.0)
     return result
+
+
+def recorded_force(
+    reader: ClipReader, params: AnalysisParameters, force_log: ForceLog | None
+) -> tuple[PipelineExcitation | None, list[str]]:
+    """The excitation the robot's force sensor recorded, and notes: from ``force_log`` (sent with the clip),
+    else from the bag's force topic (the one named by ``params.force_topic``, or the bag's only one). A
+    recording the user named (a log, a topic) that shows no hold, release or strike is an error; one
+    merely found in the bag gives a note.
+
+    Raises
+    ------
+    workers.pipeline.errors.ForceError
+        A bad log or topic, several force topics with none chosen, clocks that do not overlap, or (when
+        asked for) a recording without an excitation.
+    """
+    from workers.pipeline.clipio.force_topics import force_topics, read_force
+    from workers.pipeline.clipio.rosbag import BagClip
+    from workers.pipeline.errors import ForceError
+    from workers.pipeline.force import recorded_excitation
+
+    if force_log is not None:
+        return recorded_excitation(force_series(force_log), asked=True)
+    topic = params.force_topic
+    if not isinstance(reader, BagClip):
+        if topic is not None:
+            raise ForceError(
+                f"force_topic {topic!r} was given but the clip is not a ROS bag; send the force as a force "
+                "log (--force-log FILE) instead"
+            )
+        return None, []
+    if topic is None and not force_topics(reader):
+        return None, []
+    return recorded_excitation(read_force(reader, topic=topic), asked=topic is not None)
+
+
+def force_series(log: ForceLog) -> ForceSeries:
+    """A request's force log as the pipeline's series on the clip's clock (checked there)."""
+    import numpy as np
+
+    from workers.pipeline.force import ForceSeries
+
+    columns = [log.force_n] if log.force_n is not None else [log.fx, log.fy, log.fz]
+    return ForceSeries(
+        times_s=np.asarray(log.time_s, np.float64) + log.offset_s,
+        force_n=np.asarray(columns, np.float64).T,
+        source=f"log {log.name}",
+        frame_id=log.frame_id,
+    )
 
 
 def analysis_config(params: AnalysisParameters, *, flow_threads: int | None = None) -> PipelineConfig:
@@ -252,9 +315,24 @@ def _object_result(o: ObjectMeasurement) -> ObjectResult:
     values = {
         name: _finite(getattr(o, name))
         for name in ObjectResult.model_fields
-        if name not in ("ringdown", "modes", "mode_mac", "mode_harmonics") and hasattr(o, name)
+        if name not in ("ringdown", "modes", "mode_mac", "mode_harmonics", "excitation") and hasattr(o, name)
     }
-    return ObjectResult(**values, ringdown=_ringdown(o), **_modes(o))
+    return ObjectResult(**values, ringdown=_ringdown(o), excitation=_excitation_used(o), **_modes(o))
+
+
+def _excitation_used(o: ObjectMeasurement) -> ExcitationUsed | None:
+    """The excitation the object was measured with, and where it came from."""
+    e = o.excitation
+    if e is None:
+        return None
+    return ExcitationUsed(
+        type=e.kind,
+        value=e.value,
+        uncertainty=e.uncertainty,
+        release_time_s=e.release_time_s,
+        source=e.source,
+        notes=list(e.notes),
+    )
 
 
 def _finite(value: Any) -> Any:

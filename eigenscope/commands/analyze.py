@@ -51,6 +51,9 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--color-topic", help="bag topic of the colour images (default: automatic)")
     p.add_argument("--depth-topic", help="bag topic of the depth images ('none' ignores depth)")
+    p.add_argument("--force-topic", help=HELP["force_topic"])
+    p.add_argument("--force-log", metavar="FILE", help=HELP["force_log"])
+    p.add_argument("--force-log-offset-s", type=float, default=0.0, help=HELP["force_log_offset_s"])
     p.add_argument("--depth-m", type=float, help=HELP["depth_m"])
     p.add_argument("--frames", type=int, help=HELP["frames"])
     p.add_argument("--start-frame", type=int, help=HELP["start_frame"])
@@ -86,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
 
     from api_schemas import AnalysisParameters, ImpulseExcitation, StepReleaseExcitation
     from eigenscope.cli import UsageError
+    from eigenscope.commands._options import read_force_log_file
     from workers.runner import run_analysis
 
     if args.flow_threads is not None and args.flow_threads < 1:
@@ -105,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
             depth_m=args.depth_m,
             color_topic=args.color_topic,
             depth_topic=args.depth_topic,
+            force_topic=args.force_topic,
             min_frequency_hz=args.min_frequency_hz,
             max_frequency_hz=args.max_frequency_hz,
         )
@@ -132,6 +137,9 @@ def run(args: argparse.Namespace) -> int:
         where = ".".join(str(x) for x in err["loc"]) or "input"
         raise UsageError(f"--{where.replace('_', '-')}: {err['msg']}") from None
 
+    force_log = (
+        None if args.force_log is None else read_force_log_file(args.force_log, args.force_log_offset_s)
+    )
     created = first_missing_folder(Path(args.out))
     try:
         result = run_analysis(
@@ -141,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
             parameters=params,
             depth_path=args.depth,
             flow_threads=args.flow_threads,
+            force_log=force_log,
         )
     except BaseException:
         if created is not None:  # a failed run leaves no folder it made behind
@@ -168,6 +177,8 @@ def run(args: argparse.Namespace) -> int:
         print(line)
         if len(o.modes) > 1:
             print("  modes: " + "; ".join(_mode_text(m) for m in o.modes))
+        if o.excitation is not None and o.excitation.source != "request":
+            print("  excitation: " + _excitation_text(o.excitation))
         for reason in o.null_reasons:
             print(f"  note: {reason}")
     for q in result.quality:
@@ -182,3 +193,15 @@ def _mode_text(mode: Any) -> str:
     if mode.damping_ratio is not None:
         text += f" ζ = {mode.damping_ratio:.3g}"
     return text + f" ({mode.energy_share * 100:.0f} %)"
+
+
+def _excitation_text(e: Any) -> str:
+    """A recorded excitation for the summary: what, how much, when and from where."""
+    what = (
+        f"held force {e.value:.4g} ± {e.uncertainty:.2g} N"
+        if e.type == "step_release"
+        else (f"impulse {e.value:.4g} ± {e.uncertainty:.2g} N·s")
+    )
+    when = "" if e.release_time_s is None else f", {'released' if e.type == 'step_release' else 'struck'} at "
+    when += "" if e.release_time_s is None else f"{e.release_time_s:.4f} s"
+    return f"{what}{when}, from {e.source}"

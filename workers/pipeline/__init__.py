@@ -10,14 +10,18 @@ No Celery, FastAPI, Redis or settings imports live below this package. One job p
 - :mod:`~workers.pipeline.fft`, :mod:`~workers.pipeline.spectra`, :mod:`~workers.pipeline.peaks` -- per-pixel
   spectra, summed spectra and their peaks;
 - :mod:`~workers.pipeline.segmentation` -- pixels grouped by spectral signature into object masks;
+  :mod:`~workers.pipeline.bodies` -- the parts of one body ringing in several modes joined into one object;
 - :mod:`~workers.pipeline.detection` -- which peaks are objects, and why the others are not;
 - :mod:`~workers.pipeline.tracking` and :mod:`~workers.pipeline.registration` -- each object's motion;
 - :mod:`~workers.pipeline.ringdown` (with :mod:`~workers.pipeline.lstsq`) -- the damped-oscillation fit;
+- :mod:`~workers.pipeline.modes` -- each object's modes: frequency, damping and shape (pixels, metres);
+- :mod:`~workers.pipeline.force` -- the excitation from a force sensor: a hold and release, or a strike;
 - :mod:`~workers.pipeline.metric`, :mod:`~workers.pipeline.mechanics`, :mod:`~workers.pipeline.measure` --
   amplitude in metres, stiffness and mass, one object's figures;
 - :mod:`~workers.pipeline.quality` -- why a figure may be unreliable;
 - :mod:`~workers.pipeline.figures` -- images of the result, one pure function per figure;
 - :mod:`~workers.pipeline.analysis` -- the stages wired together (:func:`analyze`);
 - :mod:`~workers.pipeline.paper` -- the paper's recipe, for comparison;
-- :mod:`~workers.pipeline.synth` -- ground-truth RGB-D scenes for tests, demos and benchmarks.
+- :mod:`~workers.pipeline.synth` -- ground-truth RGB-D scenes for tests, demos and benchmarks;
+  :mod:`~workers.pipeline.synth_beam` -- struck cantilevers ringing in their bending modes.
 """

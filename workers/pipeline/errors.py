@@ -42,3 +42,11 @@ class AnalysisError(EigenscopeError):
     """The clip is valid but the analysis cannot produce a result (for example: nothing moves)."""
 
     code = "analysis-failed"
+
+
+class ForceError(ParameterError):
+    """The force recording cannot give the excitation: a malformed force log or series (times running
+    backwards, non-finite values, missing columns, too few samples), or a force with no hold, release or
+    strike above its noise. The message says what is wrong and how to fix it."""
+
+    code = "invalid-force"

@@ -185,6 +185,7 @@ def measure_object(
         axis_px=track.axis_px,
         regime=regime,
         modes=_modes(track, region, window),
+        excitation=excitation,
     )
 
 
@@ -213,12 +214,16 @@ def _release(track: Track, window: WindowContext, excitation: Excitation | None)
     """The release (or strike) instant and the amplitude then, from the fitted model."""
     fit, buffers = track.fit, window.buffers
     kind = excitation.kind if excitation else None
-    t_rel = release_instant(fit, sample_rate_hz=window.sample_rate_hz, excitation=kind)
+    fit_start_s = buffers.start_s + float(buffers.times_s[track.onset])
+    if excitation is not None and excitation.release_time_s is not None:
+        t_rel = excitation.release_time_s - fit_start_s  # a force sensor saw it: no guess from the motion
+    else:
+        t_rel = release_instant(fit, sample_rate_hz=window.sample_rate_hz, excitation=kind)
     return _Release(
         t_rel=t_rel,
         amp_px=release_amplitude(fit, t_release_s=t_rel, excitation=kind),
         amp_sd_px=fit.amplitude_sd * math.exp(-fit.decay_per_s * t_rel),
-        time_s=buffers.start_s + float(buffers.times_s[track.onset]) + t_rel,
+        time_s=fit_start_s + t_rel,
         times_from_onset=buffers.times_s - buffers.times_s[track.onset],
     )
 

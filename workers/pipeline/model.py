@@ -73,6 +73,15 @@ class Excitation:
         ... or by a point on it (input pixels).
     box_px : (x, y, w, h) or None
         ... or by a box around it (input pixels). With none of the three: the main (strongest) object.
+    release_time_s : float or None
+        When it was let go (step_release) or struck (impulse), seconds on the clip's clock (0 = its first
+        frame), when a force sensor recorded it: the fit's release instant, instead of one guessed from
+        the motion.
+    source : str
+        Where it came from: ``request`` (typed), or the force recording (``topic /ft_sensor/wrench``,
+        ``log force.csv``).
+    notes : tuple of str
+        What its reader should know (the direction used, a typed value overriding a recorded one).
     """
 
     kind: Literal["step_release", "impulse"]
@@ -81,6 +90,9 @@ class Excitation:
     object_id: int | None = None
     point_px: tuple[float, float] | None = None
     box_px: tuple[float, float, float, float] | None = None
+    release_time_s: float | None = None
+    source: str = "request"
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in ("step_release", "impulse"):
@@ -259,6 +271,8 @@ class ObjectMeasurement:
     #: in the window, damping null), ``growing`` or ``beating`` (two close, unresolved frequencies).
     #: The object's modes and their shapes (None when its window was too short to seek them).
     modes: ObjectModeShapes | None = None
+    #: The excitation its stiffness and mass were measured with (None: not excited, or not known).
+    excitation: Excitation | None = None
     regime: str = "ring_down"
     #: Unit vector of the motion's axis in the image (x right, y down), when measured.
     axis_px: tuple[float, float] | None = None

@@ -164,6 +164,20 @@ class ModeHarmonic(_Model):
 
 
 @dataclass(frozen=True)
+class ExcitationUsed(_Model):
+    """The excitation an object's stiffness and mass were measured with, and where it came from
+    (``request``, or a force sensor's recording: ``topic <name>``, ``log <name>``)."""
+
+    schema: ClassVar[str] = "ExcitationUsed"
+    type: str
+    value: float
+    uncertainty: float
+    source: str
+    release_time_s: float | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
 class ObjectResult(_Model):
     """One vibrating object: its frequency, damping, amplitude, stiffness and mass (with uncertainties)."""
 
@@ -172,6 +186,7 @@ class ObjectResult(_Model):
         "ringdown": _optional(Ringdown.from_dict),
         "modes": _list_of(Mode.from_dict),
         "mode_harmonics": _list_of(ModeHarmonic.from_dict),
+        "excitation": _optional(ExcitationUsed.from_dict),
     }
     id: int
     eigenfrequency_hz: float
@@ -203,6 +218,7 @@ class ObjectResult(_Model):
     modes: list[Mode] = field(default_factory=list)
     mode_mac: list[list[float]] | None = None
     mode_harmonics: list[ModeHarmonic] = field(default_factory=list)
+    excitation: ExcitationUsed | None = None
 
 
 @dataclass(frozen=True)
@@ -479,5 +495,6 @@ class AnalysisParameters(TypedDict, total=False):
     depth_m: float
     color_topic: str
     depth_topic: str
+    force_topic: str
     min_frequency_hz: float
     max_frequency_hz: float

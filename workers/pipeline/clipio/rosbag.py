@@ -368,6 +368,8 @@ class BagClip(ClosingReader):
             self._d_sorted_of = {int(k): i for i, k in enumerate(timeline.d_order)}
             self._d_pos = timeline.d_pos
         self._depth_scale = depth_scale or DEFAULT_DEPTH_SCALE
+        #: Each frame's raw stamp (ns, the bag's clock): topics read beside the frames use it (force_topics).
+        self._frame_stamps_ns = int(min(c_stamps)) + np.rint(timeline.c_t * 1e9).astype(np.int64)
         streams = [color.name, *([depth.name] if depth else [])]
         streams += self._info_names
         self._info = ClipInfo(

@@ -720,6 +720,35 @@ class _BagOut:
         self.write(topics.depth_info, "sensor_msgs/msg/CameraInfo", stamp, info)
 
 
+@dataclass(frozen=True)
+class WrenchTopic:
+    """A wrist force/torque sensor's ``geometry_msgs/WrenchStamped`` topic to write beside the frames.
+
+    Attributes
+    ----------
+    stamps_ns : ndarray of int64, shape (N,)
+        Header stamps (and receive times), nanoseconds, on the frames' clock.
+    force_n : ndarray of float64, shape (N, 3)
+        Force in the sensor's frame, newtons (the torque is written as zero).
+    name, frame_id : str
+    """
+
+    stamps_ns: NDArray[np.int64]
+    force_n: NDArray[np.float64]
+    name: str = "/ft_sensor/wrench"
+    frame_id: str = "ft_sensor_link"
+
+
+@dataclass(frozen=True)
+class StaticTransform:
+    """A ``/tf_static`` transform: ``child``'s pose in ``parent``'s frame (rotation as x, y, z, w)."""
+
+    parent: str
+    child: str
+    rotation_xyzw: tuple[float, float, float, float]
+    translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
 def write_ros_bag(
     path: str | Path,
     rgb: NDArray[np.uint8],
@@ -730,6 +759,8 @@ def write_ros_bag(
     depth_stamps_ns: Sequence[int] | NDArray[np.int64] | None = None,
     version: Literal[1, 2] = 1,
     options: RosBagOptions | None = None,
+    wrenches: Sequence[WrenchTopic] = (),
+    transforms: Sequence[StaticTransform] = (),
 ) -> Path:
     """Write colour (+ depth) frames as a ROS 1 or ROS 2 bag with the ``rosbags`` writers.
 
@@ -749,13 +780,20 @@ def write_ros_bag(
     options : RosBagOptions, optional
         Topic layout, ROS 2 storage plugin, compression, depth scale and extra topics; see
         :class:`RosBagOptions` for the defaults.
+    wrenches : sequence of WrenchTopic
+        Force/torque topics written beside the frames.
+    transforms : sequence of StaticTransform
+        Written on ``/tf_static`` before the first frame (the colour frames' frame is
+        ``camera_color_optical_frame``).
     """
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     opts = options or RosBagOptions()
     path = Path(path)
     ros1 = version == 1
     typestore = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    if ros1 and transforms:  # ROS 1's store has no tf2 message built in
+        typestore.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms\n", _TF))
     writer = _open_bag_writer(path, ros1, opts.storage)
     d_stamps = list(stamps_ns if depth_stamps_ns is None else depth_stamps_ns)
     h, w = rgb.shape[1:3]
@@ -765,17 +803,54 @@ def write_ros_bag(
         t0 = int(min(stamps_ns[0], d_stamps[0] if depth is not None else stamps_ns[0]))
         if opts.layout == "realsense-sdk":
             out.sdk_options(t0)
+        for transform in transforms:
+            _write_static(out, transform, t0 - 1)
         events: list[tuple[int, int, str, int]] = [(int(s), 0, "c", i) for i, s in enumerate(stamps_ns)]
         if depth is not None:
             events += [(int(s), 1, "d", i) for i, s in enumerate(d_stamps)]
+        for w, topic in enumerate(wrenches):
+            events += [(int(s), 2 + w, "w", i) for i, s in enumerate(topic.stamps_ns)]
         events.sort()
-        for stamp, _, kind, i in events:
+        for stamp, order, kind, i in events:
             if kind == "c":
                 out.color(stamp, i, rgb[i])
+            elif kind == "w":
+                _write_wrench(out, wrenches[order - 2], stamp, i)
             else:
                 assert depth is not None
                 out.depth(stamp, i, depth[i])
     return path
+
+
+_WRENCH = "geometry_msgs/msg/WrenchStamped"
+_TF = "tf2_msgs/msg/TFMessage"
+
+
+def _vector(out: _BagOut, v: Sequence[float]) -> Any:
+    return out.typestore.types["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def _write_wrench(out: _BagOut, topic: WrenchTopic, stamp: int, i: int) -> None:
+    types = out.typestore.types
+    wrench = types["geometry_msgs/msg/Wrench"](
+        force=_vector(out, topic.force_n[i]), torque=_vector(out, (0, 0, 0))
+    )
+    header = _header(out.typestore, stamp, topic.frame_id, out.ros1, i)
+    out.write(topic.name, _WRENCH, stamp, types[_WRENCH](header=header, wrench=wrench))
+
+
+def _write_static(out: _BagOut, transform: StaticTransform, stamp: int) -> None:
+    types = out.typestore.types
+    x, y, z, w = transform.rotation_xyzw
+    stamped = types["geometry_msgs/msg/TransformStamped"](
+        header=_header(out.typestore, stamp, transform.parent, out.ros1, 0),
+        child_frame_id=transform.child,
+        transform=types["geometry_msgs/msg/Transform"](
+            translation=_vector(out, transform.translation_m),
+            rotation=types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
+        ),
+    )
+    out.write("/tf_static", _TF, stamp, types[_TF](transforms=[stamped]))
 
 
 def zip_folder(folder: str | Path, dest: str | Path, *, root: str | None = None) -> Path:
