@@ -322,15 +322,16 @@ class ObjectModeShapes:
         out[:, self.pixels] = values.real
         return out.reshape(len(values), *self.roi.grid_shape)
 
-    def frame_shapes(self, full_mask: NDArray[np.bool_]) -> NDArray[np.float32]:
+    def frame_shapes(self, full_mask: NDArray[np.bool_], *, imaginary: bool = False) -> NDArray[np.float32]:
         """The modes' real shapes as displacement in input pixels over the whole frame (M, H, W, 2), NaN
         off the object (``full_mask``, (H, W)): each pixel's share of the mode (its real, phase-aligned
         shape) times the modal coordinate's fitted amplitude at the motion's start (the modal filter's
         basis is that same shape, so the product is the pixel's displacement whatever the shape's scale),
-        times the input pixels per grid pixel, placed in the box the grid covers (``roi``)."""
+        times the input pixels per grid pixel, placed in the box the grid covers (``roi``). With
+        ``imaginary``, the shapes' imaginary parts on the same scale (a complex mode's quadrature part)."""
         if self.roi is None:
             raise ParameterError("frame_shapes: the shapes were found without the box their grid covers")
-        grid = self.images(self.roi.grid_shape)
+        grid = self.images(self.roi.grid_shape, imaginary=imaginary)
         out = np.full((len(self.found.modes), *full_mask.shape, 2), np.nan, np.float32)
         for m, mode in enumerate(self.found.modes):
             gain = self.roi.pixel_scale * abs(mode.fit.amplitude)
@@ -339,10 +340,10 @@ class ObjectModeShapes:
         out[:, ~full_mask, :] = np.nan
         return out
 
-    def images(self, grid_shape: tuple[int, int]) -> NDArray[np.float32]:
-        """The modes' real shapes on the grid, (M, h, w, 2), NaN outside the mask."""
+    def images(self, grid_shape: tuple[int, int], *, imaginary: bool = False) -> NDArray[np.float32]:
+        """The modes' real (or imaginary) shapes on the grid, (M, h, w, 2), NaN outside the mask."""
         out = np.full((len(self.found.modes), grid_shape[0] * grid_shape[1], 2), np.nan, np.float32)
-        out[:, self.pixels, :] = self.shapes.real
+        out[:, self.pixels, :] = self.shapes.imag if imaginary else self.shapes.real
         return out.reshape(len(self.found.modes), *grid_shape, 2)
 
 

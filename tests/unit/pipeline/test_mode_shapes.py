@@ -247,3 +247,31 @@ def test_shapes_in_metres_across_and_along_the_line_of_sight() -> None:
     # No intrinsics: no shapes in metres.
     plain = object_modes(flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=depth)
     assert plain.frame_shapes_m(full_mask) is None
+
+
+def test_a_travelling_wave_is_a_complex_mode_with_its_quadrature_part() -> None:
+    """A wave running along a strip (one wavelength over it, 0.4 grid px at 4 Hz): a complex mode, whose
+    real and imaginary shapes together have the same magnitude everywhere, 0.8 input px at 2 px a grid
+    pixel, with the phase turning once along the strip."""
+    from workers.pipeline.modes import object_modes
+    from workers.pipeline.roi import Roi
+
+    fs, n, f = 60.0, 600, 4.0
+    roi = Roi(x=0, y=0, width=80, height=12, grid_shape=(6, 40), frame_shape=(12, 80))
+    t = np.arange(n + 1)[:, None] / fs
+    x = np.arange(40)[None, :] / 40
+    displacement = 0.4 * np.cos(2 * np.pi * (f * t - x))
+    flow = np.random.default_rng(6).normal(0, 0.002, (n, 6, 40, 2)).astype(np.float32)
+    flow[:, 3, :, 1] += np.diff(displacement, axis=0)
+    mask = np.zeros((6, 40), bool)
+    mask[3] = True
+    result = object_modes(flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi)
+    assert len(result.found.modes) == 1
+    assert result.found.modes[0].complexity > 0.3
+    full_mask = np.zeros((12, 80), bool)
+    full_mask[6:8] = True
+    real = result.frame_shapes(full_mask)[0][full_mask][:, 1]
+    imag = result.frame_shapes(full_mask, imaginary=True)[0][full_mask][:, 1]
+    np.testing.assert_allclose(np.hypot(real, imag), 0.8, rtol=0.05)
+    phase = np.unwrap(np.angle((real + 1j * imag)[::2][:40]))
+    assert abs(abs(phase[-1] - phase[0]) - 2 * np.pi * 39 / 40) < 0.3

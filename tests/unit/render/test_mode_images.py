@@ -258,3 +258,31 @@ def test_draw_all_writes_both_and_returns_their_names(modes: ObjectModeShapes, t
     frames, info = gif_frames(tmp_path / "modes.gif")
     assert len(frames) == ANIMATION_FRAMES
     assert info["loop"] == 0
+
+
+def test_the_modes_artifact_gives_imaginary_parts_only_for_complex_modes() -> None:
+    """The bar's standing modes are real: no ``_shapes_imag``; the same bar with its bending mode made a
+    travelling wave (its shape turned by a phase along it) gets them, the complex shape whole."""
+    from workers.pipeline.figures.modes_file import COMPLEX_MODE, modes_arrays
+
+    modes = bar_modes()
+    assert max(m.complexity for m in modes.found.modes) < COMPLEX_MODE
+    arrays = modes_arrays(bar_analysis(modes))
+    assert "object_1_shapes" in arrays
+    assert "object_1_shapes_imag" not in arrays
+    turn = np.exp(1j * np.linspace(0.0, np.pi, len(modes.pixels)))[None, :, None].astype(np.complex64)
+    travelling = replace(modes, shapes=(modes.shapes * turn).astype(np.complex64))
+    found = replace(
+        modes.found, modes=[replace(m, shape=m.shape * turn[0, : len(m.shape)]) for m in modes.found.modes]
+    )
+    travelling = replace(travelling, found=found)
+    assert max(m.complexity for m in found.modes) > COMPLEX_MODE
+    arrays = modes_arrays(bar_analysis(travelling))
+    real, imag = arrays["object_1_shapes"], arrays["object_1_shapes_imag"]
+    assert imag.shape == real.shape
+    assert imag.dtype == np.float32
+    # The turn changes each pixel's phase, never its magnitude.
+    mask = bar_analysis(modes).labels == 1
+    whole = np.hypot(modes.frame_shapes(mask), modes.frame_shapes(mask, imaginary=True))
+    inside = np.isfinite(whole)
+    np.testing.assert_allclose(np.hypot(real, imag)[inside], whole[inside], rtol=1e-3, atol=1e-6)

@@ -8,6 +8,9 @@ Per object ``i`` (its id in ``mask.png``) with at least one mode:
 - ``object_<i>_damping_ratio``: float64, shape (modes,), NaN where a mode does not decay;
 - ``object_<i>_energy_share``: float64, shape (modes,);
 - ``object_<i>_mac``: float64, shape (modes, modes), the MAC between the shapes;
+- ``object_<i>_shapes_imag``: float32, same layout as ``_shapes``, only when a mode is complex (its
+  :attr:`~workers.pipeline.modes.Mode.complexity` above :data:`COMPLEX_MODE`: heavy or non-proportional
+  damping, a travelling wave): the imaginary parts, so that the complex shape is ``shapes + 1j * imag``;
 - ``object_<i>_shapes_m``: float32, shape (modes, H, W, 3), where depth (or a given distance) and the
   camera's intrinsics allow: the same displacement in metres, x and y across the line of sight and z along
   it (positive away from the camera; NaN without a depth series), NaN off the object or without a depth
@@ -31,6 +34,11 @@ if TYPE_CHECKING:
     from workers.pipeline.model import Analysis
 
 
+#: A mode whose shape's imaginary part holds more than this share of its energy is complex: its
+#: imaginary parts are written too (a lightly damped standing mode's is noise, well below it).
+COMPLEX_MODE = 0.1
+
+
 def modes_arrays(analysis: Analysis) -> dict[str, NDArray[np.generic]]:
     """The arrays of the ``modes`` artifact (see the module docstring) of ``analysis``."""
     out: dict[str, NDArray[np.generic]] = {}
@@ -45,6 +53,8 @@ def modes_arrays(analysis: Analysis) -> dict[str, NDArray[np.generic]]:
         out[f"{key}_damping_ratio"] = np.array(damping, np.float64)
         out[f"{key}_energy_share"] = np.array([m.energy_share for m in modes], np.float64)
         out[f"{key}_mac"] = np.asarray(obj.modes.found.mac, np.float64)
+        if any(m.complexity > COMPLEX_MODE for m in modes):
+            out[f"{key}_shapes_imag"] = obj.modes.frame_shapes(analysis.labels == obj.id, imaginary=True)
         metres = obj.modes.frame_shapes_m(analysis.labels == obj.id)
         if metres is not None:
             out[f"{key}_shapes_m"] = metres
@@ -58,4 +68,4 @@ def write_modes_npz(path: str | Path, analysis: Analysis) -> Path:
     return write_atomically(path, buffer.getvalue())
 
 
-__all__ = ["modes_arrays", "write_modes_npz"]
+__all__ = ["COMPLEX_MODE", "modes_arrays", "write_modes_npz"]
