@@ -316,7 +316,9 @@ class Artifacts(BaseModel):
         "`object_<id>_frequencies_hz`, `object_<id>_damping_ratio`, `object_<id>_energy_share` and "
         "`object_<id>_mac`, in the order of the object's `modes`; where depth (or a given distance) and "
         "intrinsics allow, `object_<id>_shapes_m`, float32 (modes, H, W, 3): the displacement in metres, x "
-        "and y across the line of sight, z along it (from the depth series; NaN without one).",
+        "and y across the line of sight, z along it (from the depth series; NaN without one); when a mode is "
+        "complex (a travelling wave, heavy damping), `object_<id>_shapes_imag`: the imaginary parts, so that "
+        "the complex shape is `shapes + 1j * shapes_imag`.",
     )
     mode_shapes: str | None = Field(
         default=None,
