@@ -10,6 +10,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import matplotlib.text
 import pytest
 
 from workers.pipeline.analysis import Analysis, AnalysisConfig, Excitation, analyze
@@ -108,3 +109,17 @@ def paper(tmp_path_factory: pytest.TempPathFactory) -> Analysed:
 def small(tmp_path_factory: pytest.TempPathFactory) -> Analysed:
     """320x240 with the default method and no excitation (k and m unknown): upscaled overlay."""
     return _analyse(SMALL, tmp_path_factory.mktemp("small"))
+
+
+@pytest.fixture
+def texts(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Every string matplotlib lays out while the test runs (every figure is drawn in this process)."""
+    seen: list[str] = []
+    original = matplotlib.text.Text.set_text
+
+    def spy(self: matplotlib.text.Text, s: object) -> None:
+        seen.append(str(s))
+        original(self, s)
+
+    monkeypatch.setattr(matplotlib.text.Text, "set_text", spy)
+    return seen

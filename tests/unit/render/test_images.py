@@ -12,7 +12,6 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
-import matplotlib.text
 import numpy as np
 import pytest
 
@@ -103,20 +102,6 @@ def check_all(analysis: Analysis, out: Path) -> dict[str, np.ndarray]:
     assert mask.ndim == 2
     np.testing.assert_array_equal(mask, analysis.labels)
     return images
-
-
-@pytest.fixture
-def texts(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """Every string matplotlib lays out while the test runs (every figure is drawn in this process)."""
-    seen: list[str] = []
-    original = matplotlib.text.Text.set_text
-
-    def spy(self: matplotlib.text.Text, s: object) -> None:
-        seen.append(str(s))
-        original(self, s)
-
-    monkeypatch.setattr(matplotlib.text.Text, "set_text", spy)
-    return seen
 
 
 def test_sizes_for_a_vga_frame_are_the_documented_ones():

@@ -11,7 +11,6 @@ import re
 from dataclasses import replace
 from pathlib import Path
 
-import matplotlib.text
 import numpy as np
 import pytest
 
@@ -116,20 +115,6 @@ def modes() -> ObjectModeShapes:
     assert [round(m.frequency_hz) for m in found.found.modes] == [11, 3]
     assert [m.damping_ratio is None for m in found.found.modes] == [True, False]
     return found
-
-
-@pytest.fixture
-def texts(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """Every string matplotlib lays out while the test runs."""
-    seen: list[str] = []
-    original = matplotlib.text.Text.set_text
-
-    def spy(self: matplotlib.text.Text, s: object) -> None:
-        seen.append(str(s))
-        original(self, s)
-
-    monkeypatch.setattr(matplotlib.text.Text, "set_text", spy)
-    return seen
 
 
 def panel_of(image: np.ndarray, column: int, *, inset: int = 4) -> np.ndarray:
