@@ -65,6 +65,7 @@ def join_bodies(
     bin_hz = float(frequencies_hz[1] - frequencies_hz[0])
     masks = [seg.labels == i + 1 for i in range(k)]
     spectra = [power[:, m.ravel()].sum(axis=1, dtype=np.float64) for m in masks]
+    floors = [noise_floor(spectrum, width=FLOOR_WIDTH_BINS) for spectrum in spectra]
     near = [_grown(m) for m in masks]
     parent = list(range(k))
 
@@ -78,7 +79,9 @@ def join_bodies(
             fa, fb = seg.peaks[a].frequency_hz, seg.peaks[b].frequency_hz
             if abs(fa - fb) < MIN_SEPARATION_BINS * bin_hz or not (near[a] & masks[b]).any():
                 continue
-            if _has_line(spectra[a], frequencies_hz, fb) and _has_line(spectra[b], frequencies_hz, fa):
+            if _has_line(spectra[a], floors[a], frequencies_hz, fb) and _has_line(
+                spectra[b], floors[b], frequencies_hz, fa
+            ):
                 parent[root(b)] = root(a)
     groups = sorted({root(i) for i in range(k)})
     if len(groups) == k:
@@ -100,9 +103,13 @@ def _grown(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
 
 
 def _has_line(
-    spectrum: NDArray[np.float64], frequencies_hz: NDArray[np.float64], frequency_hz: float
+    spectrum: NDArray[np.float64],
+    floor: NDArray[np.float64],
+    frequencies_hz: NDArray[np.float64],
+    frequency_hz: float,
 ) -> bool:
-    """Whether ``spectrum`` has a line of its own at ``frequency_hz`` (within a bin)."""
+    """Whether ``spectrum`` (over its running-median ``floor``) has a line of its own at ``frequency_hz``
+    (within a bin)."""
     k = int(np.argmin(np.abs(frequencies_hz - frequency_hz)))
     lo, hi = max(k - 1, 1), min(k + 2, len(spectrum) - 1)
     if hi <= lo:
@@ -110,7 +117,6 @@ def _has_line(
     k = lo + int(np.argmax(spectrum[lo:hi]))
     if not (spectrum[k] >= spectrum[k - 1] and spectrum[k] >= spectrum[k + 1]):
         return False  # a flank, not a maximum
-    floor = noise_floor(spectrum, width=FLOOR_WIDTH_BINS)
     stands = spectrum[k] >= 10 ** (SHARED_LINE_DB / 10) * max(float(floor[k]), 1e-30)
     return bool(stands and topographic_prominence(spectrum, k) >= SHARED_PROMINENCE)
 
