@@ -8,7 +8,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from api_schemas.parameters import AnalysisParameters, ExcitationSpec
+from api_schemas.parameters import AnalysisParameters, ExcitationSpec, ForceLog, ForceLogSummary
 from api_schemas.problem import Problem
 from api_schemas.result import RESPONSE, AnalysisResult
 
@@ -25,6 +25,14 @@ class JobCreate(BaseModel):
         "`object_id`, `point_px` or `box_px`). Without it, stiffness and mass are null.",
     )
     parameters: AnalysisParameters = Field(default_factory=AnalysisParameters)
+    force_log: ForceLog | None = Field(
+        default=None,
+        description="The robot's force sensor, recorded as a time series beside the clip: its push, hold and "
+        "release, or its strike, is the excitation (stiffness and mass follow as from a typed one, and the "
+        "result's `excitation.source` names the log). A typed `excitation` overrides it. Its clock: 0 is "
+        "the clip's first frame, `offset_s` is added to every time. The job shows a summary of it, never "
+        "its samples.",
+    )
     callback_url: str | None = Field(
         default=None,
         min_length=1,
@@ -95,6 +103,9 @@ class _JobFields(BaseModel):
     attempts: int = 0
     excitation: ExcitationSpec | None = None
     parameters: AnalysisParameters
+    force_log: ForceLogSummary | None = Field(
+        default=None, description="The force log the job was sent with (its samples are not echoed)."
+    )
     created_at: datetime
     started_at: datetime | None = None
     finished_at: datetime | None = None

@@ -3,6 +3,7 @@ parameters an analysis used (``AnalysisResult.parameters``)."""
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
@@ -50,6 +51,10 @@ ExcitationSpec = Excitation | Annotated[list[Excitation], Field(min_length=1, ma
 
 #: Most samples of a force log sent with a request (10 minutes at 1 kHz would be 600,000).
 MAX_FORCE_SAMPLES = 200_000
+#: Longest text of one number of a force log in JSON, its separator included: a float at full precision
+#: (``-1.2345678901234567e-05``) and ``", "``. The job request's body limit leaves room for
+#: :data:`MAX_FORCE_SAMPLES` of them in each of four columns (``backend.settings``, ``max_job_body_kb``).
+MAX_FORCE_NUMBER_BYTES = 26
 
 
 class ForceLog(BaseModel):
@@ -75,20 +80,69 @@ class ForceLog(BaseModel):
     frame_id: str | None = Field(default=None, max_length=256, description="The sensor's frame, if known.")
     name: str = Field(default="force log", max_length=256, description="Where the log came from (a file).")
 
+    @field_validator("time_s")
+    @classmethod
+    def _increasing(cls, times: list[float]) -> list[float]:
+        """Times strictly increasing: the first that repeats or runs backwards is named, with the fix."""
+        for i in range(1, len(times)):
+            if not times[i] > times[i - 1]:
+                how = "repeats" if times[i] == times[i - 1] else "runs backwards from"
+                raise ValueError(
+                    f"times must increase strictly, but time_s[{i}] = {times[i]:.9g} s {how} "
+                    f"time_s[{i - 1}] = {times[i - 1]:.9g} s; sort the samples by time and drop repeated "
+                    "ones, or fix the sensor's clock"
+                )
+        return times
+
+    @field_validator("fx", "fy", "fz", "force_n")
+    @classmethod
+    def _one_value_per_time(cls, column: list[float] | None, info: ValidationInfo) -> list[float] | None:
+        """Each column as long as ``time_s`` (checked once ``time_s`` is valid)."""
+        times = info.data.get("time_s")
+        if column is not None and times is not None and len(column) != len(times):
+            raise ValueError(
+                f"{info.field_name} has {len(column)} values but time_s has {len(times)}; give one value "
+                "per time"
+            )
+        return column
+
     @model_validator(mode="after")
     def _one_form(self) -> ForceLog:
-        """Three components or one magnitude, each as long as ``time_s``."""
+        """Three components or one magnitude, and times that stay finite once ``offset_s`` is added."""
         given = [c for c in (self.fx, self.fy, self.fz) if c is not None]
         if self.force_n is not None and given:
             raise ValueError("give either fx, fy and fz or force_n, not both")
         if self.force_n is None and len(given) != 3:
             raise ValueError("give all three of fx, fy and fz, or force_n alone")
-        for column in [self.force_n] if self.force_n is not None else given:
-            if len(column) != len(self.time_s):
-                raise ValueError(
-                    f"every column must have one value per time ({len(self.time_s)}), got {len(column)}"
-                )
+        if not all(math.isfinite(t + self.offset_s) for t in (self.time_s[0], self.time_s[-1])):
+            raise ValueError(f"time_s plus offset_s={self.offset_s:g} overflows; give times in seconds")
         return self
+
+    def summary(self) -> ForceLogSummary:
+        """What a job shows of its log: name, size and span on the clip's clock, not the samples."""
+        return ForceLogSummary(
+            name=self.name,
+            samples=len(self.time_s),
+            start_s=self.time_s[0] + self.offset_s,
+            end_s=self.time_s[-1] + self.offset_s,
+            columns=["force_n"] if self.force_n is not None else ["fx", "fy", "fz"],
+            frame_id=self.frame_id,
+        )
+
+
+class ForceLogSummary(BaseModel):
+    """The force log a job was sent with, as the job shows it (its samples are not echoed)."""
+
+    model_config = ConfigDict(
+        title="ForceLogSummary", allow_inf_nan=False, json_schema_serialization_defaults_required=True
+    )
+
+    name: str = Field(description="The log's `name` (a file).")
+    samples: int = Field(ge=0, description="Samples in the log.")
+    start_s: float = Field(description="First sample's time on the clip's clock (`offset_s` added), s.")
+    end_s: float = Field(description="Last sample's time on the clip's clock (`offset_s` added), s.")
+    columns: list[str] = Field(description="The force's columns: `fx`, `fy`, `fz`, or `force_n`.")
+    frame_id: str | None = Field(default=None, description="The sensor's frame, if given.")
 
 
 #: Fewest frames of an analysis window (the pipeline's ``workers.pipeline.clipio.types.MIN_FRAMES``, which

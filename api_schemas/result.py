@@ -82,8 +82,14 @@ class ExcitationUsed(BaseModel):
 
     model_config = ConfigDict(title="ExcitationUsed", **RESPONSE)
 
-    type: Literal["step_release", "impulse"]
-    value: float = Field(description="Held force, newtons (step_release), or impulse, newton-seconds.")
+    type: Literal["step_release", "impulse", "forced"] = Field(
+        description="`forced`: a recorded force that kept acting; stiffness and mass then come from the "
+        "response between the force and the motion (one degree of freedom; its damping in `notes`)."
+    )
+    value: float = Field(
+        description="Held force, newtons (step_release), impulse, newton-seconds (impulse), or the force's "
+        "RMS, newtons (forced)."
+    )
     uncertainty: float = Field(ge=0, description="Its standard uncertainty, same unit.")
     release_time_s: float | None = Field(
         default=None,

@@ -14,8 +14,16 @@ from typing import Any, Literal, Self
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from api_schemas.parameters import MAX_FORCE_NUMBER_BYTES, MAX_FORCE_SAMPLES
+
 #: Name of the Celery queue every analysis job goes to.
 DEFAULT_QUEUE = "eigenscope"
+#: The default limits of request bodies, KiB: every route but the upload, and ``POST /v1/jobs``, whose
+#: request may carry a force log of the most samples allowed (time and three components, each number at
+#: full precision) beside the rest of a request.
+DEFAULT_MAX_JSON_BODY_KB = 1024
+_FORCE_LOG_KB = -(-MAX_FORCE_SAMPLES * 4 * MAX_FORCE_NUMBER_BYTES // 1024)  # rounded up
+DEFAULT_MAX_JOB_BODY_KB = DEFAULT_MAX_JSON_BODY_KB + _FORCE_LOG_KB
 
 
 class Settings(BaseSettings):
@@ -145,10 +153,16 @@ class Settings(BaseSettings):
 
     # Request bodies, connections and HTTP server limits ---------------------------------------
     max_json_body_kb: int = Field(
-        default=1024,
+        default=DEFAULT_MAX_JSON_BODY_KB,
         ge=1,
-        description="Largest body of every route but the clip upload, KiB (413 beyond; bodies declared "
-        "larger are refused before they are read).",
+        description="Largest body of every route but the clip upload and the job request, KiB (413 beyond; "
+        "bodies declared larger are refused before they are read).",
+    )
+    max_job_body_kb: int = Field(
+        default=DEFAULT_MAX_JOB_BODY_KB,
+        ge=1,
+        description="Largest body of a job request (POST /v1/jobs), KiB: by default room for a force log of "
+        "the most samples allowed (200,000 of time and three components, about 20 MiB of JSON). 413 beyond.",
     )
     body_idle_timeout_s: float = Field(
         default=30,
@@ -381,6 +395,10 @@ class Settings(BaseSettings):
     @property
     def max_json_body_bytes(self) -> int:
         return self.max_json_body_kb * 1024
+
+    @property
+    def max_job_body_bytes(self) -> int:
+        return self.max_job_body_kb * 1024
 
     @property
     def broker_dir(self) -> Path:

@@ -48,6 +48,23 @@ def strict_json_loads(body: bytes | str) -> Any:
     return json.loads(body, parse_constant=_constant, parse_float=_float, parse_int=_int)
 
 
+def non_finite_path(value: Any) -> list[str | int] | None:
+    """Where in parsed JSON (``json.loads``, which lets them through) the first number is that
+    :func:`strict_json_loads` refuses: the keys and list indices down to it, or None when there is none."""
+    stack: list[tuple[Any, list[str | int]]] = [(value, [])]
+    while stack:
+        item, path = stack.pop()
+        if isinstance(item, float) and not math.isfinite(item):
+            return path
+        if isinstance(item, int) and not isinstance(item, bool) and not -_INT64 <= item < _INT64:
+            return path
+        if isinstance(item, dict):
+            stack.extend((v, [*path, str(k)]) for k, v in reversed(list(item.items())))
+        elif isinstance(item, list):
+            stack.extend((v, [*path, i]) for i, v in reversed(list(enumerate(item))))
+    return None
+
+
 def json_depth_error(text: str, max_depth: int) -> str | None:
     """Why ``text`` must not be parsed: nested deeper than ``max_depth`` arrays and objects (a parser
     would recurse that deep); None when it may be. Brackets inside strings do not count."""

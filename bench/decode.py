@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from workers.pipeline.clipio import bag_writer as bw
 from workers.pipeline.clipio import open_clip, write_npz
 from workers.pipeline.clipio import writers as w
 from workers.pipeline.synth import Scene, render
@@ -56,50 +57,50 @@ def main() -> None:
             {"depth": write_npz(d / "dep.npz", rgb[:, :16, :16], fps=30.0, depth=depth)},
         ),
         "ros1 bag raw": lambda d: (
-            w.write_ros_bag(d / "c.bag", rgb, stamps_ns=stamps, intrinsics=k, depth=depth),
+            bw.write_ros_bag(d / "c.bag", rgb, stamps_ns=stamps, intrinsics=k, depth=depth),
             {},
         ),
         "ros1 bag realsense-sdk": lambda d: (
-            w.write_ros_bag(
+            bw.write_ros_bag(
                 d / "rs.bag",
                 rgb,
                 stamps_ns=stamps,
                 intrinsics=k,
                 depth=depth,
-                options=w.RosBagOptions(layout="realsense-sdk"),
+                options=bw.RosBagOptions(layout="realsense-sdk"),
             ),
             {},
         ),
         "ros2 mcap raw": lambda d: (
-            w.write_ros_bag(d / "m", rgb, stamps_ns=stamps, intrinsics=k, depth=depth, version=2),
+            bw.write_ros_bag(d / "m", rgb, stamps_ns=stamps, intrinsics=k, depth=depth, version=2),
             {},
         ),
         "ros2 sqlite3 raw": lambda d: (
-            w.write_ros_bag(
+            bw.write_ros_bag(
                 d / "s",
                 rgb,
                 stamps_ns=stamps,
                 intrinsics=k,
                 depth=depth,
                 version=2,
-                options=w.RosBagOptions(storage="sqlite3"),
+                options=bw.RosBagOptions(storage="sqlite3"),
             ),
             {},
         ),
         "ros2 mcap compressed": lambda d: (
-            w.write_ros_bag(
+            bw.write_ros_bag(
                 d / "mc",
                 rgb,
                 stamps_ns=stamps,
                 intrinsics=k,
                 depth=depth,
                 version=2,
-                options=w.RosBagOptions(compressed=True),
+                options=bw.RosBagOptions(compressed=True),
             ),
             {},
         ),
         "ros2 zipped mcap": lambda d: (
-            w.write_ros2_zip(d / "z.zip", rgb, stamps_ns=stamps, intrinsics=k, depth=depth),
+            bw.write_ros2_zip(d / "z.zip", rgb, stamps_ns=stamps, intrinsics=k, depth=depth),
             {},
         ),
     }

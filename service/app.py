@@ -17,7 +17,7 @@ from fastapi.routing import APIRoute
 from backend.logs import configure_logging
 from backend.settings import Settings
 from backend.version import __version__
-from service.bodies import BodyLimits
+from service.bodies import BodyCap, BodyLimits
 from service.context import ServiceContext
 from service.methods import MethodSemantics, PathMethods
 from service.observability import RequestMiddleware
@@ -93,6 +93,8 @@ def create_app(settings: Settings | None = None, *, configure_log: bool | None =
         BodyLimits,
         max_body_bytes=settings.max_json_body_bytes,
         idle_timeout_s=settings.body_idle_timeout_s,
+        # A job request may carry a force log (api_schemas.ForceLog): up to 200,000 samples.
+        route_caps={("POST", "/v1/jobs"): BodyCap(settings.max_job_body_bytes, "EIGENSCOPE_MAX_JOB_BODY_KB")},
     )
     install_problem_handlers(app)
     app.include_router(clips.router)

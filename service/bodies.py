@@ -2,12 +2,14 @@
 
 Every route but the streamed clip upload gets its body read here first, under three rules:
 
-- a cap (``EIGENSCOPE_MAX_JSON_BODY_KB``): a body declared or found larger is answered 413 before it is
-  parsed, and never held in memory beyond the cap;
+- a cap (``EIGENSCOPE_MAX_JSON_BODY_KB``; a route may have its own: ``POST /v1/jobs``, whose request may
+  carry a force log, has ``EIGENSCOPE_MAX_JOB_BODY_KB``): a body declared or found larger is answered 413
+  before it is parsed, and never held in memory beyond the cap;
 - an idle timeout (``EIGENSCOPE_BODY_IDLE_TIMEOUT_S``): a body that sends nothing for that long is
   answered 408 and its connection closed;
 - finite numbers: a JSON body holding ``NaN``, ``Infinity`` or a number that overflows (``1e309``, an
-  integer beyond 64 bits) is answered 422, whatever field holds it, before any model sees it.
+  integer beyond 64 bits) is answered 422, whatever field holds it, before any model sees it; the error
+  names the field (``["body", "force_log", "fx", 12]``).
 
 The upload route streams its body itself (:mod:`service.multipart`); it gets the idle timeout only, as a
 :class:`~backend.errors.RequestTimeoutError` raised from ``receive`` that the upload turns into a 408 after
@@ -17,11 +19,13 @@ removing its temporary file.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Awaitable, Callable, MutableMapping
+import json
+from collections.abc import Awaitable, Callable, Mapping, MutableMapping
+from dataclasses import dataclass
 from typing import Any
 
 from backend.errors import InvalidInputError, PayloadTooLargeError, RequestTimeoutError, ServiceError
-from backend.strict_json import NonFiniteNumberError, strict_json_loads
+from backend.strict_json import NonFiniteNumberError, non_finite_path, strict_json_loads
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -33,6 +37,14 @@ ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 STREAMED_BODIES = frozenset({("POST", "/v1/clips")})
 #: After a body over the cap, read (and drop) at most this much more, so the client gets to read the 413.
 _DRAIN_BYTES = 128 * 1024 * 1024
+
+
+@dataclass(frozen=True, slots=True)
+class BodyCap:
+    """A limit of request bodies, bytes, and the setting that sets it (named in the 413)."""
+
+    max_bytes: int
+    setting: str = "EIGENSCOPE_MAX_JSON_BODY_KB"
 
 
 def _is_json(scope: Scope) -> bool:
@@ -66,24 +78,29 @@ class BodyLimits:
         max_body_bytes: int,
         idle_timeout_s: float,
         streamed: frozenset[tuple[str, str]] = STREAMED_BODIES,
+        route_caps: Mapping[tuple[str, str], BodyCap] | None = None,
     ) -> None:
         self.app = app
         self.max_body_bytes = max_body_bytes
         self.idle_timeout_s = idle_timeout_s
         self.streamed = streamed
+        #: Routes (method, path) with caps of their own; every other route has ``max_body_bytes``.
+        self.route_caps = dict(route_caps or {})
+        self._default_cap = BodyCap(max_body_bytes)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        if (scope["method"], scope["path"]) in self.streamed:
+        route = (scope["method"], scope["path"])
+        if route in self.streamed:
             await self.app(scope, self._idle_timed(receive), send)
             return
         if not _has_body(scope):  # no Content-Length, no Transfer-Encoding: HTTP/1.1 sends no body
             await self.app(scope, receive, send)
             return
         try:
-            body = await self._read(scope, receive)
+            body = await self._read(scope, receive, self.route_caps.get(route, self._default_cap))
         except ServiceError as exc:
             await _problem(scope, receive, send, exc.problem(instance=scope["path"]), exc.headers())
             return
@@ -93,7 +110,7 @@ class BodyLimits:
             try:
                 strict_json_loads(body)
             except NonFiniteNumberError as exc:
-                await _problem(scope, receive, send, _non_finite(scope, str(exc)), {})
+                await _problem(scope, receive, send, _non_finite(scope, body, str(exc)), {})
                 return
             except (ValueError, RecursionError):
                 pass  # malformed JSON: the route answers it as it always does (422)
@@ -123,12 +140,12 @@ class BodyLimits:
                 "(EIGENSCOPE_BODY_IDLE_TIMEOUT_S); the connection is closed -- send the body without pauses"
             ) from None
 
-    async def _read(self, scope: Scope, receive: Receive) -> bytes | None:
+    async def _read(self, scope: Scope, receive: Receive, cap: BodyCap) -> bytes | None:
         """The whole body (None if the client disconnected); 413 over the cap, 408 when it stalls."""
         declared = _declared_length(scope)
-        if declared is not None and declared > self.max_body_bytes:
+        if declared is not None and declared > cap.max_bytes:
             await self._drain(receive, declared)
-            raise self._too_large(declared)
+            raise self._too_large(declared, cap)
         chunks: list[bytes] = []
         size = 0
         more = True
@@ -139,10 +156,10 @@ class BodyLimits:
             chunk = message.get("body", b"")
             size += len(chunk)
             more = bool(message.get("more_body", False))
-            if size > self.max_body_bytes:
+            if size > cap.max_bytes:
                 if more:
                     await self._drain(receive, _DRAIN_BYTES)
-                raise self._too_large(None)
+                raise self._too_large(None, cap)
             chunks.append(chunk)
         return b"".join(chunks)
 
@@ -162,13 +179,14 @@ class BodyLimits:
             if not message.get("more_body", False):
                 return
 
-    def _too_large(self, declared: int | None) -> PayloadTooLargeError:
+    @staticmethod
+    def _too_large(declared: int | None, cap: BodyCap) -> PayloadTooLargeError:
         size = f"of {declared} bytes " if declared is not None else ""
         return PayloadTooLargeError(
-            f"the request body {size}exceeds the limit of {self.max_body_bytes} bytes "
-            "(EIGENSCOPE_MAX_JSON_BODY_KB); clips go to POST /v1/clips as multipart/form-data",
+            f"the request body {size}exceeds the limit of {cap.max_bytes} bytes ({cap.setting}); clips go "
+            "to POST /v1/clips as multipart/form-data",
             code="body-too-large",
-            max_bytes=self.max_body_bytes,
+            max_bytes=cap.max_bytes,
         )
 
 
@@ -186,9 +204,16 @@ def _replay(body: bytes, receive: Receive) -> Receive:
     return replay
 
 
-def _non_finite(scope: Scope, message: str) -> dict[str, Any]:
+def _non_finite(scope: Scope, body: bytes, message: str) -> dict[str, Any]:
+    """The 422 of a body holding a number that is not finite, naming the field that holds it."""
+    try:  # parsed again, accepting what was refused, to find where it is
+        path = non_finite_path(json.loads(body))
+    except (ValueError, RecursionError):
+        path = None
+    loc: list[str | int] = ["body", *(path or [])]
+    where = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc[1:]).lstrip(".") or "body"
     error = InvalidInputError(
-        f"body: {message}", errors=[{"loc": ["body"], "msg": message, "type": "finite_number"}]
+        f"{where}: {message}", errors=[{"loc": loc, "msg": message, "type": "finite_number"}]
     )
     return error.problem(instance=scope["path"])
 

@@ -9,7 +9,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from api_schemas import AnalysisResult, JobCreate, JobList
+from api_schemas import AnalysisResult, ForceLog, JobCreate, JobList
 from backend.errors import InvalidInputError, NotFoundError
 from backend.store import ClipRecord, JobRecord, NewJob, dumps_canonical
 from service.context import ServiceContext
@@ -68,10 +68,32 @@ def check_against_clip(body: JobCreate, clip: ClipRecord) -> None:
             ("body", "parameters", "frames"),
             f"a window of {p.frames} frames from frame {start} does not fit the clip's {frames} frames",
         )
+    if body.force_log is not None and frames:
+        # A rate given in the request rescales the frames' times: their span is then frames / that rate.
+        duration = info.get("duration_s") if p.fps is None else None
+        _check_force_log_clock(body.force_log, frames=frames, fps=float(fps), duration_s=duration)
+
+
+def _check_force_log_clock(log: ForceLog, *, frames: int, fps: float, duration_s: Any) -> None:
+    """Refuse a force log on another clock than the clip's: its times (``offset_s`` added) must overlap
+    the frames' (0 at the first frame; a frame's time of slack at the end)."""
+    last = float(duration_s) if isinstance(duration_s, int | float) and duration_s > 0 else (frames - 1) / fps
+    start, end = log.time_s[0] + log.offset_s, log.time_s[-1] + log.offset_s
+    if end >= 0.0 and start <= last + 1.0 / fps:
+        return
+    raise _invalid(
+        ("body", "force_log", "offset_s"),
+        f"the force log's times ({start:.6g} s to {end:.6g} s once offset_s={log.offset_s:g} is added) do "
+        f"not overlap the clip's frames (0 s to {last:.6g} s); its clock is not the clip's: set offset_s to "
+        "minus the log's time at the clip's first frame",
+    )
 
 
 def request_hash(body: JobCreate) -> str:
-    return hashlib.sha256(dumps_canonical(body.model_dump(mode="json")).encode()).hexdigest()
+    doc = body.model_dump(mode="json")
+    if doc.get("force_log") is None:  # a request without one hashes as it did before the field existed
+        doc.pop("force_log", None)
+    return hashlib.sha256(dumps_canonical(doc).encode()).hexdigest()
 
 
 def create_job(
@@ -98,10 +120,13 @@ def create_job(
     check_against_clip(body, clip)
     if body.callback_url is not None:
         check_callback_url(body.callback_url, ctx.settings)
+    force_log = body.force_log
     new = NewJob(
         clip_id=body.clip_id,
         excitation=excitation_json(body.excitation),
         parameters=body.parameters.model_dump(mode="json", exclude_none=True),
+        force_log=None if force_log is None else force_log.model_dump(mode="json"),
+        force_log_summary=None if force_log is None else force_log.summary().model_dump(mode="json"),
         owner=tenant,
         expires_at=expiry(time.time(), ctx.settings.retention_s),
         callback_url=body.callback_url,

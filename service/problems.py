@@ -13,7 +13,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from backend.errors import PROBLEM_BASE, ServiceError, problem_type
 from service.methods import ORIGINAL_METHOD
-from service.validation import field_errors, summary
+from service.validation import MAX_FIELD_ERRORS, MAX_READ_ERRORS, field_errors, summary
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +41,11 @@ def problem_response(doc: dict[str, Any], headers: dict[str, str] | None = None)
     return ProblemResponse(doc, status_code=int(doc["status"]), headers=headers)
 
 
-def _validation_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
-    return field_errors(exc.errors())
+def _validation_errors(exc: RequestValidationError) -> tuple[list[dict[str, Any]], bool]:
+    """The field errors (of the first :data:`~service.validation.MAX_READ_ERRORS`), and whether there
+    were more."""
+    raw = exc.errors()
+    return field_errors(raw), len(raw) > MAX_READ_ERRORS
 
 
 async def _service_error(request: Request, exc: Exception) -> ProblemResponse:
@@ -54,12 +57,12 @@ async def _service_error(request: Request, exc: Exception) -> ProblemResponse:
 
 async def _validation_error(request: Request, exc: Exception) -> ProblemResponse:
     assert isinstance(exc, RequestValidationError)
-    errors = _validation_errors(exc)
+    errors, truncated = _validation_errors(exc)
     doc = {
         **_head("invalid-request"),
-        "detail": summary(errors) or "the request is not valid",
+        "detail": summary(errors, truncated=truncated) or "the request is not valid",
         "instance": request.url.path,
-        "errors": errors,
+        "errors": errors[:MAX_FIELD_ERRORS],
     }
     return problem_response(doc)
 

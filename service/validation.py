@@ -82,14 +82,23 @@ def _message(err: Mapping[str, Any], loc: Sequence[str | int], tag: str | None) 
     return f"{msg[:1].lower()}{msg[1:]}" if msg else "not valid"
 
 
-def summary(errors: Sequence[Mapping[str, Any]], *, limit: int = 5) -> str:
-    """The problem's ``detail`` for its field errors: ``where: what`` of the first few."""
+#: Pydantic's errors read at most, and field errors a problem document lists at most: a force log of
+#: 200,000 numbers that are all wrong would otherwise list each (and take quadratic time to merge).
+MAX_READ_ERRORS = 1000
+MAX_FIELD_ERRORS = 50
+
+
+def summary(errors: Sequence[Mapping[str, Any]], *, limit: int = 5, truncated: bool = False) -> str:
+    """The problem's ``detail`` for its field errors: ``where: what`` of the first few (``truncated``:
+    there were more errors than ``errors`` holds)."""
     parts = []
     for e in errors[:limit]:
         where = _dotted([x for x in e["loc"] if x != "body"]) or "body"
         parts.append(f"{where}: {e['msg']}")
     more = len(errors) - limit
-    return "; ".join(parts) + (f" (and {more} more)" if more > 0 else "")
+    if more > 0:
+        return "; ".join(parts) + f" (and {'over ' if truncated else ''}{more} more)"
+    return "; ".join(parts) + (" (and more)" if truncated else "")
 
 
 def _covered(loc: Sequence[str | int], others: Iterable[tuple[list[str | int], bool, str]]) -> bool:
@@ -101,10 +110,12 @@ def _covered(loc: Sequence[str | int], others: Iterable[tuple[list[str | int], b
 def field_errors(
     errors: Sequence[Mapping[str, Any]], *, tags: Iterable[str] = EXCITATION_TYPES
 ) -> list[dict[str, Any]]:
-    """The ``errors`` of a problem document for pydantic's ``errors`` (see the module docstring)."""
-    cleaned = [(*_user_loc(err.get("loc", ()), tags), err) for err in errors]
+    """The ``errors`` of a problem document for pydantic's ``errors`` (see the module docstring): those of
+    the first :data:`MAX_READ_ERRORS` of them."""
+    cleaned = [(*_user_loc(err.get("loc", ()), tags), err) for err in errors[:MAX_READ_ERRORS]]
     summary = [(loc, branch, str(err.get("type", ""))) for loc, _tag, branch, err in cleaned]
     out: list[dict[str, Any]] = []
+    listed: set[tuple[tuple[str | int, ...], str, str]] = set()
     shapes: dict[tuple[str | int, ...], dict[str, Any]] = {}
     for loc, tag, branch, err in cleaned:
         kind = str(err.get("type", ""))
@@ -115,9 +126,12 @@ def field_errors(
             if merged is not None:  # no alternative fits: one error naming what each wants
                 merged["msg"] += f", or {str(err.get('msg', '')).rstrip('.').lower()}"
                 continue
-        item = {"loc": loc, "msg": _message(err, loc, tag), "type": kind}
+        msg = _message(err, loc, tag)
+        item = {"loc": loc, "msg": msg, "type": kind}
         if branch and kind in _SHAPE_ERRORS:
             shapes[tuple(loc)] = item
-        if item not in out:
+        key = (tuple(loc), msg, kind)
+        if key not in listed:
+            listed.add(key)
             out.append(item)
     return out

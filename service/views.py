@@ -62,6 +62,7 @@ def _job_fields(job: JobRecord) -> dict[str, Any]:
         "attempts": job.attempts,
         "excitation": job.excitation,
         "parameters": job.parameters,
+        "force_log": job.force_log_summary,
         "created_at": job.created_at,
         "started_at": job.started_at,
         "finished_at": job.finished_at,

@@ -39,6 +39,7 @@ from api_schemas import (
     AnalysisParameters,
     AnalysisResult,
     ExcitationSpec,
+    ForceLog,
     ImpulseExcitation,
     StepReleaseExcitation,
 )
@@ -80,6 +81,7 @@ class Runner(Protocol):
         | None = ...,
         parameters: AnalysisParameters | None = ...,
         progress: ProgressCallback | None = ...,
+        force_log: ForceLog | None = ...,
     ) -> AnalysisResult: ...
 
 
@@ -337,6 +339,11 @@ def _execute(
         parameters = AnalysisParameters.model_validate(job.parameters)
     except ValidationError as exc:
         return fail(problem_document("invalid-parameter", f"stored job is invalid: {exc}"))
+    try:  # read apart from the job's record, which carries only its summary
+        stored_log = store.job_force_log(job_id) if job.force_log_summary is not None else None
+        force_log = ForceLog.model_validate(stored_log) if stored_log is not None else None
+    except ValidationError as exc:
+        return fail(problem_document("invalid-force", f"stored job's force log is invalid: {exc}"))
 
     if test_hooks and clip is not None:
         _fault_injection(clip)
@@ -350,7 +357,12 @@ def _execute(
                 callback("starting", 0.0)
                 with memory_budget(memory_budget_mb):
                     result = runner(
-                        clip_path, workdir, excitation=excitation, parameters=parameters, progress=callback
+                        clip_path,
+                        workdir,
+                        excitation=excitation,
+                        parameters=parameters,
+                        progress=callback,
+                        force_log=force_log,
                     )
                 report.timings_s = dict(result.timings_s)
                 if lease.lost.is_set() or not store.renew_lease(job_id, owner):

@@ -210,7 +210,9 @@ def recorded_force(
     from workers.pipeline.force import recorded_excitation
 
     if force_log is not None:
-        return recorded_excitation(force_series(force_log), asked=True)
+        series = force_series(force_log)
+        _check_log_clock(series, reader)
+        return recorded_excitation(series, asked=True)
     topic = params.force_topic
     if not isinstance(reader, BagClip):
         if topic is not None:
@@ -222,6 +224,34 @@ def recorded_force(
     if topic is None and not force_topics(reader):
         return None, []
     return recorded_excitation(read_force(reader, topic=topic), asked=topic is not None)
+
+
+def _check_log_clock(series: ForceSeries, reader: ClipReader) -> None:
+    """Refuse a force log whose times do not overlap the clip's frames (0 s at the first frame, a frame's
+    time of slack at the end): it is on another clock.
+
+    Raises
+    ------
+    workers.pipeline.errors.ForceError
+    """
+    from workers.pipeline.errors import ForceError
+
+    info = reader.info
+    stamps = info.timestamps_s
+    if stamps is not None and len(stamps):
+        last = float(stamps[-1])
+    elif info.fps:
+        last = (info.frames - 1) / info.fps
+    else:
+        return
+    start, end = float(series.times_s[0]), float(series.times_s[-1])
+    if end >= 0.0 and start <= last + (1.0 / info.fps if info.fps else 0.0):
+        return
+    raise ForceError(
+        f"the force {series.source}'s times ({start:.6g} s to {end:.6g} s on the clip's clock) do not "
+        f"overlap the clip's frames (0 s to {last:.6g} s): the log is on another clock; give its offset "
+        "(--force-log-offset-s, or offset_s in the request), minus the log's time at the clip's first frame"
+    )
 
 
 def force_series(log: ForceLog) -> ForceSeries:

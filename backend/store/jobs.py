@@ -101,6 +101,8 @@ class JobStore(StoreBase):
             callback_url=job.callback_url,
             callback_attempts=0,
             source=job.source,
+            force_log=job.force_log,
+            force_log_summary=job.force_log_summary,
         )
         try:
             with self._tx() as s:
@@ -159,6 +161,13 @@ class JobStore(StoreBase):
             if row is None or (owner is not None and row.owner != owner):
                 return None
             return JobRecord.of(row)
+
+    def job_force_log(self, job_id: str) -> dict[str, Any] | None:
+        """The force log job ``job_id`` was sent with (``api_schemas.ForceLog`` as JSON), or None: read
+        apart from the job's record, which only carries its summary."""
+        with self._tx(readonly=True) as s:
+            log: dict[str, Any] | None = s.scalar(select(JobRow.force_log).where(JobRow.id == job_id))
+            return log
 
     def get_job(self, job_id: str, owner: str | None = ANY_OWNER) -> JobRecord:
         job = self.find_job(job_id, owner)

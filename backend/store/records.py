@@ -82,6 +82,8 @@ class JobRecord:
     callback_attempts: int = 0
     callback_error: str | None = None
     source: str = "upload"
+    #: What the job shows of the force log it was sent with (the log itself: ``JobStore.job_force_log``).
+    force_log_summary: dict[str, Any] | None = None
 
     @classmethod
     def of(cls, row: JobRow) -> JobRecord:
@@ -113,6 +115,7 @@ class JobRecord:
             callback_attempts=int(row.callback_attempts or 0),
             callback_error=row.callback_error,
             source=row.source or "upload",
+            force_log_summary=row.force_log_summary,
         )
 
 
@@ -217,7 +220,9 @@ class NewJob:
     """A job to queue (:meth:`~backend.store.jobs.JobStore.create_job`): its row's fields.
 
     With an ``idempotency_key`` (scoped to the ``owner``), an earlier job of the same ``request_hash``
-    under that key is returned instead. ``source`` is ``upload`` or ``stream``.
+    under that key is returned instead. ``source`` is ``upload`` or ``stream``. ``force_log`` is the
+    request's force log (``api_schemas.ForceLog`` as JSON) and ``force_log_summary`` what the job shows of
+    it (``api_schemas.ForceLogSummary``).
     """
 
     clip_id: str
@@ -229,6 +234,8 @@ class NewJob:
     source: str = "upload"
     idempotency_key: str | None = None
     request_hash: str | None = None
+    force_log: dict[str, Any] | None = None
+    force_log_summary: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True, slots=True)

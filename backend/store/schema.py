@@ -67,6 +67,16 @@ class JobRow(Base):
     callback_lease_until: Mapped[float | None] = mapped_column(Float, nullable=True, doc="Epoch seconds.")
     callback_error: Mapped[str | None] = mapped_column(String(500), nullable=True)
     source: Mapped[str] = mapped_column(String(16), default="upload", server_default="upload")
+    force_log: Mapped[dict[str, Any] | None] = mapped_column(
+        JSON,
+        nullable=True,
+        deferred=True,
+        doc="The force log sent with the request (up to 200,000 samples): loaded only by the worker that "
+        "runs the job (``JobStore.job_force_log``), never with the row.",
+    )
+    force_log_summary: Mapped[dict[str, Any] | None] = mapped_column(
+        JSON, nullable=True, doc="What the job shows of its force log (``api_schemas.ForceLogSummary``)."
+    )
 
 
 class StreamRow(Base):
@@ -109,6 +119,8 @@ _ADDED_COLUMNS: dict[str, dict[str, str]] = {
         "callback_lease_until": "FLOAT",
         "callback_error": "VARCHAR(500)",
         "source": "VARCHAR(16) NOT NULL DEFAULT 'upload'",
+        "force_log": "JSON",
+        "force_log_summary": "JSON",
     },
 }
 #: Indexes of added columns, created with them.

@@ -28,8 +28,8 @@ PARAMETER_HELP = {
     "the excitation (default: the bag's one force topic, if any; --force-n / --impulse-ns override it)",
     "force_log": "CSV or JSON log of the force sensor (columns time_s and fx, fy, fz, or force_n; time 0 = "
     "the clip's first frame): its push, hold and release (or strike) is the excitation",
-    "force_log_offset_s": "added to the force log's times: minus the log's time at the clip's first frame "
-    "(default 0)",
+    "force_log_offset_s": "seconds added to the force log's times: minus the log's time at the clip's first "
+    "frame (default 0)",
     "min_frequency_hz": "lowest eigenfrequency searched, Hz (default: two cycles per window)",
     "max_frequency_hz": "highest eigenfrequency searched, Hz (default: 0.98 x the Nyquist frequency, fps/2)",
 }
@@ -48,8 +48,11 @@ def read_force_log_file(path: str, offset_s: float = 0.0) -> ForceLog:
     """
     from pathlib import Path
 
+    from pydantic import ValidationError
+
     from api_schemas import ForceLog
     from workers.pipeline.clipio.force_log import read_force_log
+    from workers.pipeline.errors import ForceError
 
     file = Path(path)
     series = read_force_log(file.read_bytes(), name=file.name, offset_s=offset_s)
@@ -63,4 +66,9 @@ def read_force_log_file(path: str, offset_s: float = 0.0) -> ForceLog:
             "fz": force[:, 2].tolist(),
         }
     )
-    return ForceLog(time_s=series.times_s.tolist(), **columns, frame_id=series.frame_id, name=file.name)
+    try:
+        return ForceLog(time_s=series.times_s.tolist(), **columns, frame_id=series.frame_id, name=file.name)
+    except ValidationError as exc:  # what a request may carry: at most MAX_FORCE_SAMPLES samples
+        error = exc.errors()[0]
+        where = ".".join(str(part) for part in error["loc"])
+        raise ForceError(f"the force log {file.name}: {where}: {error['msg']}") from None

@@ -197,11 +197,11 @@ def _mode_text(mode: Any) -> str:
 
 def _excitation_text(e: Any) -> str:
     """A recorded excitation for the summary: what, how much, when and from where."""
-    what = (
-        f"held force {e.value:.4g} ± {e.uncertainty:.2g} N"
-        if e.type == "step_release"
-        else (f"impulse {e.value:.4g} ± {e.uncertainty:.2g} N·s")
-    )
+    what = {
+        "step_release": f"held force {e.value:.4g} ± {e.uncertainty:.2g} N",
+        "impulse": f"impulse {e.value:.4g} ± {e.uncertainty:.2g} N·s",
+        "forced": f"a force that kept acting, RMS {e.value:.4g} ± {e.uncertainty:.2g} N",
+    }[e.type]
     when = "" if e.release_time_s is None else f", {'released' if e.type == 'step_release' else 'struck'} at "
     when += "" if e.release_time_s is None else f"{e.release_time_s:.4f} s"
     return f"{what}{when}, from {e.source}"

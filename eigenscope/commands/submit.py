@@ -47,6 +47,10 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--start-frame", type=int, default=None, help=HELP["start_frame"])
     for name in _PARAMS:
         parser.add_argument(f"--{name.replace('_', '-')}", type=float, default=None, help=HELP[name])
+    parser.add_argument("--force-log", type=Path, default=None, metavar="FILE", help=HELP["force_log"])
+    parser.add_argument(
+        "--force-log-offset-s", type=float, default=None, metavar="S", help=HELP["force_log_offset_s"]
+    )
     parser.add_argument("--callback-url", default=None, help="URL the server tells when the job ends")
     parser.add_argument("--wait", action="store_true", help="wait for the result and print it")
     parser.add_argument(
@@ -58,7 +62,8 @@ def register(subparsers: Any) -> None:
 
 
 def job_request(args: argparse.Namespace) -> dict[str, Any]:
-    """The keyword arguments of ``Client.create_job`` for these options (excitation and parameters)."""
+    """The keyword arguments of ``Client.create_job`` for these options (excitation, parameters and the
+    force log, read here: a file that is not a force log is a one-line error before anything is sent)."""
     from eigenscope_client import Impulse, StepRelease
 
     excitation: StepRelease | Impulse | None = None
@@ -71,7 +76,34 @@ def job_request(args: argparse.Namespace) -> dict[str, Any]:
         value = getattr(args, name, None)
         if value is not None:
             parameters[name] = value
-    return {"excitation": excitation, "parameters": parameters, "callback_url": args.callback_url}
+    return {
+        "excitation": excitation,
+        "parameters": parameters,
+        "callback_url": args.callback_url,
+        "force_log": force_log(args),
+    }
+
+
+def force_log(args: argparse.Namespace) -> Any:
+    """The ``--force-log`` file as the request's force log (``eigenscope_client.ForceLog``; its times on
+    its own clock, ``--force-log-offset-s`` sent as its offset), or None."""
+    from eigenscope_client import ForceLog as Log
+    from eigenscope_client import ForceLogError
+
+    path: Path | None = getattr(args, "force_log", None)
+    offset: float | None = getattr(args, "force_log_offset_s", None)
+    if path is None:
+        if offset is not None:
+            raise UsageError("--force-log-offset-s needs --force-log FILE: it shifts that log's times")
+        return None
+    if not path.is_file():
+        raise UsageError(f"--force-log {path}: no such file")
+    try:
+        return Log.from_file(path, offset_s=offset or 0.0)
+    except ForceLogError as exc:
+        raise UsageError(f"--force-log: {exc}") from None
+    except OSError as exc:
+        raise UsageError(f"--force-log {path}: {exc.strerror or exc}") from None
 
 
 class ProgressBar:
@@ -116,6 +148,12 @@ def _fmt(value: Any, unit: str, digits: int = 4) -> str:
 def summarize(job: Job, base: str) -> list[str]:
     """Human-readable lines for a finished job."""
     lines = [f"job {job.id}: {job.status} (attempts: {job.attempts})"]
+    log = job.force_log
+    if log is not None:
+        lines.append(
+            f"force log: {log.name} ({log.samples} samples, {log.start_s:.3f} s to {log.end_s:.3f} s on the "
+            "clip's clock)"
+        )
     if job.status != "succeeded" or job.result is None:
         if job.error is not None:
             lines.append(f"error: {job.error.title}: {job.error.detail}")
@@ -131,6 +169,13 @@ def summarize(job: Job, base: str) -> list[str]:
             f"stiffness = {_fmt(obj.stiffness_n_per_m, 'N/m')}, "
             f"mass = {_fmt(obj.mass_kg, 'kg')}"
         )
+        used = obj.excitation
+        if used is not None and used.source != "request":
+            unit = "N·s" if used.type == "impulse" else "N"  # a held force, or a kept one's RMS
+            lines.append(
+                f"  excitation: {used.type.replace('_', ' ')} {used.value:.4g} ± {used.uncertainty:.2g} "
+                f"{unit} from {used.source}"
+            )
         for reason in obj.null_reasons:
             lines.append(f"  note: {reason}")
     for flag in result.quality:
@@ -179,6 +224,7 @@ def run(args: argparse.Namespace) -> int:
     bar = ProgressBar()
     show = not args.json
     try:
+        request = job_request(args)  # a bad force log is refused before the clip is sent
         clip = client.upload_clip(args.clip, progress=bar.upload if show else None)
         bar.done()
         print(
@@ -186,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
             f"{clip.width}x{clip.height} @ {clip.fps} fps, depth: {clip.has_depth})",
             file=sys.stderr,
         )
-        job = client.create_job(clip.id, **job_request(args))
+        job = client.create_job(clip.id, **request)
         print(f"job {job.id} queued: {client.base_url}/v1/jobs/{job.id}", file=sys.stderr)
         if args.wait:
             job = client.wait(job, timeout=args.timeout, on_progress=bar.job if show else None)

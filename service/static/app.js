@@ -924,6 +924,29 @@
     return excitation.type;
   }
 
+  // The excitation an object's k and m were measured with (the result's ExcitationUsed), and its source.
+  function usedExcitationText(used) {
+    const pm = used.uncertainty ? ` ± ${formatNumber(used.uncertainty)}` : "";
+    const what = {
+      step_release: `held force ${formatNumber(used.value)}${pm} N`,
+      impulse: `impulse ${formatNumber(used.value)}${pm} N·s`,
+      forced: `a force that kept acting, RMS ${formatNumber(used.value)}${pm} N`,
+    }[used.type] || used.type;
+    const verb = used.type === "impulse" ? "struck" : "released";
+    const when = isFiniteNumber(used.release_time_s) ? `, ${verb} at ${formatNumber(used.release_time_s, 4)} s` : "";
+    return `${what}${when}, from ${used.source}`;
+  }
+
+  function usedExcitation(obj) {
+    const used = obj.excitation;
+    if (!used) return null;
+    const notes = Array.isArray(used.notes) ? used.notes : [];
+    return el("div", { class: "excitation-used", "data-excitation-source": used.source },
+      el("p", {}, el("strong", {}, "Excitation: "), usedExcitationText(used)),
+      notes.length ? el("ul", { class: "nulls", "aria-label": "About the excitation" },
+        notes.map((n) => el("li", {}, n))) : null);
+  }
+
   function stat(label, value, unc, unit, quantity) {
     if (value === "—") {
       return el("div", { class: "stat", "data-quantity": quantity },
@@ -1064,7 +1087,8 @@
         ? `${result.frame_size_px[0]} × ${result.frame_size_px[1]} px` : "";
       const meta = [
         ["Clip", jobTitle(job)],
-        ["Excitation", excitationText(job.excitation)],
+        ["Excitation", !job.excitation && objects.some((o) => o.excitation)
+          ? "recorded with the clip (see each object)" : excitationText(job.excitation)],
         ["Method", result.method],
         ["Frame rate", isFiniteNumber(result.fps) ? `${formatNumber(result.fps, 5)} fps (${result.fps_source})` : ""],
         ["Frames", frames],
@@ -1089,6 +1113,7 @@
               obj.regime ? el("span", { class: "regime", "data-regime": obj.regime }, obj.regime.replace("_", "-")) : null,
               obj.amplitude_source ? el("span", { class: "unit" }, `amplitude from ${obj.amplitude_source}`) : null),
             el("div", { class: "table-wrap" }, objectTable(obj)),
+            usedExcitation(obj),
             reasons.length ? el("ul", { class: "nulls", "aria-label": "Why some values are missing" },
               reasons.map((r) => el("li", {}, r))) : null);
         })));

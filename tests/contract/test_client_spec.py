@@ -34,6 +34,7 @@ MODELS = [
     ec.JobSummary,
     ec.ResultSummary,
     ec.Detection,
+    ec.ForceLogSummary,
 ]
 #: Client-side members that are not the resource's: its ETag (a header) and the document as received.
 CLIENT_ONLY = {"etag", "raw"}
@@ -66,7 +67,24 @@ def test_request_types_send_what_the_schemas_take() -> None:
         assert fields == set(SCHEMAS[name]["properties"]), name
     body = ec.StepRelease(force_n=2.0, box_px=(1, 2, 3, 4)).to_dict()
     assert body == {"type": "step_release", "force_n": 2.0, "box_px": [1, 2, 3, 4]}
-    assert set(SCHEMAS["JobCreate"]["properties"]) == {"clip_id", "excitation", "parameters", "callback_url"}
+    assert set(SCHEMAS["JobCreate"]["properties"]) == {
+        "clip_id",
+        "excitation",
+        "parameters",
+        "callback_url",
+        "force_log",
+    }
+    # The force log: every member of the schema, and what the client sends validates as the server's model.
+    from api_schemas import ForceLog
+
+    assert {f.name for f in dataclasses.fields(ec.ForceLog)} == set(SCHEMAS[ec.ForceLog.schema]["properties"])
+    log = ec.ForceLog(time_s=[i / 500 for i in range(8)], force_n=[0.0] * 8, offset_s=-1.5, frame_id="ft")
+    assert ForceLog.model_validate(log.to_dict()).model_dump() == {
+        **log.to_dict(),
+        "fx": None,
+        "fy": None,
+        "fz": None,
+    }
 
 
 def test_a_server_document_reads_back_whole() -> None:

@@ -173,6 +173,10 @@ def test_upload_through_the_page_shows_the_numbers_and_every_image(
     assert number(table.locator('tr[data-quantity="pixel_count"] td.value').inner_text()) == float(
         job["result"]["objects"][0]["pixel_count"]
     )
+    # Each object says what its k and m were measured with, and where that came from.
+    used = result.locator(".object").first.locator('.excitation-used[data-excitation-source="request"]')
+    expect(used).to_contain_text(f"held force {obj['spec']['force_n']:g}")
+    expect(used).to_contain_text("from request")
     summary = result.locator('.stat[data-quantity="eigenfrequency_hz"] .num')
     assert number(summary.inner_text()) == pytest.approx(obj["eigenfrequency_hz"], rel=0.02)
     for flag in job["result"]["quality"]:

@@ -31,6 +31,7 @@ def _clip() -> tuple[np.ndarray, np.ndarray]:
 
 def write_seeds(folder: Path) -> list[Path]:
     """Write the seed clips into ``folder``; returns their paths."""
+    from workers.pipeline.clipio import bag_writer as bw
     from workers.pipeline.clipio import write_npz
     from workers.pipeline.clipio import writers as w
 
@@ -87,42 +88,44 @@ def write_seeds(folder: Path) -> list[Path]:
         for i, d in enumerate(depth):
             zf.writestr(f"depth/{i:03d}.png", bytes(cv2.imencode(".png", d)[1]))
     out.append(folder / "video-depth.zip")
-    out.append(w.write_ros_bag(folder / "raw.bag", rgb, stamps_ns=stamps, intrinsics=INTRINSICS, depth=depth))
     out.append(
-        w.write_ros_bag(
+        bw.write_ros_bag(folder / "raw.bag", rgb, stamps_ns=stamps, intrinsics=INTRINSICS, depth=depth)
+    )
+    out.append(
+        bw.write_ros_bag(
             folder / "compressed.bag",
             rgb,
             stamps_ns=stamps,
             intrinsics=INTRINSICS,
-            options=w.RosBagOptions(compressed=True),
+            options=bw.RosBagOptions(compressed=True),
         )
     )
     out.append(
-        w.write_ros_bag(
+        bw.write_ros_bag(
             folder / "realsense.bag",
             rgb,
             stamps_ns=stamps,
             intrinsics=INTRINSICS,
             depth=depth,
-            options=w.RosBagOptions(layout="realsense-sdk"),
+            options=bw.RosBagOptions(layout="realsense-sdk"),
         )
     )
     with tempfile.TemporaryDirectory() as tmp:
         for storage, suffix in (("mcap", ".mcap"), ("sqlite3", ".db3")):
-            bag = w.write_ros_bag(
+            bag = bw.write_ros_bag(
                 Path(tmp) / f"bag-{storage}",
                 rgb,
                 stamps_ns=stamps,
                 intrinsics=INTRINSICS,
                 depth=depth,
                 version=2,
-                options=w.RosBagOptions(storage=storage),  # type: ignore[arg-type]
+                options=bw.RosBagOptions(storage=storage),  # type: ignore[arg-type]
             )
             single = next(bag.glob(f"*{suffix}"))
             target = folder / f"ros2{suffix}"
             target.write_bytes(single.read_bytes())
             out.append(target)
-    out.append(w.write_ros2_zip(folder / "ros2-folder.zip", rgb, stamps_ns=stamps, intrinsics=INTRINSICS))
+    out.append(bw.write_ros2_zip(folder / "ros2-folder.zip", rgb, stamps_ns=stamps, intrinsics=INTRINSICS))
     write_refused_seeds(folder)
     return out
 

@@ -196,7 +196,7 @@ def test_api_and_workers_never_see_plain_keys(hardened: h.LiveService) -> None:
 def test_zipped_ros2_bag_of_25_mb_is_accepted(hardened: h.LiveService, tmp_path: Path) -> None:
     """The upload check unpacked zipped bags under a 16 MiB file-size cap (`File too large`); it now reads
     them under the analysis's caps, in the data directory."""
-    from workers.pipeline.clipio.writers import write_ros2_zip
+    from workers.pipeline.clipio.bag_writer import write_ros2_zip
 
     frames = 116
     rgb = np.random.default_rng(5).integers(0, 255, (frames, 240, 320, 3), dtype=np.uint8)

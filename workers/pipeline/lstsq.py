@@ -102,3 +102,15 @@ def least_squares(
 
 
 __all__ = ["Solution", "least_squares"]
+
+
+def effective_count(residual: NDArray[np.float64]) -> float:
+    """Independent samples among correlated ones: n (1 - ρ) / (1 + ρ), ρ the lag-1 autocorrelation of
+    ``residual`` (N,) (clipped to [0, 0.95]); what a fit's residual variance is divided by."""
+    n = residual.size
+    centred = residual - residual.mean()
+    power = float(centred @ centred)
+    if n < 3 or power <= 0:
+        return float(max(n, 1))
+    rho = min(max(float(centred[1:] @ centred[:-1]) / power, 0.0), 0.95)
+    return n * (1.0 - rho) / (1.0 + rho)

@@ -5,6 +5,7 @@ excitation, and the series the figures plot.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -13,8 +14,14 @@ from numpy.typing import NDArray
 
 from workers.pipeline.clipio.types import Intrinsics
 from workers.pipeline.confidence import Confidence
-from workers.pipeline.errors import AnalysisError, ParameterError
-from workers.pipeline.mechanics import Mechanics, release_amplitude, release_instant, stiffness_and_mass
+from workers.pipeline.errors import AnalysisError, ForceError, ParameterError
+from workers.pipeline.mechanics import (
+    Mechanics,
+    along_motion,
+    release_amplitude,
+    release_instant,
+    stiffness_and_mass,
+)
 from workers.pipeline.metric import DepthContext, ImageAmplitude, MetricAmplitude, metric_amplitude
 from workers.pipeline.model import BAND_NYQUIST_FRACTION, Excitation, ObjectMeasurement
 from workers.pipeline.modes import ObjectModeShapes, object_modes
@@ -137,7 +144,13 @@ def measure_object(
     fit = track.fit
     release = _release(track, window, excitation)
     metric = _metric(track, release, region, window)
-    mech = object_mechanics(fit, metric, excitation, frequency_sd_hz=frequency_sd_hz(fit))
+    used, across = along_motion(excitation, metric.direction) if excitation else (None, [])
+    if across:
+        mech = Mechanics(null_reasons=across)
+    elif used is not None and used.kind == "forced":
+        mech, used = forced_mechanics(track, release, metric, used, window)
+    else:
+        mech = object_mechanics(fit, metric, used, frequency_sd_hz=frequency_sd_hz(fit))
     ringdown = _ringdown(track, window)
     regime = regime_of_fit(fit, ringdown)
     ringing = regime == "ring_down"
@@ -185,7 +198,7 @@ def measure_object(
         axis_px=track.axis_px,
         regime=regime,
         modes=_modes(track, region, window),
-        excitation=excitation,
+        excitation=used or excitation,
     )
 
 
@@ -267,6 +280,8 @@ def object_mechanics(
         )
     if metric.amplitude_m is None or metric.amplitude_uncertainty_m is None:
         return Mechanics()
+    if excitation.kind == "forced":  # the response between force and motion: forced_mechanics
+        return Mechanics(null_reasons=["a forced vibration needs the force's samples and the motion's"])
     return stiffness_and_mass(
         kind=excitation.kind,
         value=excitation.value,
@@ -277,6 +292,49 @@ def object_mechanics(
         damped_frequency_hz=fit.frequency_hz,
         frequency_sd_hz=frequency_sd_hz,
     )
+
+
+def forced_mechanics(
+    track: Track, release: _Release, metric: MetricAmplitude, excitation: Excitation, window: WindowContext
+) -> tuple[Mechanics, Excitation]:
+    """Stiffness and mass of an object a recorded force kept driving: the response between the force and
+    the motion in metres, one degree of freedom (:func:`~workers.pipeline.response.fit_response`), and the
+    excitation with a note of the fit (damping, natural frequency, share explained)."""
+    from workers.pipeline.response import fit_response
+
+    if metric.amplitude_m is None or metric.amplitude_uncertainty_m is None or release.amp_px <= 0:
+        return Mechanics(), excitation
+    assert excitation.force_times_s is not None
+    assert excitation.force_along_n is not None
+    metres_per_px = metric.amplitude_m / release.amp_px
+    displacement_px = np.concatenate([[0.0], np.cumsum(track.velocity_px)])
+    times = window.buffers.start_s + window.buffers.times_s[: displacement_px.size]
+    try:
+        fit = fit_response(
+            excitation.force_times_s,
+            excitation.force_along_n,
+            times,
+            displacement_px * metres_per_px,
+            frequency_hz=track.fit.frequency_hz,
+        )
+    except ForceError as exc:
+        return Mechanics(null_reasons=[str(exc)]), excitation
+    rel_scale = metric.amplitude_uncertainty_m / metric.amplitude_m  # the metres per pixel
+    k, m = fit.stiffness_n_per_m, fit.mass_kg
+    note = (
+        f"stiffness and mass from the response between the recorded force and the motion (one degree of "
+        f"freedom, {fit.frames} frames): damping {fit.damping_n_s_per_m:.3g} ± "
+        f"{fit.damping_uncertainty_n_s_per_m:.2g} N·s/m (ratio {fit.damping_ratio:.3g}), natural frequency "
+        f"{fit.natural_frequency_hz:.4g} ± {fit.natural_frequency_uncertainty_hz:.2g} Hz; the force explains "
+        f"{fit.explained * 100:.0f} % of the motion"
+    )
+    mech = Mechanics(
+        stiffness_n_per_m=k,
+        stiffness_uncertainty_n_per_m=k * math.hypot(fit.stiffness_uncertainty_n_per_m / k, rel_scale),
+        mass_kg=m,
+        mass_uncertainty_kg=m * math.hypot(fit.mass_uncertainty_kg / m, rel_scale),
+    )
+    return mech, dataclasses.replace(excitation, notes=(*excitation.notes, note))
 
 
 def _ringdown(track: Track, window: WindowContext) -> Ringdown | None:

@@ -7,6 +7,7 @@ v0 = J/m and A = v0/ω_d.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Literal
@@ -14,7 +15,16 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from workers.pipeline.model import Excitation
 from workers.pipeline.ringdown import RingdownFit
+
+#: Standard uncertainty (radians) of the angle between a recorded force and the object's motion: the
+#: robot's hand-eye calibration (its /tf) and the motion's axis (the flow's principal axis and the depth
+#: series) are each good to about a degree or two.
+DIRECTION_SD_RAD = math.radians(2.0)
+#: Least share of a recorded force along the object's motion (cos of the angle between them) for k and m:
+#: beyond about 75° the component is small and its uncertainty, |F| sin θ · DIRECTION_SD_RAD, large.
+MIN_ALONG_MOTION = 0.25
 
 
 def detect_release(
@@ -142,3 +152,60 @@ def stiffness_and_mass(
     return Mechanics(
         stiffness_n_per_m=k, stiffness_uncertainty_n_per_m=k * rel_k, mass_kg=m, mass_uncertainty_kg=m * rel_m
     )
+
+
+def along_motion(
+    excitation: Excitation, motion_direction: tuple[float, float, float] | None
+) -> tuple[Excitation | None, list[str]]:
+    """The excitation's component along the object's motion, for a 1-DOF spring-mass along that axis.
+
+    A force recorded in the camera's frame (``excitation.direction`` set: a transform was recorded) acts
+    on the object's mode only through its component along the motion: F_along = F · |cos θ|, and likewise
+    J_along for a strike (and a forcing's samples alike). Its uncertainty adds
+    |F| sin θ · :data:`DIRECTION_SD_RAD`. An excitation without
+    a direction (typed, or a sensor with no transform) is returned as it is.
+
+    Parameters
+    ----------
+    excitation : Excitation
+    motion_direction : (x, y, z) or None
+        The object's unit motion direction in the camera's frame (its sign is arbitrary).
+
+    Returns
+    -------
+    excitation : Excitation or None
+        With ``value`` and ``uncertainty`` projected and a note saying so; None when the force acts
+        nearly across the motion (less than :data:`MIN_ALONG_MOTION` of it along), with the reason.
+    reasons : list of str
+        Why k and m are not measured (only with None).
+    """
+    if excitation.direction is None:
+        return excitation, []
+    force = np.asarray(excitation.direction, np.float64)
+    if motion_direction is None:
+        note = (
+            "the object's motion direction is unknown: the force's magnitude along its own direction was used"
+        )
+        return dataclasses.replace(excitation, notes=(*excitation.notes, note)), []
+    motion = np.asarray(motion_direction, np.float64)
+    cos = min(abs(float(force @ motion)) / float(np.linalg.norm(force) * np.linalg.norm(motion)), 1.0)
+    angle = math.degrees(math.acos(cos))
+    if cos < MIN_ALONG_MOTION:
+        return None, [
+            f"the recorded force acts nearly across the object's motion ({angle:.0f}° from it): its "
+            f"component along the motion ({cos * excitation.value:.3g} of {excitation.value:.3g}) is too "
+            "uncertain for stiffness and mass; push or strike along the motion"
+        ]
+    sin = math.sqrt(max(1.0 - cos * cos, 0.0))
+    value = excitation.value * cos
+    sd = math.hypot(excitation.uncertainty * cos, excitation.value * sin * DIRECTION_SD_RAD)
+    vector = ", ".join(f"{c:+.3f}" for c in motion)
+    note = (
+        f"the force was projected on the object's motion direction ({vector}, camera optical frame), "
+        f"{angle:.1f}° from the force: {value:.4g} of {excitation.value:.4g}"
+    )
+    along = None if excitation.force_along_n is None else excitation.force_along_n * cos
+    projected = dataclasses.replace(
+        excitation, value=value, uncertainty=sd, notes=(*excitation.notes, note), force_along_n=along
+    )
+    return projected, []

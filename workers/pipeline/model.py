@@ -63,7 +63,9 @@ class Excitation:
 
     Attributes
     ----------
-    kind : ``"step_release"`` (value: held force F in N) or ``"impulse"`` (value: impulse J in N·s)
+    kind : ``"step_release"``, ``"impulse"`` or ``"forced"``
+        ``value`` is the held force F in N, the impulse J in N·s, or the RMS of a force that keeps acting in
+        N (only from a force recording, whose samples it carries).
     value : float
     uncertainty : float
         Standard uncertainty of ``value``.
@@ -82,9 +84,18 @@ class Excitation:
         ``log force.csv``).
     notes : tuple of str
         What its reader should know (the direction used, a typed value overriding a recorded one).
+    direction : (x, y, z) or None
+        The recorded force's unit direction in the camera's optical frame, when a transform (``/tf``,
+        ``/tf_static``) put it there: ``value`` is then the force along that direction, and the mechanics
+        take its component along the object's motion
+        (:func:`~workers.pipeline.mechanics.along_motion`). None: ``value`` is used as it is.
+    force_times_s, force_along_n : ndarray, shape (M,), float64, or None
+        A ``forced`` excitation's samples: times on the clip's clock and the force along ``direction`` (or
+        its dominant one), newtons, for the fit of the response between force and motion
+        (:mod:`workers.pipeline.response`).
     """
 
-    kind: Literal["step_release", "impulse"]
+    kind: Literal["step_release", "impulse", "forced"]
     value: float
     uncertainty: float = 0.0
     object_id: int | None = None
@@ -93,10 +104,17 @@ class Excitation:
     release_time_s: float | None = None
     source: str = "request"
     notes: tuple[str, ...] = ()
+    direction: tuple[float, float, float] | None = None
+    force_times_s: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    force_along_n: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self.kind not in ("step_release", "impulse"):
+        if self.kind not in ("step_release", "impulse", "forced"):
             raise ParameterError(f"excitation type {self.kind!r} is unknown; use step_release or impulse")
+        if self.kind == "forced" and (self.force_times_s is None or self.force_along_n is None):
+            raise ParameterError(
+                "a forced excitation carries the force's samples (force_times_s, force_along_n)"
+            )
         if not (math.isfinite(self.value) and self.value > 0):
             raise ParameterError(f"excitation value {self.value} must be a positive finite number")
         if not (math.isfinite(self.uncertainty) and self.uncertainty >= 0):

@@ -42,9 +42,12 @@ class SceneObject:
     damping_ratio : float
         ζ, dimensionless.
     mass_kg : float
-    excitation : ``"step_release"``, ``"impulse"`` or ``"steady"``
+    excitation : ``"step_release"``, ``"impulse"``, ``"steady"`` or ``"forced"``
         ``steady``: a sustained (forced) oscillation of ``steady_amplitude_m`` from ``release_frame`` on
         at ``frequency_hz``, with no decay (a shaker table, a running motor); ``damping_ratio`` is unused.
+        ``forced``: from rest, driven from ``release_frame`` on by a force that keeps acting
+        (:meth:`force_n_at`: cosines at ``forcing_hz``, each of ``forcing_n``), the spring-mass's exact
+        response, its start-up transient included.
     force_n : float
         Holding force before release (step_release): A = F / k.
     impulse_ns : float
@@ -78,6 +81,12 @@ class SceneObject:
     texture : ``"noise"`` or ``"flat"``
         Band-limited colour noise (easy to track), or one uniform colour (a string, a bare bar: only its
         edges can be tracked).
+    forcing_hz : tuple of float
+        A ``forced`` object's driving frequencies (one: a shaker's tone; several: a multisine).
+    forcing_n : float
+        Amplitude of each driving cosine, newtons.
+    forcing_seed : int
+        Seeds the cosines' phases.
     """
 
     center_px: tuple[float, float] = (320.0, 240.0)
@@ -87,7 +96,7 @@ class SceneObject:
     frequency_hz: float = 5.0
     damping_ratio: float = 0.03
     mass_kg: float = 0.5
-    excitation: Literal["step_release", "impulse", "steady"] = "step_release"
+    excitation: Literal["step_release", "impulse", "steady", "forced"] = "step_release"
     force_n: float = 10.0
     impulse_ns: float = 0.3
     steady_amplitude_m: float = 0.005
@@ -101,6 +110,9 @@ class SceneObject:
     spin_hz: float = 0.0
     spin_symmetry: int = 1
     spin_mark: float = 0.0
+    forcing_hz: tuple[float, ...] = ()
+    forcing_n: float = 0.3
+    forcing_seed: int = 0
 
     @property
     def stiffness_n_per_m(self) -> float:
@@ -115,14 +127,18 @@ class SceneObject:
 
     @property
     def regime(self) -> str:
-        """``"steady"`` for a sustained oscillation, else ``"ring_down"``."""
-        return "steady" if self.excitation == "steady" else "ring_down"
+        """``"steady"`` for a sustained or driven oscillation, else ``"ring_down"``."""
+        return "steady" if self.excitation in ("steady", "forced") else "ring_down"
 
     @property
     def amplitude_m(self) -> float:
-        """Envelope amplitude at release: F/k, v0/ωd for an impulse, or a steady oscillation's own."""
+        """Envelope amplitude at release: F/k, v0/ωd for an impulse, or a steady oscillation's own (a
+        forced one's: √2 × the RMS of its steady response)."""
         if self.excitation == "steady":
             return self.steady_amplitude_m
+        if self.excitation == "forced":
+            freqs, amps, _ = self._forcing_lines()
+            return float(np.sqrt(np.sum((amps * np.abs(self._receptance(freqs))) ** 2)))
         if self.excitation == "step_release":
             return self.force_n / self.stiffness_n_per_m
         wd = 2 * math.pi * self.damped_frequency_hz
@@ -138,6 +154,8 @@ class SceneObject:
         tt = np.where(after, tau, 0.0)
         if self.excitation == "steady":
             return np.where(after, self.steady_amplitude_m * np.sin(wn * tt), 0.0)
+        if self.excitation == "forced":
+            return np.where(after, self._forced_response(tt), 0.0)
         env = np.exp(-z * wn * tt)
         if self.excitation == "step_release":
             a = self.force_n / self.stiffness_n_per_m
@@ -152,6 +170,41 @@ class SceneObject:
         for order, rel in enumerate(self.harmonics, start=2):
             x = x + rel * v0 / wd * np.exp(-z * order * wn * tt) * np.sin(order * wd * tt)
         return np.where(after, x, 0.0)
+
+    def force_n_at(self, t_s: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
+        """The force driving a ``forced`` object along ``direction`` at times ``t_s`` (seconds from the
+        first frame), newtons: zero before ``release_frame``."""
+        freqs, amps, phases = self._forcing_lines()
+        tau = np.asarray(t_s, np.float64) - self.release_frame / fps
+        waves = amps[:, None] * np.cos(2 * math.pi * freqs[:, None] * tau[None, :] + phases[:, None])
+        return np.where(tau >= 0, waves.sum(axis=0), 0.0)
+
+    def _forcing_lines(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        freqs = np.asarray(self.forcing_hz, np.float64)
+        phases = np.random.default_rng(self.forcing_seed).uniform(0.0, 2 * math.pi, freqs.size)
+        return freqs, np.full(freqs.size, self.forcing_n), phases
+
+    def _receptance(self, freqs: NDArray[np.float64]) -> NDArray[np.complex128]:
+        """X / F of the spring-mass at ``freqs``: 1 / (k - m ω² + i c ω), metres per newton."""
+        w = 2 * math.pi * freqs
+        k, m = self.stiffness_n_per_m, self.mass_kg
+        c = 2 * self.damping_ratio * math.sqrt(k * m)
+        return np.asarray(1.0 / (k - m * w**2 + 1j * c * w))
+
+    def _forced_response(self, tau: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Displacement ``tau`` seconds after the force began, from rest: the steady response to each
+        cosine, plus the free response that starts it from zero displacement and velocity."""
+        freqs, amps, phases = self._forcing_lines()
+        gain = amps * self._receptance(freqs)
+        w = 2 * math.pi * freqs
+        steady = np.real(gain[:, None] * np.exp(1j * (w[:, None] * tau[None, :] + phases[:, None]))).sum(0)
+        x0 = float(np.real(gain * np.exp(1j * phases)).sum())
+        v0 = float(np.real(1j * w * gain * np.exp(1j * phases)).sum())
+        wn = 2 * math.pi * self.frequency_hz
+        sigma, wd = self.damping_ratio * wn, wn * math.sqrt(1 - self.damping_ratio**2)
+        a = -x0
+        b = (-v0 + sigma * a) / wd
+        return np.asarray(steady + np.exp(-sigma * tau) * (a * np.cos(wd * tau) + b * np.sin(wd * tau)))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -269,7 +322,7 @@ class SyntheticClip:
     shadow_mask: NDArray[np.bool_] | None = None
 
 
-def _texture(
+def noise_texture(
     rng: np.random.Generator, height: int, width: int, *, base: NDArray[np.float32]
 ) -> NDArray[np.float32]:
     """Band-limited colour noise with structure at several scales (good for optical flow)."""
@@ -284,7 +337,7 @@ def _texture(
     return np.asarray(np.clip(base + 38.0 * out, 0, 255), dtype=np.float32)
 
 
-def _shading(
+def flat_shading(
     rng: np.random.Generator, height: int, width: int, *, base: NDArray[np.float32], levels: float = 6.0
 ) -> NDArray[np.float32]:
     """A flat wall in faint, smooth shading: a gentle gradient and broad blotches, ``levels`` grey levels
@@ -354,6 +407,8 @@ def _check(scene: Scene) -> None:
             )
         if o.texture not in ("noise", "flat"):
             raise ParameterError(f"synth: texture={o.texture!r} is unknown; use 'noise' or 'flat'")
+        if o.excitation == "forced" and not o.forcing_hz:
+            raise ParameterError("synth: a forced object needs its driving frequencies (forcing_hz)")
         if o.spin_hz and o.pivot_px is not None:
             raise ParameterError("synth: an object either spins (spin_hz) or swings (pivot_px), not both")
     if scene.background not in ("noise", "shaded"):
@@ -473,9 +528,9 @@ class _Renderer:
         fx, fy, cx, cy = self.intrinsics = scene.intrinsics
         base = np.array([110, 120, 100], np.float32)
         if scene.background == "shaded":
-            self.background = _shading(rng, H, W, base=base)
+            self.background = flat_shading(rng, H, W, base=base)
         else:
-            self.background = _texture(rng, H, W, base=base)
+            self.background = noise_texture(rng, H, W, base=base)
         t = np.arange(T, dtype=np.float64) / scene.fps
 
         layers: list[_Layer] = []
@@ -488,7 +543,7 @@ class _Renderer:
             if obj.texture == "flat":
                 tex = np.broadcast_to(base, (h + 2 * pad, w + 2 * pad, 3)).astype(np.float32)
             else:
-                tex = _texture(rng, h + 2 * pad, w + 2 * pad, base=base)
+                tex = noise_texture(rng, h + 2 * pad, w + 2 * pad, base=base)
             if obj.spin_hz and obj.spin_symmetry > 1:
                 tex = _symmetric(tex, obj.spin_symmetry, obj.spin_mark)
             alpha = np.zeros((h + 2 * pad, w + 2 * pad), np.float32)

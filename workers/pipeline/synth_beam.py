@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.errors import ParameterError
-from workers.pipeline.synth import SyntheticClip, _shading, _texture
+from workers.pipeline.synth import SyntheticClip, flat_shading, noise_texture
 
 #: β_r L of a clamped-free beam's first bending modes.
 CANTILEVER_BETA_L = (1.8751, 4.6941, 7.8548, 10.9955)
@@ -206,10 +206,10 @@ def render_beams(scene: BeamScene) -> SyntheticClip:
     _check(scene)
     rng = np.random.default_rng(scene.seed)
     H, W, T = scene.height, scene.width, scene.frames
-    maker = _shading if scene.background == "shaded" else _texture
+    maker = flat_shading if scene.background == "shaded" else noise_texture
     background = maker(rng, H, W, base=np.array([150.0, 140.0, 130.0], np.float32))
     textures = [
-        _texture(
+        noise_texture(
             rng,
             int(b.thickness_px) + 8,
             int(b.length_px) + 8,

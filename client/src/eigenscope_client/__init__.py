@@ -1,11 +1,15 @@
 """Python client of the Eigenscope HTTP API, for robot code and lab scripts.
 
-    from eigenscope_client import Client, StepRelease
+    from eigenscope_client import Client, ForceLog, StepRelease
 
     with Client("http://127.0.0.1:8000") as es:
         job = es.analyze("clip.npz", excitation=StepRelease(force_n=10)).raise_for_status()
         print(job.result.eigenfrequency_hz, job.result.main.mass_kg)
         es.download_artifact(job, "mask", "mask.png")
+        # Or the robot's force sensor as the excitation: its log (CSV or JSON) sent with the clip.
+        log = ForceLog.from_file("push.csv")
+        camera = {"depth_m": 0.9, "fx": 615.0, "fy": 615.0}  # a video without depth or intrinsics
+        job = es.analyze("push.mp4", force_log=log, parameters=camera).raise_for_status()
 
 :class:`Client` blocks; :class:`AsyncClient` has the same methods for ``async`` code. Live streams of
 frames from a robot's camera: :class:`StreamSession` (``pip install 'eigenscope-client[streams]'``).
@@ -20,6 +24,7 @@ from eigenscope_client._errors import (
     BadRequestError,
     ConflictError,
     EigenscopeError,
+    ForceLogError,
     InsufficientStorageError,
     InvalidRequestError,
     JobFailedError,
@@ -34,6 +39,7 @@ from eigenscope_client._errors import (
     UnsupportedMediaTypeError,
     WaitTimeoutError,
 )
+from eigenscope_client._force_log import ForceLog
 from eigenscope_client._models import (
     FINAL_STATUSES,
     AnalysisParameters,
@@ -44,6 +50,7 @@ from eigenscope_client._models import (
     Detection,
     Excitation,
     ExcitationUsed,
+    ForceLogSummary,
     Impulse,
     Job,
     JobStatus,
@@ -84,6 +91,9 @@ __all__ = [
     "EigenscopeError",
     "Excitation",
     "ExcitationUsed",
+    "ForceLog",
+    "ForceLogError",
+    "ForceLogSummary",
     "Impulse",
     "InsufficientStorageError",
     "InvalidRequestError",

@@ -23,6 +23,7 @@ from typing import Any, TypeVar
 import httpx
 
 from eigenscope_client._errors import TransportError, WaitTimeoutError, error_for
+from eigenscope_client._force_log import ForceLog
 from eigenscope_client._models import (
     AnalysisParameters,
     AnalysisResult,
@@ -199,12 +200,15 @@ class _Protocol:
         parameters: AnalysisParameters | dict[str, Any] | None,
         callback_url: str | None,
         idempotency_key: str | None,
+        force_log: ForceLog | dict[str, Any] | None = None,
     ) -> _Call:
         body: dict[str, Any] = {"clip_id": clip_id}
         if excitation is not None:
             body["excitation"] = _excitation_json(excitation)
         if parameters:
             body["parameters"] = dict(parameters)
+        if force_log is not None:
+            body["force_log"] = force_log.to_dict() if isinstance(force_log, ForceLog) else force_log
         if callback_url is not None:
             body["callback_url"] = callback_url
         headers = {"Idempotency-Key": idempotency_key or uuid.uuid4().hex}
@@ -453,14 +457,18 @@ class Client(_Protocol):
         parameters: AnalysisParameters | dict[str, Any] | None = None,
         callback_url: str | None = None,
         idempotency_key: str | None = None,
+        force_log: ForceLog | dict[str, Any] | None = None,
     ) -> Job:
-        """Queue an analysis of an uploaded clip."""
+        """Queue an analysis of an uploaded clip. ``force_log``: the robot's force sensor recorded beside
+        the clip (:class:`ForceLog`, e.g. ``ForceLog.from_file("push.csv")``), whose push, hold and
+        release or strike is the excitation (a typed ``excitation`` overrides it)."""
         call = self._create_job_call(
             clip_id,
             excitation=excitation,
             parameters=parameters,
             callback_url=callback_url,
             idempotency_key=idempotency_key,
+            force_log=force_log,
         )
         return self._job(self._send(call))
 
@@ -590,10 +598,11 @@ class Client(_Protocol):
         timeout: float | None = None,
         progress: ProgressCallback | None = None,
         on_progress: JobProgress | None = None,
+        force_log: ForceLog | dict[str, Any] | None = None,
     ) -> Job:
         """Upload a clip, queue its analysis and wait for the end: the one call a robot needs."""
         clip = self.upload_clip(path, progress=progress)
-        job = self.create_job(clip.id, excitation=excitation, parameters=parameters)
+        job = self.create_job(clip.id, excitation=excitation, parameters=parameters, force_log=force_log)
         return self.wait(job, timeout=timeout, on_progress=on_progress)
 
     # Health --------------------------------------------------------------------------------------
@@ -708,6 +717,7 @@ class AsyncClient(_Protocol):
         parameters: AnalysisParameters | dict[str, Any] | None = None,
         callback_url: str | None = None,
         idempotency_key: str | None = None,
+        force_log: ForceLog | dict[str, Any] | None = None,
     ) -> Job:
         call = self._create_job_call(
             clip_id,
@@ -715,6 +725,7 @@ class AsyncClient(_Protocol):
             parameters=parameters,
             callback_url=callback_url,
             idempotency_key=idempotency_key,
+            force_log=force_log,
         )
         return self._job(await self._send(call))
 
@@ -825,9 +836,12 @@ class AsyncClient(_Protocol):
         timeout: float | None = None,
         progress: ProgressCallback | None = None,
         on_progress: JobProgress | None = None,
+        force_log: ForceLog | dict[str, Any] | None = None,
     ) -> Job:
         clip = await self.upload_clip(path, progress=progress)
-        job = await self.create_job(clip.id, excitation=excitation, parameters=parameters)
+        job = await self.create_job(
+            clip.id, excitation=excitation, parameters=parameters, force_log=force_log
+        )
         return await self.wait(job, timeout=timeout, on_progress=on_progress)
 
     async def health(self) -> dict[str, Any]:

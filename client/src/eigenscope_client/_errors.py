@@ -31,6 +31,12 @@ class StreamError(EigenscopeError):
         self.status: int | None = self.problem.get("status")
 
 
+class ForceLogError(EigenscopeError, ValueError):
+    """A force log the server would refuse (:class:`~eigenscope_client.ForceLog`): a file that is not a
+    force log, a column not one value per time, times that do not increase, values that are not finite.
+    The message says what to fix."""
+
+
 class WaitTimeoutError(EigenscopeError, TimeoutError):
     """A job did not end within the time given to :meth:`Client.wait`; ``job`` is its last state."""
 

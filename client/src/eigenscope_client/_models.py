@@ -304,8 +304,23 @@ class Callback(_Model):
     last_error: str | None = None
 
 
+@dataclass(frozen=True)
+class ForceLogSummary(_Model):
+    """The force log a job was sent with, as the job shows it: its name, size, the span of its times on the
+    clip's clock (``offset_s`` added) and its columns; never its samples."""
+
+    schema: ClassVar[str] = "ForceLogSummary"
+    name: str
+    samples: int
+    start_s: float
+    end_s: float
+    columns: list[str]
+    frame_id: str | None = None
+
+
 #: The converters of the members a job and its summary share.
 _JOB_CONVERT: dict[str, Callable[[Any], Any]] = {
+    "force_log": _optional(ForceLogSummary.from_dict),
     "created_at": _datetime,
     "started_at": _datetime,
     "finished_at": _datetime,
@@ -327,6 +342,7 @@ class _JobFields(_Model):
     stage: str | None = None
     attempts: int = 0
     excitation: dict[str, Any] | list[dict[str, Any]] | None = None
+    force_log: ForceLogSummary | None = None
     started_at: datetime | None = None
     finished_at: datetime | None = None
     error: Problem | None = None

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from api_schemas import AnalysisParameters, StepReleaseExcitation
+from workers.pipeline.clipio import bag_writer as bw
 from workers.pipeline.clipio import write_npz
 from workers.pipeline.clipio import writers as w
 from workers.pipeline.synth import Scene, SceneObject, SyntheticClip, render
@@ -113,7 +114,7 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
     ),
     "ros1-realsense-ros": (
         lambda d, c: (
-            w.write_ros_bag(
+            bw.write_ros_bag(
                 d / "c.bag", c.rgb, stamps_ns=_stamps(96), intrinsics=c.intrinsics, depth=c.depth
             ),
             {},
@@ -122,13 +123,13 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
     ),
     "ros1-realsense-sdk": (
         lambda d, c: (
-            w.write_ros_bag(
+            bw.write_ros_bag(
                 d / "rs.bag",
                 c.rgb,
                 stamps_ns=_stamps(96),
                 intrinsics=c.intrinsics,
                 depth=c.depth,
-                options=w.RosBagOptions(layout="realsense-sdk"),
+                options=bw.RosBagOptions(layout="realsense-sdk"),
             ),
             {},
         ),
@@ -137,7 +138,7 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
     "ros2-mcap-file": (
         lambda d, c: (
             next(
-                w.write_ros_bag(
+                bw.write_ros_bag(
                     d / "b", c.rgb, stamps_ns=_stamps(96), intrinsics=c.intrinsics, depth=c.depth, version=2
                 ).glob("*.mcap")
             ),
@@ -147,13 +148,13 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
     ),
     "ros2-zipped-sqlite3": (
         lambda d, c: (
-            w.write_ros2_zip(
+            bw.write_ros2_zip(
                 d / "b.zip",
                 c.rgb,
                 stamps_ns=_stamps(96),
                 intrinsics=c.intrinsics,
                 depth=c.depth,
-                options=w.RosBagOptions(storage="sqlite3"),
+                options=bw.RosBagOptions(storage="sqlite3"),
             ),
             {},
         ),
@@ -161,14 +162,14 @@ WITH_DEPTH: dict[str, tuple[Writer, bool]] = {
     ),
     "ros2-compressed": (
         lambda d, c: (
-            w.write_ros_bag(
+            bw.write_ros_bag(
                 d / "bc",
                 c.rgb,
                 stamps_ns=_stamps(96),
                 intrinsics=c.intrinsics,
                 depth=c.depth,
                 version=2,
-                options=w.RosBagOptions(compressed=True),
+                options=bw.RosBagOptions(compressed=True),
             ),
             {},
         ),
@@ -235,7 +236,7 @@ def test_bag_with_dropped_frames_keeps_frequency(scene: tuple[Scene, SyntheticCl
     keep = np.ones(96, bool)
     keep[[10, 11, 30, 47, 48, 49, 70]] = False
     stamps = _stamps(96)[keep]
-    path = w.write_ros_bag(
+    path = bw.write_ros_bag(
         tmp_path / "drop.bag",
         clip.rgb[keep],
         stamps_ns=stamps,

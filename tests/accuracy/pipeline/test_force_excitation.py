@@ -7,7 +7,9 @@ fix, or chosen; a typed force overrides the recording and says so."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -15,53 +17,19 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from api_schemas import AnalysisParameters, StepReleaseExcitation
+from tests.robot_force import FPS, RELEASE_FRAME, pushed_spring, robot_force
 from tests.scenes import ACCURACY_ROWS
-from workers.pipeline.clipio import writers as w
+from workers.pipeline.clipio import bag_writer as bw
 from workers.pipeline.errors import ForceError
-from workers.pipeline.synth import Scene, SceneObject, render
+from workers.pipeline.synth import Scene, render
 from workers.runner import run_analysis
 
 pytestmark = pytest.mark.slow
 
-FPS = 30.0
-RELEASE_FRAME = 24
 RATE_HZ = 500.0
 T0_NS = 1_700_000_000_000_000_000
 #: The sensor's frame in the camera's optical frame (a wrist sensor turned every which way).
 CAMERA_FROM_SENSOR = Rotation.from_euler("zyx", [90.0, -25.0, 30.0], degrees=True)
-
-
-def _scene(excitation: str, seed: int) -> Scene:
-    obj = SceneObject(
-        center_px=(160.0, 120.0),
-        size_px=(90.0, 70.0),
-        frequency_hz=2.5,
-        damping_ratio=0.02,
-        mass_kg=0.8,
-        excitation=excitation,  # type: ignore[arg-type]
-        force_n=6.0,
-        impulse_ns=0.16,
-        direction=(1.0, 0.0, 0.0),
-        release_frame=RELEASE_FRAME,
-        depth_m=0.9,
-    )
-    return Scene(width=320, height=240, frames=150, fps=FPS, objects=(obj,), seed=seed)
-
-
-def _force_profile(obj: SceneObject, t: np.ndarray, rng: np.random.Generator, *, noise: float, drift: float):
-    """The robot's force along the push (N) at times ``t`` (s from frame 0): the hold until the release
-    (a 40 ms ramp down), or a 9 ms half-sine strike centred on the release instant with J = impulse."""
-    release = RELEASE_FRAME / FPS
-    if obj.excitation == "step_release":
-        held = obj.force_n * np.clip((release + 0.02 - t) / 0.04, 0.0, 1.0)
-        ramp_up = np.clip((t + 0.6) / 0.2, 0.0, 1.0)  # the push began before the recording's frames
-        force = held * ramp_up
-    else:
-        width = 0.009
-        phase = (t - release + width / 2) / width
-        pulse = np.where((phase >= 0) & (phase <= 1), np.sin(np.pi * np.clip(phase, 0, 1)), 0.0)
-        force = obj.impulse_ns * math.pi / (2 * width) * pulse  # ∫ = J
-    return force + rng.normal(0.0, noise, t.shape) + drift * (t - t[0]) / (t[-1] - t[0])
 
 
 def _bag(
@@ -73,23 +41,42 @@ def _bag(
     tf: bool = False,
     noise: float = 0.03,
     drift: float = 0.0,
+    push_deg: float = 0.0,
+    wrist_turn_deg: float = 0.0,
 ) -> Path:
+    """The scene as a bag with its force topic(s). The robot pushes ``push_deg`` off the object's motion
+    (+x of the camera, in the image plane): the force along the motion is the scene's, the whole force
+    1 / cos larger. ``wrist_turn_deg``: the wrist (and its sensor) turns this far during the record, and
+    its orientation is recorded on /tf (``tf`` must be set)."""
     clip = render(scene)
     obj = scene.objects[0]
     rng = np.random.default_rng(scene.seed + 100)
     t = np.arange(-0.9, scene.frames / FPS + 0.2, 1 / RATE_HZ)
-    along = _force_profile(obj, t, rng, noise=noise, drift=drift)
-    # The force pushes the object along +x of the camera; the sensor measures it in its own frame.
-    in_sensor = CAMERA_FROM_SENSOR.inv().apply(np.outer(along, [1.0, 0.0, 0.0]))
+    along = robot_force(obj, t, rng, noise=noise, drift=drift)
+    tilt = math.radians(push_deg)
+    push = np.array([math.cos(tilt), math.sin(tilt), 0.0]) / math.cos(tilt)
+    turns = Rotation.from_euler("x", np.linspace(0.0, wrist_turn_deg, len(t))[:, None], degrees=True)
+    camera_from_sensor = CAMERA_FROM_SENSOR * turns  # one rotation per force sample
+    in_sensor = camera_from_sensor.inv().apply(np.outer(along, push))
     stamps = (T0_NS + np.rint(t * 1e9)).astype(np.int64)
-    wrenches = [w.WrenchTopic(stamps_ns=stamps, force_n=in_sensor, name=name) for name in topics]
-    transforms = []
-    if tf:
+    wrenches = [bw.WrenchTopic(stamps_ns=stamps, force_n=in_sensor, name=name) for name in topics]
+    transforms: list[bw.StaticTransform | bw.MovingTransform] = []
+    if tf and wrist_turn_deg:
+        every = 5  # /tf at 100 Hz
+        transforms = [
+            bw.MovingTransform(
+                "camera_color_optical_frame",
+                "ft_sensor_link",
+                stamps[::every],
+                camera_from_sensor[::every].as_quat(),
+            )
+        ]
+    elif tf:
         q = CAMERA_FROM_SENSOR.as_quat()
-        transforms = [w.StaticTransform("camera_color_optical_frame", "ft_sensor_link", tuple(q))]
+        transforms = [bw.StaticTransform("camera_color_optical_frame", "ft_sensor_link", tuple(q))]
     frame_stamps = T0_NS + np.rint(np.arange(scene.frames) / FPS * 1e9).astype(np.int64)
     path = folder / ("scene.bag" if version == 1 else "scene-bag")
-    return w.write_ros_bag(
+    return bw.write_ros_bag(
         path,
         clip.rgb,
         stamps_ns=frame_stamps,
@@ -128,7 +115,7 @@ def _check(result, scene: Scene, *, topic: str = "/ft_sensor/wrench") -> None:  
     ("excitation", "version"), [("step_release", 1), ("impulse", 1), ("step_release", 2)]
 )
 def test_the_force_topic_is_the_excitation(tmp_path: Path, excitation: str, version: int) -> None:
-    scene = _scene(excitation, seed=11)
+    scene = pushed_spring(excitation, seed=11)
     bag = _bag(tmp_path, scene, version=version)
     result = run_analysis(bag, tmp_path / "out")
     _check(result, scene)
@@ -139,20 +126,92 @@ def test_the_force_topic_is_the_excitation(tmp_path: Path, excitation: str, vers
 
 
 def test_a_sensor_with_its_transform_recorded(tmp_path: Path) -> None:
-    scene = _scene("step_release", seed=12)
+    scene = pushed_spring("step_release", seed=12)
     result = run_analysis(_bag(tmp_path, scene, tf=True), tmp_path / "out")
     _check(result, scene)
     assert not any("no transform" in n for n in result.objects[0].excitation.notes)
 
 
+@pytest.mark.parametrize("wrist_turn_deg", [0.0, 60.0])
+def test_a_push_off_the_motion_is_projected_on_it_when_the_transform_is_recorded(
+    tmp_path: Path, wrist_turn_deg: float
+) -> None:
+    """The robot pushes 35° off the object's axis of motion (the force 22 % larger than its component
+    along it): with the sensor's orientation on /tf_static, or on /tf while the wrist turns 60°, the
+    force's component along the motion gives k and m."""
+    scene = pushed_spring("step_release", seed=16)
+    bag = _bag(tmp_path, scene, tf=True, push_deg=35.0, wrist_turn_deg=wrist_turn_deg)
+    result = run_analysis(bag, tmp_path / "out")
+    _check(result, scene)
+    notes = result.objects[0].excitation.notes
+    assert any("projected on the object's motion direction" in n and "35." in n for n in notes), notes
+
+
+def _forced_scene(seed: int, forcing_hz: tuple[float, ...]) -> Scene:
+    obj = dataclasses.replace(
+        pushed_spring("step_release", seed).objects[0],
+        excitation="forced",
+        damping_ratio=0.04,
+        forcing_hz=forcing_hz,
+        forcing_n=0.3,
+        forcing_seed=seed,
+    )
+    return Scene(width=320, height=240, frames=300, fps=FPS, objects=(obj,), seed=seed)
+
+
+def test_a_forced_vibration_gives_k_and_m_from_the_response_between_force_and_motion(tmp_path: Path) -> None:
+    """A robot that keeps driving the object (twelve cosines from 1.2 to 5 Hz around its 2.5 Hz, from rest)
+    gives no hold and no strike: k and m come from the response between the recorded force and the motion,
+    one degree of freedom, and the note gives its damping."""
+    scene = _forced_scene(17, tuple(np.linspace(1.2, 5.0, 12)))
+    result = run_analysis(_bag(tmp_path, scene), tmp_path / "out")
+    obj = scene.objects[0]
+    assert result.objects, "no object found"
+    o = result.objects[0]
+    ACCURACY_ROWS.append(
+        {
+            "scene": "force forced multisine",
+            "k_err": abs(o.stiffness_n_per_m / obj.stiffness_n_per_m - 1)
+            if o.stiffness_n_per_m
+            else math.nan,
+            "m_err": abs(o.mass_kg / obj.mass_kg - 1) if o.mass_kg else math.nan,
+        }
+    )
+    assert o.excitation is not None
+    assert o.excitation.type == "forced"
+    assert o.excitation.source == "topic /ft_sensor/wrench"
+    assert o.stiffness_n_per_m == pytest.approx(obj.stiffness_n_per_m, rel=0.05), o.null_reasons
+    assert o.mass_kg == pytest.approx(obj.mass_kg, rel=0.05)
+    (note,) = [n for n in o.excitation.notes if "response between the recorded force and the motion" in n]
+    ratio = re.search(r"ratio ([0-9.]+)", note)
+    assert ratio is not None, note
+    assert float(ratio.group(1)) == pytest.approx(0.04, rel=0.25), note
+
+
+def test_a_force_at_one_steady_frequency_does_not_determine_k_and_m_and_says_so(tmp_path: Path) -> None:
+    """One driving tone, the object's start-up transient long gone from the window: one point of the
+    frequency response, two numbers for three unknowns. No stiffness or mass, and the reason says what to
+    record instead."""
+    obj = dataclasses.replace(_forced_scene(18, (2.0,)).objects[0], release_frame=-600)
+    scene = Scene(width=320, height=240, frames=150, fps=FPS, objects=(obj,), seed=18)
+    result = run_analysis(_bag(tmp_path, scene), tmp_path / "out")
+    assert result.objects, "no object found"
+    o = result.objects[0]
+    assert o.stiffness_n_per_m is None
+    assert o.mass_kg is None
+    assert any("do not determine stiffness and mass" in r and "sweep" in r for r in o.null_reasons), (
+        o.null_reasons
+    )
+
+
 def test_a_noisy_drifting_sensor(tmp_path: Path) -> None:
-    scene = _scene("step_release", seed=13)
+    scene = pushed_spring("step_release", seed=13)
     result = run_analysis(_bag(tmp_path, scene, noise=0.25, drift=0.5), tmp_path / "out")
     _check(result, scene)
 
 
 def test_two_force_topics_are_refused_with_the_fix_or_chosen(tmp_path: Path) -> None:
-    scene = _scene("step_release", seed=14)
+    scene = pushed_spring("step_release", seed=14)
     bag = _bag(tmp_path, scene, topics=("/left/wrench", "/right/wrench"))
     with pytest.raises(ForceError, match="--force-topic"):
         run_analysis(bag, tmp_path / "refused")
@@ -161,7 +220,7 @@ def test_two_force_topics_are_refused_with_the_fix_or_chosen(tmp_path: Path) -> 
 
 
 def test_a_typed_force_overrides_the_recording_and_says_so(tmp_path: Path) -> None:
-    scene = _scene("step_release", seed=15)
+    scene = pushed_spring("step_release", seed=15)
     typed = StepReleaseExcitation(type="step_release", force_n=3.0)
     result = run_analysis(_bag(tmp_path, scene), tmp_path / "out", excitation=typed)
     o = result.objects[0]

@@ -38,3 +38,30 @@ def test_bad_input_gets_one_line_and_exit_2(make, args, expected, cli_clip, run_
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1, lines
     assert expected.lower() in lines[0].lower()
+
+
+@pytest.mark.parametrize(
+    ("rows", "options", "expected"),
+    [
+        (200_001, [], "time_s: list should have at most 200000 items"),
+        (400, [], "another clock; give its offset (--force-log-offset-s"),
+    ],
+    ids=["too-long", "another-clock"],
+)
+def test_a_force_log_that_cannot_be_used_gets_one_line_and_exit_2(
+    rows, options, expected, cli_clip, run_eigenscope, tmp_path
+):
+    """A log longer than a request may carry, or kept on another clock with no offset given."""
+    log = tmp_path / "push.csv"
+    times = 1234.4 + np.arange(rows) / 500  # the robot's clock
+    force = np.where(np.arange(rows) < rows // 2, 6.0, 0.0)
+    log.write_text(
+        "time_s,force_n\n"
+        + "".join(f"{t!r},{f!r}\n" for t, f in zip(times.tolist(), force.tolist(), strict=True))
+    )
+    done = run_eigenscope("analyze", cli_clip, "--force-log", log, *options, "--out", tmp_path / "out")
+    assert done.returncode == 2, (done.stdout, done.stderr)
+    assert "Traceback" not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert expected.lower() in lines[0].lower()

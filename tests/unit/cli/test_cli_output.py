@@ -104,3 +104,27 @@ def test_a_failed_run_keeps_a_folder_that_was_there(tmp_path: Path) -> None:
     done = _analyze_a_bad_clip(tmp_path, out)
     assert done.returncode == 2, done.stderr
     assert (out / "notes.txt").read_text() == "the user's"
+
+
+@pytest.mark.parametrize(
+    ("kind", "release_time_s", "expected"),
+    [
+        ("step_release", 0.8, "held force 6 ± 0.01 N, released at 0.8000 s, from topic /ft"),
+        ("impulse", 0.8, "impulse 6 ± 0.01 N·s, struck at 0.8000 s, from topic /ft"),
+        ("forced", None, "a force that kept acting, RMS 6 ± 0.01 N, from topic /ft"),
+    ],
+)
+def test_the_summary_names_each_kind_of_recorded_excitation(
+    kind: str, release_time_s: float | None, expected: str
+) -> None:
+    from api_schemas import ExcitationUsed
+    from eigenscope.commands.analyze import _excitation_text
+
+    used = ExcitationUsed(
+        type=kind,  # type: ignore[arg-type]
+        value=6.0,
+        uncertainty=0.01,
+        release_time_s=release_time_s,
+        source="topic /ft",
+    )
+    assert _excitation_text(used) == expected

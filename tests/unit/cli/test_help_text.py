@@ -32,6 +32,7 @@ UNITS = {
     "--point": "pixels",
     "--box": "pixels",
     "--timeout": "seconds",
+    "--force-log-offset-s": "seconds",
 }
 
 

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from workers.pipeline.clipio import ClipOverrides, ReadLimits, open_clip, write_npz
+from workers.pipeline.clipio import bag_writer as bw
 from workers.pipeline.clipio import writers as w
 from workers.pipeline.errors import ClipError, ClipTooLargeError, UnsupportedFormatError
 
@@ -205,7 +206,7 @@ def bag_without_images(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def truncated_bag(d: Path) -> tuple[Path, dict[str, Any]]:
-    p = w.write_ros_bag(d / "cut.bag", _rgb(), stamps_ns=_stamps(20), intrinsics=(50, 50, 20, 16))
+    p = bw.write_ros_bag(d / "cut.bag", _rgb(), stamps_ns=_stamps(20), intrinsics=(50, 50, 20, 16))
     data = p.read_bytes()
     p.write_bytes(data[: len(data) * 2 // 3])
     return p, {}
@@ -224,7 +225,7 @@ def empty_ros2_bag(d: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def truncated_mcap(d: Path) -> tuple[Path, dict[str, Any]]:
-    folder = w.write_ros_bag(d / "b2", _rgb(), stamps_ns=_stamps(20), intrinsics=(50, 50, 20, 16), version=2)
+    folder = bw.write_ros_bag(d / "b2", _rgb(), stamps_ns=_stamps(20), intrinsics=(50, 50, 20, 16), version=2)
     mcap = next(folder.glob("*.mcap"))
     p = d / "cut.mcap"
     p.write_bytes(mcap.read_bytes()[:-2000])
@@ -235,13 +236,13 @@ def db3_topic_without_name(d: Path) -> tuple[Path, dict[str, Any]]:
     """A ROS 2 SQLite bag whose topic row has no name (found by the fuzzer)."""
     import sqlite3
 
-    folder = w.write_ros_bag(
+    folder = bw.write_ros_bag(
         d / "b3",
         _rgb(),
         stamps_ns=_stamps(20),
         intrinsics=(50, 50, 20, 16),
         version=2,
-        options=w.RosBagOptions(storage="sqlite3"),
+        options=bw.RosBagOptions(storage="sqlite3"),
     )
     p = d / "noname.db3"
     p.write_bytes(next(folder.glob("*.db3")).read_bytes())

@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 
 from eigenscope.cli import main
+from workers.pipeline.clipio import bag_writer as bw
 from workers.pipeline.clipio import writers as w
 
 
 def test_probe_text_for_a_bag(truth: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    path = w.write_ros_bag(
+    path = bw.write_ros_bag(
         tmp_path / "c.bag",
         truth.rgb,
         stamps_ns=truth.stamps_ns,
@@ -58,7 +59,7 @@ def test_probe_error_is_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFi
 
 def test_probe_does_not_import_opencv(truth: Any, tmp_path: Path) -> None:
     zipped = w.write_zip_frames(tmp_path / "c.zip", truth.rgb, depth=truth.depth, fps=30.0)
-    bag = w.write_ros_bag(
+    bag = bw.write_ros_bag(
         tmp_path / "c.bag", truth.rgb, stamps_ns=truth.stamps_ns, intrinsics=truth.intrinsics
     )
     npz = tmp_path / "c.npz"

@@ -23,6 +23,7 @@ from workers.pipeline.clipio import (
     open_clip,
     write_npz,
 )
+from workers.pipeline.clipio import bag_writer as bw
 from workers.pipeline.clipio import writers as w
 from workers.pipeline.clipio._common import align_depth_to_color, associate_nearest
 
@@ -323,7 +324,7 @@ def _bag_checks(
 
 
 def test_ros1_bag_realsense_ros_layout(truth: Truth, tmp_path: Path) -> None:
-    path = w.write_ros_bag(
+    path = bw.write_ros_bag(
         tmp_path / "c.bag",
         truth.rgb,
         stamps_ns=truth.stamps_ns,
@@ -341,13 +342,13 @@ def test_ros1_bag_realsense_ros_layout(truth: Truth, tmp_path: Path) -> None:
 def test_ros1_bag_realsense_sdk_layout_depth_units_from_bag(truth: Truth, tmp_path: Path) -> None:
     units = 0.0001  # D405-style 0.1 mm units, stored in the bag
     depth_units = (truth.depth.astype(np.float64) * 10).astype(np.uint16)
-    path = w.write_ros_bag(
+    path = bw.write_ros_bag(
         tmp_path / "rs.bag",
         truth.rgb,
         stamps_ns=truth.stamps_ns,
         intrinsics=truth.intrinsics,
         depth=depth_units,
-        options=w.RosBagOptions(layout="realsense-sdk", depth_scale=units),
+        options=bw.RosBagOptions(layout="realsense-sdk", depth_scale=units),
     )
     info, rgb, depth, _ = read_all(path)
     assert info.streams[0] == "/device_0/sensor_1/Color_0/image/data"
@@ -359,14 +360,14 @@ def test_ros1_bag_realsense_sdk_layout_depth_units_from_bag(truth: Truth, tmp_pa
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_ros2_bag_folder(truth: Truth, tmp_path: Path, storage: str) -> None:
-    path = w.write_ros_bag(
+    path = bw.write_ros_bag(
         tmp_path / "bag",
         truth.rgb,
         stamps_ns=truth.stamps_ns,
         intrinsics=truth.intrinsics,
         depth=truth.depth,
         version=2,
-        options=w.RosBagOptions(storage=storage),  # type: ignore[arg-type]
+        options=bw.RosBagOptions(storage=storage),  # type: ignore[arg-type]
     )
     assert detect_format(path) == "ros2-bag"
     info, rgb, depth, _ = read_all(path)
@@ -376,13 +377,13 @@ def test_ros2_bag_folder(truth: Truth, tmp_path: Path, storage: str) -> None:
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_ros2_zipped_bag_folder(truth: Truth, tmp_path: Path, storage: str) -> None:
-    path = w.write_ros2_zip(
+    path = bw.write_ros2_zip(
         tmp_path / "bag.zip",
         truth.rgb,
         stamps_ns=truth.stamps_ns,
         intrinsics=truth.intrinsics,
         depth=truth.depth,
-        options=w.RosBagOptions(storage=storage),  # type: ignore[arg-type]
+        options=bw.RosBagOptions(storage=storage),  # type: ignore[arg-type]
     )
     assert detect_format(path) == "ros2-bag"
     scratch = tmp_path / "scratch"
@@ -394,7 +395,7 @@ def test_ros2_zipped_bag_folder(truth: Truth, tmp_path: Path, storage: str) -> N
 
 @pytest.mark.parametrize("suffix", [".mcap", ".upload"])
 def test_ros2_single_mcap_file_detected_by_content(truth: Truth, tmp_path: Path, suffix: str) -> None:
-    folder = w.write_ros_bag(
+    folder = bw.write_ros_bag(
         tmp_path / "bag",
         truth.rgb,
         stamps_ns=truth.stamps_ns,
@@ -411,14 +412,14 @@ def test_ros2_single_mcap_file_detected_by_content(truth: Truth, tmp_path: Path,
 
 
 def test_ros2_compressed_image_and_compressed_depth(truth: Truth, tmp_path: Path) -> None:
-    path = w.write_ros_bag(
+    path = bw.write_ros_bag(
         tmp_path / "bag",
         truth.rgb,
         stamps_ns=truth.stamps_ns,
         intrinsics=truth.intrinsics,
         depth=truth.depth,
         version=2,
-        options=w.RosBagOptions(compressed=True),
+        options=bw.RosBagOptions(compressed=True),
     )
     info, rgb, depth, _ = read_all(path)
     assert info.streams[0].endswith("/compressed")
@@ -431,7 +432,7 @@ def test_bag_jitter_drops_and_depth_offset(truth: Truth, tmp_path: Path) -> None
     ticks = np.array([i for i in range(28) if i not in (4, 9, 10, 20)][:24])
     stamps = (T0_NS + ticks * period + rng.uniform(-2e6, 2e6, 24)).astype(np.int64)
     d_stamps = stamps + 7_000_000  # depth 7 ms late
-    path = w.write_ros_bag(
+    path = bw.write_ros_bag(
         tmp_path / "c.bag",
         truth.rgb,
         stamps_ns=stamps,
@@ -450,7 +451,7 @@ def test_bag_jitter_drops_and_depth_offset(truth: Truth, tmp_path: Path) -> None
 
 
 def test_bag_topics_by_parameter_and_depth_none(truth: Truth, tmp_path: Path) -> None:
-    path = w.write_ros_bag(
+    path = bw.write_ros_bag(
         tmp_path / "c.bag",
         truth.rgb,
         stamps_ns=truth.stamps_ns,
@@ -481,26 +482,26 @@ def test_bag_unaligned_depth_is_reprojected(truth: Truth, tmp_path: Path) -> Non
         dc = writer.add_connection("/cam/depth/image_rect_raw", "sensor_msgs/msg/Image", typestore=ts)
         di = writer.add_connection("/cam/depth/camera_info", "sensor_msgs/msg/CameraInfo", typestore=ts)
         for i, stamp in enumerate(truth.stamps_ns):
-            h = w._header(ts, int(stamp), "f", True, i)
+            h = bw._header(ts, int(stamp), "f", True, i)
             writer.write(
                 cc,
                 int(stamp),
-                bytes(ts.serialize_ros1(w._image_msg(ts, h, truth.rgb[i], "rgb8"), cc.msgtype)),
+                bytes(ts.serialize_ros1(bw._image_msg(ts, h, truth.rgb[i], "rgb8"), cc.msgtype)),
             )
             writer.write(
                 ci,
                 int(stamp),
                 bytes(
-                    ts.serialize_ros1(w._camera_info_msg(ts, h, 96, 80, truth.intrinsics, True), ci.msgtype)
+                    ts.serialize_ros1(bw._camera_info_msg(ts, h, 96, 80, truth.intrinsics, True), ci.msgtype)
                 ),
             )
             writer.write(
-                dc, int(stamp), bytes(ts.serialize_ros1(w._image_msg(ts, h, flat, "16UC1"), dc.msgtype))
+                dc, int(stamp), bytes(ts.serialize_ros1(bw._image_msg(ts, h, flat, "16UC1"), dc.msgtype))
             )
             writer.write(
                 di,
                 int(stamp),
-                bytes(ts.serialize_ros1(w._camera_info_msg(ts, h, 48, 40, half, True), di.msgtype)),
+                bytes(ts.serialize_ros1(bw._camera_info_msg(ts, h, 48, 40, half, True), di.msgtype)),
             )
     info, _, depth, _ = read_all(path)
     assert any("reprojected" in n for n in info.notes)

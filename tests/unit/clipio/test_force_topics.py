@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from workers.pipeline.clipio import ClipOverrides, open_clip
-from workers.pipeline.clipio import writers as w
+from workers.pipeline.clipio import bag_writer as bw
 from workers.pipeline.clipio.force_topics import force_topics, quaternion_to_matrix, read_force
 from workers.pipeline.clipio.rosbag import BagClip
 from workers.pipeline.errors import ForceError
@@ -117,8 +117,8 @@ def write_bag(
     if ros1:
         ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms\n", TF))
     T = ts.types
-    opts = w.RosBagOptions(layout=layout, storage=storage)  # type: ignore[arg-type]
-    writer = w._open_bag_writer(path, ros1, storage)
+    opts = bw.RosBagOptions(layout=layout, storage=storage)  # type: ignore[arg-type]
+    writer = bw._open_bag_writer(path, ros1, storage)
     stamps = [int(s) for s in truth.stamps_ns]
     t0 = stamps[0]
     events: list[tuple[int, int, str, tuple[Any, ...]]] = []  # (time, order, _BagOut method, args)
@@ -127,7 +127,7 @@ def write_bag(
         return T["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
     def header(ns: int, frame: str) -> Any:
-        return w._header(ts, ns, frame, ros1, 0)
+        return bw._header(ts, ns, frame, ros1, 0)
 
     for i, s in enumerate(stamps):
         events.append((s, 0, "color", (s, i, truth.rgb[i])))
@@ -167,7 +167,7 @@ def write_bag(
         events.append((recv, 3, "write", (topic, TF, recv, msg)))
     events.sort(key=lambda e: (e[0], e[1]))
     with writer:
-        out = w._BagOut(writer, ts, ros1, w._bag_topics(layout, False), truth.intrinsics, (96, 80), opts)
+        out = bw._BagOut(writer, ts, ros1, bw._bag_topics(layout, False), truth.intrinsics, (96, 80), opts)
         for _, _, method, args in events:
             getattr(out, method)(*args)
     return path

@@ -206,11 +206,12 @@ def test_a_large_drift_is_removed_and_noted():
     assert any("drifted" in note for note in found.notes)
 
 
-def test_a_force_that_keeps_oscillating_is_a_forced_vibration_that_gives_no_k_and_m():
+def test_a_force_that_keeps_oscillating_is_a_forced_vibration_that_carries_its_samples():
     t = np.arange(0, 4, 1 / 500)
     swing = np.where(t > 0.5, 2.0 * np.sin(2 * np.pi * 6 * (t - 0.5)), 0.0)
     f = 1.0 + swing + 0.05 * np.random.default_rng(7).standard_normal(t.size)
-    found = find_excitation(_series(t, f))
+    series = _series(t, f)
+    found = find_excitation(series)
     assert found.kind == "forced"
     assert abs(found.value / (2.0 / math.sqrt(2)) - 1) < 0.05
     assert abs(found.time_s - 0.5) < 1 / 6
@@ -218,8 +219,15 @@ def test_a_force_that_keeps_oscillating_is_a_forced_vibration_that_gives_no_k_an
     frequency = re.search(r"about ([0-9.]+) Hz", note)
     assert frequency is not None, note
     assert abs(float(frequency.group(1)) / 6.0 - 1) < 0.02, note
-    with pytest.raises(ForceError, match="frequency-response fit"):
+    with pytest.raises(ForceError, match="needs the recording itself"):
         excitation_of(found)
+    excitation = excitation_of(found, series)
+    assert excitation.kind == "forced"
+    assert excitation.release_time_s is None
+    assert excitation.force_times_s is not None
+    assert excitation.force_along_n is not None
+    np.testing.assert_array_equal(excitation.force_times_s, t)
+    assert abs(np.std(excitation.force_along_n[t > 0.5]) / math.sqrt(2) - 1) < 0.05  # the 2 N swing, 1-D
 
 
 def test_pure_noise_has_no_excitation_and_says_what_to_do():

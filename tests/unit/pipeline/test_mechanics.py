@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from workers.pipeline.mechanics import stiffness_and_mass
+from workers.pipeline.mechanics import DIRECTION_SD_RAD, along_motion, stiffness_and_mass
+from workers.pipeline.model import Excitation
 from workers.pipeline.registration import _tracking_shares
 
 
@@ -26,6 +27,44 @@ def test_step_release_gives_k_from_force_over_amplitude_and_m_from_omega():
     )
     assert mech.stiffness_n_per_m == pytest.approx(k_true)
     assert mech.mass_kg == pytest.approx(m_true)
+
+
+def _recorded(direction: tuple[float, float, float] | None, value: float = 6.0) -> Excitation:
+    return Excitation(
+        kind="step_release", value=value, uncertainty=0.05, source="topic /ft", direction=direction
+    )
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 20.0, 35.0, 60.0])
+def test_a_force_in_the_camera_frame_acts_along_the_motion(angle_deg: float):
+    a = math.radians(angle_deg)
+    push = (math.cos(a), 0.0, math.sin(a))  # tilted towards the line of sight
+    used, reasons = along_motion(_recorded(push, value=6.0 / math.cos(a)), (-1.0, 0.0, 0.0))  # sign free
+    assert reasons == []
+    assert used is not None
+    assert used.value == pytest.approx(6.0, rel=1e-9)
+    expected_sd = math.hypot(0.05 * math.cos(a), 6.0 / math.cos(a) * math.sin(a) * DIRECTION_SD_RAD)
+    assert used.uncertainty == pytest.approx(expected_sd, rel=1e-9)
+    assert used.source == "topic /ft"
+    assert any(f"{angle_deg:.1f}°" in n and "projected" in n for n in used.notes), used.notes
+
+
+def test_a_force_without_a_frame_or_without_a_motion_direction_is_used_as_it_is():
+    typed = _recorded(None)
+    assert along_motion(typed, (1.0, 0.0, 0.0)) == (typed, [])
+    used, reasons = along_motion(_recorded((0.6, 0.8, 0.0)), None)
+    assert reasons == []
+    assert used is not None
+    assert used.value == 6.0
+    assert any("motion direction is unknown" in n for n in used.notes)
+
+
+def test_a_force_across_the_motion_gives_no_stiffness_and_says_why():
+    used, reasons = along_motion(_recorded((0.1, 0.995, 0.0)), (1.0, 0.0, 0.0))
+    assert used is None
+    assert len(reasons) == 1
+    assert "across the object's motion" in reasons[0]
+    assert "84°" in reasons[0]
 
 
 def test_impulse_gives_m_from_v0_over_omega():

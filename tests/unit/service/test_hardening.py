@@ -109,7 +109,7 @@ def test_strict_json() -> None:
 
 
 def test_json_body_over_the_cap_is_413(tmp_path: Path, small_clip: Path) -> None:
-    settings = Settings(data_dir=tmp_path / "data", max_json_body_kb=64)
+    settings = Settings(data_dir=tmp_path / "data", max_json_body_kb=64, max_job_body_kb=64)
     with client_for(settings) as client:
         clip_id = upload(client, small_clip)["id"]
         padded = json.dumps({"clip_id": clip_id}) + " " * (65 * 1024)  # valid JSON, over the cap
@@ -117,7 +117,11 @@ def test_json_body_over_the_cap_is_413(tmp_path: Path, small_clip: Path) -> None
         assert response.status_code == 413
         assert response.headers["content-type"] == "application/problem+json"
         assert response.json()["type"].endswith("/body-too-large")
-        assert "EIGENSCOPE_MAX_JSON_BODY_KB" in response.json()["detail"]
+        # A job request has a cap of its own (it may carry a force log), named in the answer.
+        assert "EIGENSCOPE_MAX_JOB_BODY_KB" in response.json()["detail"]
+        stream = client.post("/v1/streams", content=b"{}" + b" " * (65 * 1024))
+        assert stream.status_code == 413
+        assert "EIGENSCOPE_MAX_JSON_BODY_KB" in stream.json()["detail"]
         # Any content type, and bodies without a Content-Length (streamed in chunks), are capped too.
         chunks = iter([b"{" + b" " * 40_000, b" " * 40_000 + b"}"])
         streamed = client.post("/v1/jobs", content=chunks, headers={"content-type": "text/plain"})

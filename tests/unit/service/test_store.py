@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -202,5 +203,52 @@ def test_tables_of_an_older_release_get_the_new_columns(tmp_path: Path) -> None:
         job, _ = store.create_job(NewJob(clip_id="c0", excitation=None, parameters={}, owner=""))
         assert store.get_job(job.id, "").output_bytes == 0
         assert store.usage("").stored_bytes == 10
+        assert store.get_job(job.id, "").force_log_summary is None
+        assert store.job_force_log(job.id) is None
+        logged, _ = store.create_job(NewJob(clip_id="c0", excitation=None, parameters={}, **FORCE_LOG))
+        assert store.job_force_log(logged.id) == FORCE_LOG["force_log"]
     finally:
         store.dispose()
+
+
+#: A job's force log as the API stores it (``api_schemas.ForceLog`` and its summary, as JSON).
+FORCE_LOG: dict[str, Any] = {
+    "force_log": {
+        "time_s": [i / 500 for i in range(8)],
+        "fx": [6.0, 6.0, 6.0, 6.0, 0.0, 0.0, 0.0, 0.0],
+        "fy": [0.0] * 8,
+        "fz": [-0.25] * 8,
+        "force_n": None,
+        "offset_s": -1.5,
+        "frame_id": "ft_sensor_link",
+        "name": "push.csv",
+    },
+    "force_log_summary": {
+        "name": "push.csv",
+        "samples": 8,
+        "start_s": -1.5,
+        "end_s": -1.486,
+        "columns": ["fx", "fy", "fz"],
+        "frame_id": "ft_sensor_link",
+    },
+}
+
+
+def test_a_force_log_is_stored_apart_from_the_record(store: Store) -> None:
+    """The job's record (every poll and list reads it) carries the summary; the log, up to 200,000
+    samples, is read only when asked for, exactly as it was sent."""
+    add_clip(store)
+    job, _ = store.create_job(NewJob(clip_id="c1", excitation=None, parameters={}, **FORCE_LOG))
+    assert job.force_log_summary == FORCE_LOG["force_log_summary"]
+    assert store.get_job(job.id).force_log_summary == FORCE_LOG["force_log_summary"]
+    assert [j.force_log_summary for j in store.list_jobs()[0]] == [FORCE_LOG["force_log_summary"]]
+    assert not hasattr(store.get_job(job.id), "force_log")
+    assert store.job_force_log(job.id) == FORCE_LOG["force_log"]
+    assert store.job_force_log("no-such-job") is None
+    # A claim carries the summary too, and the log goes with the job when it is deleted.
+    claimed = store.claim_job(job.id, "me/1/x").job
+    assert claimed is not None
+    assert claimed.force_log_summary == FORCE_LOG["force_log_summary"]
+    store.cancel_job(job.id)
+    store.delete_job(job.id)
+    assert store.job_force_log(job.id) is None

@@ -49,9 +49,9 @@ def test_success_publishes_outputs(store: Store, settings: Settings, job_id: str
     seen: dict[str, Any] = {}
 
     def runner(
-        clip_path: Any, out_dir: Any, *, excitation: Any, parameters: Any, progress: Any
+        clip_path: Any, out_dir: Any, *, excitation: Any, parameters: Any, progress: Any, force_log: Any
     ) -> AnalysisResult:
-        seen.update(excitation=excitation, parameters=parameters)
+        seen.update(excitation=excitation, parameters=parameters, force_log=force_log)
         progress("flow", 0.5)
         (Path(out_dir) / "mask.png").write_bytes(b"\x89PNG")
         return result()
@@ -66,6 +66,7 @@ def test_success_publishes_outputs(store: Store, settings: Settings, job_id: str
     assert (settings.data_path / "jobs" / job_id / "mask.png").read_bytes() == b"\x89PNG"
     assert seen["excitation"].force_n == 2.0
     assert seen["parameters"].frames == 16
+    assert seen["force_log"] is None
     assert list((settings.data_path / "tmp").iterdir()) == []
     # A second delivery of the same message does nothing.
     assert execute_job(store, settings.data_path, job_id, runner=runner).status == "finished"
@@ -82,6 +83,73 @@ def test_domain_error_fails_the_job_with_a_problem(store: Store, settings: Setti
     assert job.error["status"] == 422
     assert "truncated" in job.error["detail"]
     assert job.error["type"].endswith("/invalid-clip")
+
+
+FORCE_LOG = {
+    "time_s": [i / 500 - 0.1 for i in range(40)],
+    "force_n": [6.0] * 20 + [0.0] * 20,
+    "offset_s": 0.0,
+    "frame_id": None,
+    "name": "push.csv",
+}
+
+
+@pytest.fixture
+def force_job_id(store: Store, job_id: str) -> str:
+    """A job of the same clip sent with a force log and no excitation (as the API stores it)."""
+    from api_schemas import ForceLog
+
+    log = ForceLog.model_validate(FORCE_LOG)
+    job, _ = store.create_job(
+        NewJob(
+            clip_id="c1",
+            excitation=None,
+            parameters={"frames": 16},
+            force_log=log.model_dump(mode="json"),
+            force_log_summary=log.summary().model_dump(mode="json"),
+        )
+    )
+    return job.id
+
+
+def test_the_force_log_reaches_the_runner(store: Store, settings: Settings, force_job_id: str) -> None:
+    """The log is stored apart from the job's record (which carries its summary) and handed to the runner
+    whole."""
+    seen: dict[str, Any] = {}
+
+    def runner(clip_path: Any, out_dir: Any, *, force_log: Any, **_k: Any) -> AnalysisResult:
+        seen["force_log"] = force_log
+        return result()
+
+    assert store.get_job(force_job_id).force_log_summary == {
+        "name": "push.csv",
+        "samples": 40,
+        "start_s": -0.1,
+        "end_s": pytest.approx(-0.1 + 39 / 500),
+        "columns": ["force_n"],
+        "frame_id": None,
+    }
+    assert execute_job(store, settings.data_path, force_job_id, runner=runner).status == "succeeded"
+    assert seen["force_log"].model_dump(mode="json") == {**FORCE_LOG, "fx": None, "fy": None, "fz": None}
+
+
+def test_a_bad_force_log_fails_the_job_with_its_problem(
+    store: Store, settings: Settings, force_job_id: str
+) -> None:
+    """What the analysis finds wrong with a log (no hold or strike, another clock) fails the job once, as
+    a 422 ``invalid-force`` problem carrying the message, never a crash or a retry."""
+    from workers.pipeline.errors import ForceError
+
+    def runner(*_a: Any, **_k: Any) -> AnalysisResult:
+        raise ForceError("the force log push.csv shows no hold, release or strike above its noise")
+
+    assert execute_job(store, settings.data_path, force_job_id, runner=runner).status == "failed"
+    job = store.get_job(force_job_id)
+    assert job.attempts == 1
+    assert job.error is not None
+    assert job.error["status"] == 422
+    assert job.error["type"].endswith("/invalid-force")
+    assert job.error["detail"] == "the force log push.csv shows no hold, release or strike above its noise"
 
 
 def test_infrastructure_fault_is_retried_then_failed(store: Store, settings: Settings, job_id: str) -> None:

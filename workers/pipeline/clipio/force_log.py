@@ -53,7 +53,7 @@ def read_force_log(data: bytes, *, name: str, offset_s: float = 0.0) -> ForceSer
     ForceError
         Not text, not valid JSON, missing columns (the message lists the accepted ones), a value that is
         not a number or not finite, times that run backwards, fewer than
-        :data:`~workers.pipeline.force.MIN_SAMPLES` samples.
+        :data:`~workers.pipeline.force_baseline.MIN_SAMPLES` samples.
     """
     if not math.isfinite(offset_s):
         raise ForceError(f"the force log {name}'s offset_s is {offset_s}; give a finite number of seconds")

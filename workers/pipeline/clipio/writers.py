@@ -1,19 +1,17 @@
 """Write a clip held in memory into each format the readers accept, with the formats' own writer libraries.
 
 Used to make sample and test clips: ``zipfile`` + OpenCV PNG/JPEG for frame zips, TUM and Open3D
-datasets, PyAV (or OpenCV) for video and Azure Kinect recordings, ``rosbags`` writers for ROS 1 and ROS 2
-bags. Arrays follow the clip conventions: ``rgb`` uint8 (T, H, W, 3), ``depth`` uint16 (T, H, W) in units
-of ``depth_scale`` metres.
+datasets, PyAV (or OpenCV) for video and Azure Kinect recordings; ROS 1 and ROS 2 bags are written by
+:mod:`workers.pipeline.clipio.bag_writer`. Arrays follow the clip conventions: ``rgb`` uint8
+(T, H, W, 3), ``depth`` uint16 (T, H, W) in units of ``depth_scale`` metres.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 import zipfile
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -23,7 +21,8 @@ from numpy.typing import NDArray
 Intr = tuple[float, float, float, float]
 
 
-def _png(img: NDArray[Any]) -> bytes:
+def png_bytes(img: NDArray[Any]) -> bytes:
+    """An image (H, W) or (H, W, 3) BGR, uint8 or uint16, encoded as PNG."""
     import cv2
 
     ok, buf = cv2.imencode(".png", img)
@@ -31,7 +30,8 @@ def _png(img: NDArray[Any]) -> bytes:
     return bytes(buf)
 
 
-def _jpg(img: NDArray[Any], quality: int = 95) -> bytes:
+def jpg_bytes(img: NDArray[Any], quality: int = 95) -> bytes:
+    """A BGR image (H, W, 3) uint8 encoded as JPEG."""
     import cv2
 
     ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])
@@ -39,7 +39,8 @@ def _jpg(img: NDArray[Any], quality: int = 95) -> bytes:
     return bytes(buf)
 
 
-def _bgr(rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
+def bgr_of(rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """An RGB image (H, W, 3) as OpenCV's BGR, contiguous."""
     return np.ascontiguousarray(rgb[:, :, ::-1])
 
 
@@ -81,10 +82,10 @@ def write_zip_frames(
     path = Path(path)
     with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
         for i, frame in enumerate(rgb):
-            data = _png(_bgr(frame)) if image_format == "png" else _jpg(_bgr(frame))
+            data = png_bytes(bgr_of(frame)) if image_format == "png" else jpg_bytes(bgr_of(frame))
             zf.writestr(f"{root}rgb/{i:06d}.{image_format}", data)
             if depth is not None:
-                zf.writestr(f"{root}depth/{i:06d}.png", _png(depth[i]))
+                zf.writestr(f"{root}depth/{i:06d}.png", png_bytes(depth[i]))
         cam = _camera(fps, intrinsics, depth_scale)
         if cam:
             zf.writestr(f"{root}camera.json", json.dumps(cam))
@@ -121,14 +122,14 @@ def write_tum(
         for t, frame in zip(rgb_times_s, rgb, strict=True):
             name = f"rgb/{t:.6f}.png"
             lines.append(f"{t:.6f} {name}")
-            zf.writestr(root + name, _png(_bgr(frame)))
+            zf.writestr(root + name, png_bytes(bgr_of(frame)))
         zf.writestr(root + "rgb.txt", "\n".join(lines) + "\n")
         if depth is not None:
             lines = ["# depth maps", "# file: 'synthetic'", "# timestamp filename"]
             for t, d in zip(depth_times, depth, strict=True):
                 name = f"depth/{t:.6f}.png"
                 lines.append(f"{t:.6f} {name}")
-                zf.writestr(root + name, _png(d))
+                zf.writestr(root + name, png_bytes(d))
             zf.writestr(root + "depth.txt", "\n".join(lines) + "\n")
         if intrinsics is not None:
             zf.writestr(root + "camera.json", json.dumps(_camera(None, intrinsics, None)))
@@ -287,10 +288,10 @@ def write_open3d(
     opts = options or Open3dOptions()
     files: dict[str, bytes] = {}
     for i, frame in enumerate(rgb):
-        encoded = _png(_bgr(frame)) if opts.image_format == "png" else _jpg(_bgr(frame))
+        encoded = png_bytes(bgr_of(frame)) if opts.image_format == "png" else jpg_bytes(bgr_of(frame))
         files[f"color/{i:06d}.{opts.image_format}"] = encoded
         if depth is not None:
-            files[f"depth/{i:06d}.png"] = _png(depth[i])
+            files[f"depth/{i:06d}.png"] = png_bytes(depth[i])
     if intrinsics is not None:
         fx, fy, cx, cy = intrinsics
         doc = {"width": int(rgb.shape[2]), "height": int(rgb.shape[1])}
@@ -526,333 +527,6 @@ def _patch_b16g(path: Path, maps: NDArray[np.uint16]) -> None:
     path.write_bytes(data.replace(ffmpeg_header, k4a_header))
 
 
-# ------------------------------------------------------------------------------------------------ bags
-
-
-def _header(typestore: Any, stamp_ns: int, frame_id: str, ros1: bool, seq: int) -> Any:
-    Header = typestore.types["std_msgs/msg/Header"]
-    Time = typestore.types["builtin_interfaces/msg/Time"]
-    stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-    if ros1:
-        return Header(seq=seq, stamp=stamp, frame_id=frame_id)
-    return Header(stamp=stamp, frame_id=frame_id)
-
-
-def _image_msg(typestore: Any, header: Any, img: NDArray[Any], encoding: str) -> Any:
-    Image = typestore.types["sensor_msgs/msg/Image"]
-    h, w = img.shape[:2]
-    data = np.ascontiguousarray(img).view(np.uint8).reshape(-1)
-    return Image(
-        header=header,
-        height=h,
-        width=w,
-        encoding=encoding,
-        is_bigendian=0,
-        step=int(data.size // h),
-        data=data,
-    )
-
-
-def _compressed_msg(typestore: Any, header: Any, data: bytes, fmt: str) -> Any:
-    CompressedImage = typestore.types["sensor_msgs/msg/CompressedImage"]
-    return CompressedImage(header=header, format=fmt, data=np.frombuffer(data, dtype=np.uint8))
-
-
-def _camera_info_msg(typestore: Any, header: Any, w: int, h: int, k: Intr, ros1: bool) -> Any:
-    CameraInfo = typestore.types["sensor_msgs/msg/CameraInfo"]
-    RegionOfInterest = typestore.types["sensor_msgs/msg/RegionOfInterest"]
-    fx, fy, cx, cy = k
-    kmat = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1], dtype=np.float64)
-    rmat = np.eye(3).ravel()
-    pmat = np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0], dtype=np.float64)
-    fields = {
-        "header": header,
-        "height": h,
-        "width": w,
-        "distortion_model": "plumb_bob",
-        "binning_x": 0,
-        "binning_y": 0,
-        "roi": RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
-    }
-    if ros1:
-        fields.update(D=np.zeros(5), K=kmat, R=rmat, P=pmat)
-    else:
-        fields.update(d=np.zeros(5), k=kmat, r=rmat, p=pmat)
-    return CameraInfo(**fields)
-
-
-@dataclass(frozen=True)
-class RosBagOptions:
-    """How :func:`write_ros_bag` lays the bag out (the defaults are a plain realsense-ros recording).
-
-    Attributes
-    ----------
-    layout : ``"ros"`` or ``"realsense-sdk"``
-        ``ros``: realsense-ros topic names (``/camera/color/image_raw``,
-        ``/camera/aligned_depth_to_color/image_raw``). ``realsense-sdk``: the RealSense Viewer layout
-        (``/device_0/sensor_1/Color_0/image/data`` ...), with depth units in the bag (ROS 1 only).
-    storage : ``"mcap"`` or ``"sqlite3"``
-        ROS 2 storage plugin.
-    compressed : bool
-        Colour as ``CompressedImage`` (jpeg) and depth as ``compressedDepth`` png (ROS 2 style topics).
-    depth_scale : float
-        Metres per depth unit; stored in the bag for the SDK layout.
-    extra_topics : bool
-        Also write unrelated topics (IMU-like floats, tf) as real recordings have.
-    """
-
-    layout: Literal["ros", "realsense-sdk"] = "ros"
-    storage: Literal["mcap", "sqlite3"] = "mcap"
-    compressed: bool = False
-    depth_scale: float = 0.001
-    extra_topics: bool = True
-
-
-@dataclass(frozen=True)
-class _BagTopics:
-    """Topic names of one bag layout, and the image message type and depth encoding they carry."""
-
-    color: str
-    color_info: str
-    depth: str
-    depth_info: str
-    depth_encoding: str
-    image_type: str
-
-
-def _bag_topics(layout: str, compressed: bool) -> _BagTopics:
-    """The colour, depth and camera-info topics of ``layout`` (``/compressed`` image topics if asked)."""
-    if layout == "realsense-sdk":
-        c_img, c_info = "/device_0/sensor_1/Color_0/image/data", "/device_0/sensor_1/Color_0/info/camera_info"
-        d_img, d_info = "/device_0/sensor_0/Depth_0/image/data", "/device_0/sensor_0/Depth_0/info/camera_info"
-        d_enc = "mono16"
-    else:
-        c_img, c_info = "/camera/color/image_raw", "/camera/color/camera_info"
-        d_img = "/camera/aligned_depth_to_color/image_raw"
-        d_info = "/camera/aligned_depth_to_color/camera_info"
-        d_enc = "16UC1"
-    if compressed:
-        c_img += "/compressed"
-        d_img += "/compressedDepth"
-    img_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
-    return _BagTopics(c_img, c_info, d_img, d_info, d_enc, img_type)
-
-
-def _open_bag_writer(path: Path, ros1: bool, storage: str) -> Any:
-    """A ``rosbags`` writer (not yet opened) of a ROS 1 bag file or a ROS 2 bag folder at ``path``."""
-    if ros1:
-        from rosbags.rosbag1 import Writer as Ros1Writer
-
-        return Ros1Writer(path)
-    from rosbags.rosbag2 import StoragePlugin
-    from rosbags.rosbag2 import Writer as Ros2Writer
-
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    return Ros2Writer(path, version=9, storage_plugin=plugin)
-
-
-@dataclass
-class _BagOut:
-    """An open bag and what all its camera messages share: one connection per topic (made on the
-    topic's first message), messages serialised for the bag's ROS version."""
-
-    writer: Any
-    typestore: Any
-    ros1: bool
-    topics: _BagTopics
-    intrinsics: Intr
-    size: tuple[int, int]  # (width, height)
-    options: RosBagOptions
-    conns: dict[str, Any] = field(default_factory=dict)
-
-    def write(self, topic: str, msgtype: str, stamp: int, msg: Any) -> None:
-        """Write ``msg`` of ``msgtype`` on ``topic`` with receive time ``stamp`` (ns)."""
-        if topic not in self.conns:
-            self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
-        if self.ros1:
-            raw = bytes(self.typestore.serialize_ros1(msg, msgtype))
-        else:
-            raw = bytes(self.typestore.serialize_cdr(msg, msgtype))
-        self.writer.write(self.conns[topic], stamp, raw)
-
-    def sdk_options(self, t0: int) -> None:
-        """The RealSense SDK's depth units and per-stream (identity) extrinsics, stamped ``t0``."""
-        f32 = self.typestore.types["std_msgs/msg/Float32"]
-        self.write(
-            "/device_0/sensor_0/option/Depth_Units/value",
-            "std_msgs/msg/Float32",
-            t0,
-            f32(data=self.options.depth_scale),
-        )
-        tf = self.typestore.types["geometry_msgs/msg/Transform"]
-        vec = self.typestore.types["geometry_msgs/msg/Vector3"]
-        quat = self.typestore.types["geometry_msgs/msg/Quaternion"]
-        for stream in ("/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"):
-            msg = tf(translation=vec(x=0.0, y=0.0, z=0.0), rotation=quat(x=0.0, y=0.0, z=0.0, w=1.0))
-            self.write(stream + "/tf/0", "geometry_msgs/msg/Transform", t0, msg)
-
-    def color(self, stamp: int, index: int, frame: NDArray[np.uint8]) -> None:
-        """Colour frame ``index`` with its camera info (and, every 4th frame, an unrelated topic)."""
-        ts, topics = self.typestore, self.topics
-        header = _header(ts, stamp, "camera_color_optical_frame", self.ros1, index)
-        if self.options.compressed:
-            msg = _compressed_msg(ts, header, _jpg(_bgr(frame)), "rgb8; jpeg compressed bgr8")
-        else:
-            msg = _image_msg(ts, header, frame, "rgb8")
-        self.write(topics.color, topics.image_type, stamp, msg)
-        info = _camera_info_msg(ts, header, *self.size, self.intrinsics, self.ros1)
-        self.write(topics.color_info, "sensor_msgs/msg/CameraInfo", stamp, info)
-        if self.options.extra_topics and index % 4 == 0:
-            f32 = ts.types["std_msgs/msg/Float32"]
-            self.write("/imu/temperature", "std_msgs/msg/Float32", stamp, f32(data=21.5))
-
-    def depth(self, stamp: int, index: int, frame: NDArray[np.uint16]) -> None:
-        """Depth frame ``index`` with its camera info."""
-        ts, topics = self.typestore, self.topics
-        header = _header(ts, stamp, "camera_color_optical_frame", self.ros1, index)
-        if self.options.compressed:
-            data = bytes(12) + _png(frame)
-            msg = _compressed_msg(ts, header, data, "16UC1; compressedDepth png")
-        else:
-            msg = _image_msg(ts, header, frame, topics.depth_encoding)
-        self.write(topics.depth, topics.image_type, stamp, msg)
-        info = _camera_info_msg(ts, header, *self.size, self.intrinsics, self.ros1)
-        self.write(topics.depth_info, "sensor_msgs/msg/CameraInfo", stamp, info)
-
-
-@dataclass(frozen=True)
-class WrenchTopic:
-    """A wrist force/torque sensor's ``geometry_msgs/WrenchStamped`` topic to write beside the frames.
-
-    Attributes
-    ----------
-    stamps_ns : ndarray of int64, shape (N,)
-        Header stamps (and receive times), nanoseconds, on the frames' clock.
-    force_n : ndarray of float64, shape (N, 3)
-        Force in the sensor's frame, newtons (the torque is written as zero).
-    name, frame_id : str
-    """
-
-    stamps_ns: NDArray[np.int64]
-    force_n: NDArray[np.float64]
-    name: str = "/ft_sensor/wrench"
-    frame_id: str = "ft_sensor_link"
-
-
-@dataclass(frozen=True)
-class StaticTransform:
-    """A ``/tf_static`` transform: ``child``'s pose in ``parent``'s frame (rotation as x, y, z, w)."""
-
-    parent: str
-    child: str
-    rotation_xyzw: tuple[float, float, float, float]
-    translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-
-def write_ros_bag(
-    path: str | Path,
-    rgb: NDArray[np.uint8],
-    *,
-    stamps_ns: Sequence[int] | NDArray[np.int64],
-    intrinsics: Intr,
-    depth: NDArray[np.uint16] | None = None,
-    depth_stamps_ns: Sequence[int] | NDArray[np.int64] | None = None,
-    version: Literal[1, 2] = 1,
-    options: RosBagOptions | None = None,
-    wrenches: Sequence[WrenchTopic] = (),
-    transforms: Sequence[StaticTransform] = (),
-) -> Path:
-    """Write colour (+ depth) frames as a ROS 1 or ROS 2 bag with the ``rosbags`` writers.
-
-    Parameters
-    ----------
-    path : path-like
-        ROS 1: the ``.bag`` file. ROS 2: the bag folder to create (holds ``metadata.yaml``).
-    rgb : ndarray of uint8, shape (T, H, W, 3)
-    stamps_ns : sequence of int, length T
-        Header stamps (and receive times) of the colour frames, nanoseconds.
-    intrinsics : (fx, fy, cx, cy)
-    depth : ndarray of uint16, shape (Td, H, W), optional
-        Aligned depth in units of ``options.depth_scale``.
-    depth_stamps_ns : sequence of int, length Td, optional
-        Defaults to ``stamps_ns``.
-    version : 1 or 2
-    options : RosBagOptions, optional
-        Topic layout, ROS 2 storage plugin, compression, depth scale and extra topics; see
-        :class:`RosBagOptions` for the defaults.
-    wrenches : sequence of WrenchTopic
-        Force/torque topics written beside the frames.
-    transforms : sequence of StaticTransform
-        Written on ``/tf_static`` before the first frame (the colour frames' frame is
-        ``camera_color_optical_frame``).
-    """
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    opts = options or RosBagOptions()
-    path = Path(path)
-    ros1 = version == 1
-    typestore = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    if ros1 and transforms:  # ROS 1's store has no tf2 message built in
-        typestore.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms\n", _TF))
-    writer = _open_bag_writer(path, ros1, opts.storage)
-    d_stamps = list(stamps_ns if depth_stamps_ns is None else depth_stamps_ns)
-    h, w = rgb.shape[1:3]
-    topics = _bag_topics(opts.layout, opts.compressed)
-    with writer:
-        out = _BagOut(writer, typestore, ros1, topics, intrinsics, (w, h), opts)
-        t0 = int(min(stamps_ns[0], d_stamps[0] if depth is not None else stamps_ns[0]))
-        if opts.layout == "realsense-sdk":
-            out.sdk_options(t0)
-        for transform in transforms:
-            _write_static(out, transform, t0 - 1)
-        events: list[tuple[int, int, str, int]] = [(int(s), 0, "c", i) for i, s in enumerate(stamps_ns)]
-        if depth is not None:
-            events += [(int(s), 1, "d", i) for i, s in enumerate(d_stamps)]
-        for w, topic in enumerate(wrenches):
-            events += [(int(s), 2 + w, "w", i) for i, s in enumerate(topic.stamps_ns)]
-        events.sort()
-        for stamp, order, kind, i in events:
-            if kind == "c":
-                out.color(stamp, i, rgb[i])
-            elif kind == "w":
-                _write_wrench(out, wrenches[order - 2], stamp, i)
-            else:
-                assert depth is not None
-                out.depth(stamp, i, depth[i])
-    return path
-
-
-_WRENCH = "geometry_msgs/msg/WrenchStamped"
-_TF = "tf2_msgs/msg/TFMessage"
-
-
-def _vector(out: _BagOut, v: Sequence[float]) -> Any:
-    return out.typestore.types["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
-
-
-def _write_wrench(out: _BagOut, topic: WrenchTopic, stamp: int, i: int) -> None:
-    types = out.typestore.types
-    wrench = types["geometry_msgs/msg/Wrench"](
-        force=_vector(out, topic.force_n[i]), torque=_vector(out, (0, 0, 0))
-    )
-    header = _header(out.typestore, stamp, topic.frame_id, out.ros1, i)
-    out.write(topic.name, _WRENCH, stamp, types[_WRENCH](header=header, wrench=wrench))
-
-
-def _write_static(out: _BagOut, transform: StaticTransform, stamp: int) -> None:
-    types = out.typestore.types
-    x, y, z, w = transform.rotation_xyzw
-    stamped = types["geometry_msgs/msg/TransformStamped"](
-        header=_header(out.typestore, stamp, transform.parent, out.ros1, 0),
-        child_frame_id=transform.child,
-        transform=types["geometry_msgs/msg/Transform"](
-            translation=_vector(out, transform.translation_m),
-            rotation=types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
-        ),
-    )
-    out.write("/tf_static", _TF, stamp, types[_TF](transforms=[stamped]))
-
-
 def zip_folder(folder: str | Path, dest: str | Path, *, root: str | None = None) -> Path:
     """Zip a folder (for example a ROS 2 bag folder) with its files under ``root/`` (default its name)."""
     folder, dest = Path(folder), Path(dest)
@@ -863,13 +537,3 @@ def zip_folder(folder: str | Path, dest: str | Path, *, root: str | None = None)
                 arc = p.relative_to(folder).as_posix()
                 zf.write(p, f"{prefix}/{arc}" if prefix else arc)
     return dest
-
-
-def write_ros2_zip(path: str | Path, rgb: NDArray[np.uint8], **kwargs: Any) -> Path:
-    """Write a ROS 2 bag folder with :func:`write_ros_bag` and zip it to ``path``."""
-    with tempfile.TemporaryDirectory(prefix="eigenscope-write-") as tmp:
-        bag = Path(tmp) / Path(path).stem
-        write_ros_bag(bag, rgb, version=2, **kwargs)
-        zip_folder(bag, path)
-        shutil.rmtree(bag, ignore_errors=True)
-    return Path(path)
