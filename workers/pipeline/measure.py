@@ -24,7 +24,7 @@ from workers.pipeline.mechanics import (
 )
 from workers.pipeline.metric import DepthContext, ImageAmplitude, MetricAmplitude, metric_amplitude
 from workers.pipeline.model import BAND_NYQUIST_FRACTION, Excitation, ObjectMeasurement
-from workers.pipeline.modes import ObjectModeShapes, object_modes
+from workers.pipeline.modes import GridDepth, ObjectModeShapes, object_modes
 from workers.pipeline.peaks import Peak
 from workers.pipeline.ringdown import (
     Ringdown,
@@ -144,13 +144,7 @@ def measure_object(
     fit = track.fit
     release = _release(track, window, excitation)
     metric = _metric(track, release, region, window)
-    used, across = along_motion(excitation, metric.direction) if excitation else (None, [])
-    if across:
-        mech = Mechanics(null_reasons=across)
-    elif used is not None and used.kind == "forced":
-        mech, used = forced_mechanics(track, release, metric, used, window)
-    else:
-        mech = object_mechanics(fit, metric, used, frequency_sd_hz=frequency_sd_hz(fit))
+    mech, used = _mechanics(track, release, metric, excitation, window)
     ringdown = _ringdown(track, window)
     regime = regime_of_fit(fit, ringdown)
     ringing = regime == "ring_down"
@@ -198,7 +192,7 @@ def measure_object(
         axis_px=track.axis_px,
         regime=regime,
         modes=_modes(track, region, window),
-        excitation=used or excitation,
+        excitation=used,
     )
 
 
@@ -216,8 +210,9 @@ def _modes(track: Track, region: Region, window: WindowContext) -> ObjectModeSha
             band_hz=band,
             start_index=track.onset,
             roi=window.buffers.box(region.full_mask.shape),
-            depth=depth,
-            focal_px=None if intrinsics is None else (intrinsics.fx, intrinsics.fy),
+            depth=None
+            if depth is None or intrinsics is None
+            else GridDepth(depth, (intrinsics.fx, intrinsics.fy)),
         )
     except (AnalysisError, ParameterError):
         return None
@@ -292,6 +287,26 @@ def object_mechanics(
         damped_frequency_hz=fit.frequency_hz,
         frequency_sd_hz=frequency_sd_hz,
     )
+
+
+def _mechanics(
+    track: Track,
+    release: _Release,
+    metric: MetricAmplitude,
+    excitation: Excitation | None,
+    window: WindowContext,
+) -> tuple[Mechanics, Excitation | None]:
+    """Stiffness and mass, and the excitation as used: a recorded force taken along the object's motion
+    (:func:`~workers.pipeline.mechanics.along_motion`), a forced vibration's response fit, or the held
+    force or impulse with the metric amplitude."""
+    if excitation is None:
+        return object_mechanics(track.fit, metric, None, frequency_sd_hz=frequency_sd_hz(track.fit)), None
+    used, across = along_motion(excitation, metric.direction)
+    if used is None:
+        return Mechanics(null_reasons=across), excitation
+    if used.kind == "forced":
+        return forced_mechanics(track, release, metric, used, window)
+    return object_mechanics(track.fit, metric, used, frequency_sd_hz=frequency_sd_hz(track.fit)), used
 
 
 def forced_mechanics(

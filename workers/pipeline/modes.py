@@ -274,6 +274,23 @@ class ModeDepth:
 
 
 @dataclass(frozen=True)
+class GridDepth:
+    """The object's distance on the flow grid, for its mode shapes in metres.
+
+    Attributes
+    ----------
+    depth : ndarray of float32, shape (N + 1, h, w), or float
+        Depth on the grid (metres, NaN invalid), or one distance for the whole clip (then nothing along
+        the line of sight).
+    focal_px : (fx, fy)
+        Focal lengths, input pixels.
+    """
+
+    depth: NDArray[np.float32] | float
+    focal_px: tuple[float, float]
+
+
+@dataclass(frozen=True)
 class ObjectModeShapes:
     """An object's modes with their shapes over every pixel of its mask.
 
@@ -356,8 +373,7 @@ def object_modes(
     start_index: int = 0,
     max_modes: int = 6,
     roi: Roi | None = None,
-    depth: NDArray[np.float32] | float | None = None,
-    focal_px: tuple[float, float] | None = None,
+    depth: GridDepth | None = None,
 ) -> ObjectModeShapes:
     """The modes of the object on ``mask`` in a window's ``flow``, with their shapes on all its pixels.
 
@@ -372,10 +388,9 @@ def object_modes(
     max_modes : int
     roi : Roi, optional
         The box of the frame the grid covers (for :meth:`ObjectModeShapes.frame_shapes`).
-    depth : ndarray of float32, shape (N + 1, h, w), or float, optional
-        Depth on the grid (metres, NaN invalid), or one distance for the whole clip: with ``focal_px``,
-        the shapes are also given in metres (:meth:`ObjectModeShapes.frame_shapes_m`).
-    focal_px : (fx, fy), optional
+    depth : GridDepth, optional
+        The object's distance and the focal lengths: the shapes are also given in metres
+        (:meth:`ObjectModeShapes.frame_shapes_m`).
 
     Returns
     -------
@@ -395,9 +410,9 @@ def object_modes(
     )
     cycles = [m.frequency_hz / sample_rate_hz for m in found.modes]
     shapes, factors = _shapes_at(flat, pixels, cycles)
-    seen = None
-    if depth is not None and focal_px is not None:
-        seen = _mode_depth(depth, pixels, cycles, factors, focal_px=focal_px)
+    seen = (
+        None if depth is None else _mode_depth(depth.depth, pixels, cycles, factors, focal_px=depth.focal_px)
+    )
     return ObjectModeShapes(found=found, pixels=pixels, shapes=shapes, roi=roi, depth=seen)
 
 

@@ -83,8 +83,7 @@ def _bag(
         intrinsics=scene.intrinsics,
         depth=clip.depth,
         version=version,  # type: ignore[arg-type]
-        wrenches=wrenches,
-        transforms=transforms,
+        options=bw.RosBagOptions(wrenches=tuple(wrenches), transforms=tuple(transforms)),
     )
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from workers.pipeline.errors import ParameterError
-from workers.pipeline.modes import align_phase, find_modes, mac
+from workers.pipeline.modes import GridDepth, align_phase, find_modes, mac
 
 #: β_r L of a cantilever's first three bending modes.
 BETA_L = (1.8751, 4.6941, 7.8548)
@@ -223,7 +223,7 @@ def test_shapes_in_metres_across_and_along_the_line_of_sight() -> None:
     mask = np.zeros((10, 16), bool)
     mask[3:7, 5:11] = True
     result = object_modes(
-        flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=depth, focal_px=(focal, focal)
+        flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=GridDepth(depth, (focal, focal))
     )
     full_mask = np.zeros((40, 60), bool)
     full_mask[16:24, 30:42] = True
@@ -239,13 +239,13 @@ def test_shapes_in_metres_across_and_along_the_line_of_sight() -> None:
     assert np.isnan(metres[0][~full_mask]).all()
     # One distance for the whole clip: across only, nothing along the line of sight.
     fixed = object_modes(
-        flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=1.5, focal_px=(focal, focal)
+        flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=GridDepth(1.5, (focal, focal))
     ).frame_shapes_m(full_mask)
     assert fixed is not None
     np.testing.assert_allclose(np.abs(fixed[0][full_mask][:, 0]), 1.5 / focal, rtol=0.04)
     assert np.isnan(fixed[0][..., 2]).all()
     # No intrinsics: no shapes in metres.
-    plain = object_modes(flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi, depth=depth)
+    plain = object_modes(flow, mask, sample_rate_hz=fs, band_hz=(0.5, 28.0), roi=roi)
     assert plain.frame_shapes_m(full_mask) is None
 
 

@@ -89,6 +89,11 @@ class RosBagOptions:
         Metres per depth unit; stored in the bag for the SDK layout.
     extra_topics : bool
         Also write unrelated topics (IMU-like floats, tf) as real recordings have.
+    wrenches : tuple of WrenchTopic
+        Force/torque topics written beside the frames.
+    transforms : tuple of StaticTransform or MovingTransform
+        Static ones are written on ``/tf_static`` before the first frame, moving ones on ``/tf`` at their
+        stamps (the colour frames' frame is ``camera_color_optical_frame``).
     """
 
     layout: Literal["ros", "realsense-sdk"] = "ros"
@@ -96,6 +101,8 @@ class RosBagOptions:
     compressed: bool = False
     depth_scale: float = 0.001
     extra_topics: bool = True
+    wrenches: tuple[WrenchTopic, ...] = ()
+    transforms: tuple[StaticTransform | MovingTransform, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -269,8 +276,6 @@ def write_ros_bag(
     depth_stamps_ns: Sequence[int] | NDArray[np.int64] | None = None,
     version: Literal[1, 2] = 1,
     options: RosBagOptions | None = None,
-    wrenches: Sequence[WrenchTopic] = (),
-    transforms: Sequence[StaticTransform | MovingTransform] = (),
 ) -> Path:
     """Write colour (+ depth) frames as a ROS 1 or ROS 2 bag with the ``rosbags`` writers.
 
@@ -288,17 +293,13 @@ def write_ros_bag(
         Defaults to ``stamps_ns``.
     version : 1 or 2
     options : RosBagOptions, optional
-        Topic layout, ROS 2 storage plugin, compression, depth scale and extra topics; see
-        :class:`RosBagOptions` for the defaults.
-    wrenches : sequence of WrenchTopic
-        Force/torque topics written beside the frames.
-    transforms : sequence of StaticTransform or MovingTransform
-        Static ones are written on ``/tf_static`` before the first frame, moving ones on ``/tf`` at their
-        stamps (the colour frames' frame is ``camera_color_optical_frame``).
+        Topic layout, ROS 2 storage plugin, compression, depth scale, extra topics, force/torque topics and
+        transforms; see :class:`RosBagOptions` for the defaults.
     """
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     opts = options or RosBagOptions()
+    wrenches, transforms = opts.wrenches, opts.transforms
     path = Path(path)
     ros1 = version == 1
     typestore = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
