@@ -15,10 +15,11 @@ FPS = 30.0
 RELEASE_FRAME = 24
 
 
-def pushed_spring(excitation: str, seed: int, *, frames: int = 150) -> Scene:
+def pushed_spring(excitation: str, seed: int, *, frames: int = 150, release_s: float = 0.04) -> Scene:
     """A 2.5 Hz spring-mass of 0.8 kg at 0.9 m, 320x240 at :data:`FPS`, held by 6 N and let go at
-    :data:`RELEASE_FRAME` (``step_release``) or struck there by 0.16 N·s (``impulse``), moving along +x of
-    the camera."""
+    :data:`RELEASE_FRAME` over ``release_s`` (``step_release``: the force falls linearly, and the scene
+    moves as that release makes it) or struck there by 0.16 N·s (``impulse``), moving along +x of the
+    camera."""
     obj = SceneObject(
         center_px=(160.0, 120.0),
         size_px=(90.0, 70.0),
@@ -31,6 +32,7 @@ def pushed_spring(excitation: str, seed: int, *, frames: int = 150) -> Scene:
         direction=(1.0, 0.0, 0.0),
         release_frame=RELEASE_FRAME,
         depth_m=0.9,
+        release_s=release_s if excitation == "step_release" else 0.0,
     )
     return Scene(width=320, height=240, frames=frames, fps=FPS, objects=(obj,), seed=seed)
 
@@ -39,14 +41,17 @@ def robot_force(
     obj: SceneObject, t: np.ndarray, rng: np.random.Generator, *, noise: float = 0.03, drift: float = 0.0
 ) -> np.ndarray:
     """The robot's force along the push (N) at times ``t`` (s from the clip's first frame), consistent with
-    the scene: held at ``force_n`` until the release frame (a 40 ms ramp down; the push began before the
-    clip), a 9 ms half-sine strike of ``impulse_ns`` centred on it, or a ``forced`` object's driving force;
-    plus the sensor's white noise (SD ``noise``) and a linear drift of ``drift`` over the record."""
+    the scene: held at ``force_n`` until the release (falling linearly over the scene's ``release_s``,
+    centred on the release frame; the push began before the clip), a 9 ms half-sine strike of
+    ``impulse_ns`` centred on it, or a ``forced`` object's driving force; plus the sensor's white noise (SD
+    ``noise``) and a linear drift of ``drift`` over the record."""
     release = RELEASE_FRAME / FPS
     if obj.excitation == "forced":
         force = obj.force_n_at(t, FPS)
     elif obj.excitation == "step_release":
-        held = obj.force_n * np.clip((release + 0.02 - t) / 0.04, 0.0, 1.0)
+        width = obj.release_s
+        fall = (release + width / 2 - t) / width if width > 0 else np.where(t < release, 1.0, 0.0)
+        held = obj.force_n * np.clip(fall, 0.0, 1.0)
         force = held * np.clip((t + 0.6) / 0.2, 0.0, 1.0)
     else:
         width = 0.009

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -106,6 +106,10 @@ class ForceExcitation:
     in_camera_frame : bool
         ``direction`` is in the camera's optical frame (a transform was recorded): the mechanics then
         take the force's component along the object's motion.
+    times_s, along_n : ndarray, shape (N,), float64, or None
+        The record's times and the force along ``direction`` with its baseline removed (the push
+        positive): what the mechanics weigh at the object's frequency (a release that takes time, a
+        strike's shape) and what a forced vibration's response is fitted to.
     """
 
     kind: Literal["step_release", "impulse", "forced"]
@@ -118,6 +122,8 @@ class ForceExcitation:
     hold_s: tuple[float, float] | None = None
     pulse_s: tuple[float, float] | None = None
     in_camera_frame: bool = False
+    times_s: FloatArray | None = field(default=None, compare=False, repr=False)
+    along_n: FloatArray | None = field(default=None, compare=False, repr=False)
 
 
 def dominant_direction(series: ForceSeries) -> tuple[FloatArray | None, FloatArray]:
@@ -193,44 +199,29 @@ def find_excitation(series: ForceSeries, *, window_s: tuple[float, float] | None
     events, ignored = find_events(times, above, base)
     if forced is not None:  # an oscillation has no push to sign by
         notes = _frame_notes(series, direction, flipped=False) + before_forcing(events, forced)
-        return _excitation(forced, direction=direction, series=series, notes=notes)
+        return _excitation(forced, direction=direction, series=series, notes=notes, along=above)
     notes = _frame_notes(series, direction, flipped=flipped) + _drift_notes(times, base)
     if not events:
         raise ForceError(_nothing_message(series.source, above, base.sigma, ignored))
     chosen, choice_notes = _choose(events, window, source=series.source)
-    return _excitation(chosen, direction=direction, series=series, notes=notes + choice_notes)
+    return _excitation(chosen, direction=direction, series=series, notes=notes + choice_notes, along=above)
 
 
-def excitation_of(found: ForceExcitation, series: ForceSeries | None = None) -> Excitation:
-    """The :class:`~workers.pipeline.model.Excitation` (kind, value, uncertainty) for the mechanics.
+def excitation_of(found: ForceExcitation) -> Excitation:
+    """The :class:`~workers.pipeline.model.Excitation` (kind, value, uncertainty) for the mechanics, with
+    the record's samples and the span of the release or the strike in them (the mechanics weigh them at
+    the object's frequency), or a forcing's samples (for the response fit, :mod:`workers.pipeline.response`).
 
     Parameters
     ----------
     found : ForceExcitation
-    series : ForceSeries, optional
-        The recording ``found`` came from: a ``forced`` excitation carries its samples (the force along
-        its dominant direction), for the fit of the response between force and motion
-        (:mod:`workers.pipeline.response`).
 
     Returns
     -------
     Excitation
         For the main object (no object, point or box chosen).
-
-    Raises
-    ------
-    ForceError
-        A ``forced`` excitation without its ``series``.
     """
-    times = along = None
-    if found.kind == "forced":
-        if series is None:
-            raise ForceError(
-                f"the force {found.source} keeps oscillating (a forced vibration, RMS {found.value:.3g} N): "
-                "stiffness and mass then come from the response between the force and the motion, which "
-                "needs the recording itself"
-            )
-        times, along = series.times_s, dominant_direction(series)[1]
+    span = _drop_span(found) if found.kind == "step_release" else found.pulse_s
     return Excitation(
         kind=found.kind,
         value=found.value,
@@ -239,9 +230,29 @@ def excitation_of(found: ForceExcitation, series: ForceSeries | None = None) -> 
         source=found.source,
         notes=tuple(found.notes),
         direction=_camera_direction(found),
-        force_times_s=times,
-        force_along_n=along,
+        force_times_s=found.times_s,
+        force_along_n=found.along_n,
+        event_s=span,
     )
+
+
+def _drop_span(found: ForceExcitation) -> tuple[float, float] | None:
+    """Start and end of a release's drop, centred on its halfway instant: as long as the fall from 90 % to
+    10 % of the held force takes, over 0.8 (a linear fall's whole length)."""
+    if found.hold_s is None or found.times_s is None or found.along_n is None:
+        return None
+    t, force = found.times_s, found.along_n
+    first = int(np.searchsorted(t, found.hold_s[1]))
+    crossings = []
+    for share in (0.9, 0.1):
+        below = np.flatnonzero(force[first:] < share * found.value)
+        if below.size == 0 or first + below[0] == 0:
+            return None
+        i = first + int(below[0])
+        y0, y1 = force[i - 1] - share * found.value, force[i] - share * found.value
+        crossings.append(t[i - 1] + (t[i] - t[i - 1]) * y0 / (y0 - y1))
+    half = max((crossings[1] - crossings[0]) / 0.8, float(np.median(np.diff(t)))) / 2
+    return (found.time_s - half, found.time_s + half)
 
 
 def _camera_direction(found: ForceExcitation) -> tuple[float, float, float] | None:
@@ -276,7 +287,7 @@ def recorded_excitation(series: ForceSeries | None, *, asked: bool) -> tuple[Exc
     if series is None:
         return None, []
     try:
-        return excitation_of(find_excitation(series), series), []
+        return excitation_of(find_excitation(series)), []
     except ForceError as exc:
         if asked:
             raise
@@ -395,7 +406,7 @@ def _drift_notes(t: FloatArray, base: Baseline) -> list[str]:
 
 
 def _excitation(
-    event: Event, *, direction: FloatArray | None, series: ForceSeries, notes: list[str]
+    event: Event, *, direction: FloatArray | None, series: ForceSeries, notes: list[str], along: FloatArray
 ) -> ForceExcitation:
     return ForceExcitation(
         kind=event.kind,
@@ -408,6 +419,8 @@ def _excitation(
         hold_s=event.hold_s,
         pulse_s=event.pulse_s,
         in_camera_frame=series.in_camera_frame,
+        times_s=series.times_s,
+        along_n=along,
     )
 
 

@@ -18,6 +18,7 @@ from workers.pipeline.errors import AnalysisError, ForceError, ParameterError
 from workers.pipeline.mechanics import (
     Mechanics,
     along_motion,
+    at_frequency,
     release_amplitude,
     release_instant,
     stiffness_and_mass,
@@ -35,7 +36,7 @@ from workers.pipeline.ringdown import (
     sliding_ringdown,
 )
 from workers.pipeline.stream import FrameBuffers
-from workers.pipeline.tracking import CoarseView, Track, second_motion, track_object
+from workers.pipeline.tracking import CoarseView, FitHints, Track, second_motion, track_object
 
 
 def bounding_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int]:
@@ -136,8 +137,7 @@ def measure_object(
         region.mask,
         sample_rate_hz=window.sample_rate_hz,
         pixel_scale=window.pixel_scale,
-        frequency_guess_hz=region.peak.frequency_hz,
-        band_hz=window.band_hz,
+        hints=FitHints(region.peak.frequency_hz, window.band_hz, _free_from(excitation, window)),
         confidence=window.confidence,
         coarse=region.coarse,
     )
@@ -194,6 +194,13 @@ def measure_object(
         modes=_modes(track, region, window),
         excitation=used,
     )
+
+
+def _free_from(excitation: Excitation | None, window: WindowContext) -> float | None:
+    """Window clock: when the object is free, where a force sensor saw the release or the strike end."""
+    if excitation is None or excitation.event_s is None:
+        return None
+    return excitation.event_s[1] - window.buffers.start_s
 
 
 def _modes(track: Track, region: Region, window: WindowContext) -> ObjectModeShapes | None:
@@ -306,6 +313,7 @@ def _mechanics(
         return Mechanics(null_reasons=across), excitation
     if used.kind == "forced":
         return forced_mechanics(track, release, metric, used, window)
+    used = at_frequency(used, frequency_hz=track.fit.frequency_hz)
     return object_mechanics(track.fit, metric, used, frequency_sd_hz=frequency_sd_hz(track.fit)), used
 
 

@@ -90,9 +90,12 @@ class Excitation:
         take its component along the object's motion
         (:func:`~workers.pipeline.mechanics.along_motion`). None: ``value`` is used as it is.
     force_times_s, force_along_n : ndarray, shape (M,), float64, or None
-        A ``forced`` excitation's samples: times on the clip's clock and the force along ``direction`` (or
-        its dominant one), newtons, for the fit of the response between force and motion
-        (:mod:`workers.pipeline.response`).
+        A recorded excitation's samples: times on the clip's clock and the force along ``direction`` (or
+        its dominant one), its baseline removed, newtons: a forced vibration's response is fitted to them
+        (:mod:`workers.pipeline.response`), a release or a strike is weighed by them at the object's
+        frequency (:func:`~workers.pipeline.mechanics.at_frequency`).
+    event_s : (start, end) or None
+        The span of those samples the release's drop or the strike's pulse takes, clip clock.
     """
 
     kind: Literal["step_release", "impulse", "forced"]
@@ -107,6 +110,7 @@ class Excitation:
     direction: tuple[float, float, float] | None = None
     force_times_s: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     force_along_n: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    event_s: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("step_release", "impulse", "forced"):

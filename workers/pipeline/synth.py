@@ -87,6 +87,10 @@ class SceneObject:
         Amplitude of each driving cosine, newtons.
     forcing_seed : int
         Seeds the cosines' phases.
+    release_s : float
+        A ``step_release`` lets go over this long, the force falling linearly, centred on
+        ``release_frame`` (a gripper opening, a hand pulled away): the oscillation it starts is smaller
+        than a sudden release's, by sin(ω T / 2) / (ω T / 2) for an undamped spring. 0: sudden.
     """
 
     center_px: tuple[float, float] = (320.0, 240.0)
@@ -113,6 +117,7 @@ class SceneObject:
     forcing_hz: tuple[float, ...] = ()
     forcing_n: float = 0.3
     forcing_seed: int = 0
+    release_s: float = 0.0
 
     @property
     def stiffness_n_per_m(self) -> float:
@@ -156,6 +161,8 @@ class SceneObject:
             return np.where(after, self.steady_amplitude_m * np.sin(wn * tt), 0.0)
         if self.excitation == "forced":
             return np.where(after, self._forced_response(tt), 0.0)
+        if self.excitation == "step_release" and self.release_s > 0:
+            return self._ramped_release(t_s - self.release_frame / fps)
         env = np.exp(-z * wn * tt)
         if self.excitation == "step_release":
             a = self.force_n / self.stiffness_n_per_m
@@ -170,6 +177,23 @@ class SceneObject:
         for order, rel in enumerate(self.harmonics, start=2):
             x = x + rel * v0 / wd * np.exp(-z * order * wn * tt) * np.sin(order * wd * tt)
         return np.where(after, x, 0.0)
+
+    def _ramped_release(self, tau: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Displacement ``tau`` seconds after the middle of a release that takes ``release_s``: held at
+        F/k, then the exact response to the force falling linearly to zero, as two ramp responses."""
+        wn = 2 * math.pi * self.frequency_hz
+        z = self.damping_ratio
+        wd = wn * math.sqrt(1 - z * z)
+        width = self.release_s
+
+        def ramp(t: NDArray[np.float64]) -> NDArray[np.float64]:  # unit-slope ramp response, x k
+            t = np.maximum(t, 0.0)
+            free = np.exp(-z * wn * t) * (2 * z / wn * np.cos(wd * t) + (2 * z * z - 1) / wd * np.sin(wd * t))
+            return np.asarray(t - 2 * z / wn + free)
+
+        start = np.asarray(tau, np.float64) + width / 2
+        held = self.force_n / self.stiffness_n_per_m
+        return np.asarray(held * (1.0 - (ramp(start) - ramp(start - width)) / width))
 
     def force_n_at(self, t_s: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
         """The force driving a ``forced`` object along ``direction`` at times ``t_s`` (seconds from the
@@ -407,6 +431,8 @@ def _check(scene: Scene) -> None:
             )
         if o.texture not in ("noise", "flat"):
             raise ParameterError(f"synth: texture={o.texture!r} is unknown; use 'noise' or 'flat'")
+        if o.release_s < 0 or (o.release_s > 0 and o.harmonics):
+            raise ParameterError("synth: release_s must be >= 0, and a ramped release has no harmonics")
         if o.excitation == "forced" and not o.forcing_hz:
             raise ParameterError("synth: a forced object needs its driving frequencies (forcing_hz)")
         if o.spin_hz and o.pivot_px is not None:

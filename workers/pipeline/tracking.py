@@ -484,8 +484,7 @@ def track_object(
     *,
     sample_rate_hz: float,
     pixel_scale: float,
-    frequency_guess_hz: float,
-    band_hz: tuple[float, float] | None = None,
+    hints: FitHints,
     confidence: Confidence | None = None,
     coarse: CoarseView | None = None,
 ) -> Track:
@@ -508,10 +507,8 @@ def track_object(
         Rate of the flow samples, Hz.
     pixel_scale : float
         Input pixels per grid pixel.
-    frequency_guess_hz : float
-        Where the fit starts (the object's spectral peak).
-    band_hz : (low, high), optional
-        The analysed band: the fitted frequency stays inside it.
+    hints : FitHints
+        Where the fit starts from: the frequency's guess, the band, and when the object is free.
     confidence : Confidence, optional
         Of the grid's flow (see :func:`object_motion`).
     coarse : CoarseView, optional
@@ -523,16 +520,11 @@ def track_object(
     -------
     Track
     """
-    fitter = _Fitter(
-        sample_rate_hz=sample_rate_hz,
-        frequency_guess_hz=frequency_guess_hz,
-        times_s=buffers.times_s,
-        band_hz=band_hz,
-    )
+    fitter = _Fitter(sample_rate_hz=sample_rate_hz, hints=hints, times_s=buffers.times_s)
     motion = _clearest_motion(
         buffers.flow,
         mask,
-        frequency_hz=frequency_guess_hz,
+        frequency_hz=hints.frequency_guess_hz,
         sample_rate_hz=sample_rate_hz,
         pixel_scale=pixel_scale,
         confidence=confidence,
@@ -556,6 +548,31 @@ def track_object(
     return flow_track if followed is None else followed
 
 
+#: Fewest flow samples a ring-down fit keeps after the end of a recorded release (a release that ends near
+#: the window's end is fitted over its last samples).
+MIN_FIT_SAMPLES = 16
+
+
+@dataclass(frozen=True)
+class FitHints:
+    """What an object's ring-down fit starts from.
+
+    Attributes
+    ----------
+    frequency_guess_hz : float
+        The object's frequency as its spectrum shows it.
+    band_hz : (low, high) or None
+        The band searched.
+    free_from_s : float or None
+        Window clock (the frame times' origin): from when the object moves freely, when a force sensor
+        recorded the end of the release or the strike; None: from when it is first seen moving.
+    """
+
+    frequency_guess_hz: float
+    band_hz: tuple[float, float] | None = None
+    free_from_s: float | None = None
+
+
 @dataclass(frozen=True)
 class _Fitter:
     """Fits the ring-down of a motion from its release (:func:`fit_ringdown` with the window's settings).
@@ -564,27 +581,30 @@ class _Fitter:
     ----------
     sample_rate_hz : float
         Rate of the flow samples, Hz.
-    frequency_guess_hz : float
+    hints : FitHints
     times_s : ndarray of float64, shape (N + 1,)
         The window's frame times.
-    band_hz : (low, high) or None
     """
 
     sample_rate_hz: float
-    frequency_guess_hz: float
+    hints: FitHints
     times_s: NDArray[np.float64]
-    band_hz: tuple[float, float] | None
 
     def __call__(self, signal: NDArray[np.float64]) -> tuple[int, RingdownFit]:
-        """The release (first sample of the motion) of ``signal`` (N,) and the ring-down fitted from it."""
+        """The release (first sample of the motion) of ``signal`` (N,) and the ring-down fitted from it:
+        from the first sample in which it moves, or, when a force sensor saw the release end later (a
+        release that takes time drives the object on the way), from there."""
         start = detect_release(signal)
+        if self.hints.free_from_s is not None:
+            free = int(np.searchsorted(self.times_s, self.hints.free_from_s))
+            start = max(start, min(free, len(signal) - MIN_FIT_SAMPLES))
         return start, fit_ringdown(
             signal,
             sample_rate_hz=self.sample_rate_hz,
-            frequency_guess_hz=self.frequency_guess_hz,
+            frequency_guess_hz=self.hints.frequency_guess_hz,
             start_index=start,
             frame_times_s=self.times_s,
-            band_hz=self.band_hz,
+            band_hz=self.hints.band_hz,
         )
 
 

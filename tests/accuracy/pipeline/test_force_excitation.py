@@ -203,6 +203,19 @@ def test_a_force_at_one_steady_frequency_does_not_determine_k_and_m_and_says_so(
     )
 
 
+@pytest.mark.parametrize("release_s", [0.15, 0.3])
+def test_a_slow_release_counts_for_what_it_excites(tmp_path: Path, release_s: float) -> None:
+    """The gripper lets go over 150 or 300 ms (a fifth or more of the 2.5 Hz period): the oscillation it
+    starts is 79 % or 39 % of a sudden release's, and F/A alone would read k 27 % or 2.6x high. Weighed at
+    the object's frequency, the recorded drop gives k and m, and the note says by how much it counted."""
+    scene = pushed_spring("step_release", seed=19, release_s=release_s)
+    result = run_analysis(_bag(tmp_path, scene), tmp_path / "out")
+    _check(result, scene)
+    assert any(
+        "excites" in n and f"{release_s * 1000:.0f} ms" in n for n in result.objects[0].excitation.notes
+    )
+
+
 def test_a_noisy_drifting_sensor(tmp_path: Path) -> None:
     scene = pushed_spring("step_release", seed=13)
     result = run_analysis(_bag(tmp_path, scene, noise=0.25, drift=0.5), tmp_path / "out")

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from workers.pipeline.mechanics import DIRECTION_SD_RAD, along_motion, stiffness_and_mass
+from workers.pipeline.mechanics import DIRECTION_SD_RAD, along_motion, at_frequency, stiffness_and_mass
 from workers.pipeline.model import Excitation
 from workers.pipeline.registration import _tracking_shares
 
@@ -65,6 +65,57 @@ def test_a_force_across_the_motion_gives_no_stiffness_and_says_why():
     assert len(reasons) == 1
     assert "across the object's motion" in reasons[0]
     assert "84°" in reasons[0]
+
+
+def _sampled(kind: str, force: np.ndarray, t: np.ndarray, span: tuple[float, float]) -> Excitation:
+    return Excitation(
+        kind=kind,  # type: ignore[arg-type]
+        value=6.0,
+        uncertainty=0.06,
+        release_time_s=0.5,
+        source="topic /ft",
+        force_times_s=t,
+        force_along_n=force,
+        event_s=span,
+    )
+
+
+@pytest.mark.parametrize(("width_s", "frequency_hz"), [(0.04, 2.5), (0.04, 10.0), (0.15, 2.5), (0.1, 8.0)])
+def test_a_release_that_takes_time_counts_for_what_it_excites(width_s: float, frequency_hz: float):
+    """A force falling linearly over T starts sin(ωT/2) / (ωT/2) of a sudden release's oscillation."""
+    t = np.arange(0.0, 1.0, 1 / 500)
+    force = 6.0 * np.clip((0.5 + width_s / 2 - t) / width_s, 0.0, 1.0)
+    half = math.pi * frequency_hz * width_s
+    used = at_frequency(
+        _sampled("step_release", force, t, (0.5 - width_s / 2, 0.5 + width_s / 2)), frequency_hz=frequency_hz
+    )
+    assert used.value / 6.0 == pytest.approx(math.sin(half) / half, abs=2e-3)
+    assert used.uncertainty / 0.06 == pytest.approx(used.value / 6.0)
+    assert any(f"{width_s * 1000:.0f} ms" in n and "excites" in n for n in used.notes), used.notes
+
+
+def test_a_long_strike_counts_for_its_fourier_component_and_a_short_one_for_its_impulse():
+    t = np.arange(0.0, 1.0, 1 / 2000)
+    for width, frequency, expected in [(0.009, 2.5, None), (0.06, 10.0, "computed")]:
+        phase = (t - 0.5 + width / 2) / width
+        force = np.where((phase >= 0) & (phase <= 1), np.sin(np.pi * np.clip(phase, 0, 1)), 0.0)
+        exc = _sampled("impulse", force, t, (0.5 - width / 2, 0.5 + width / 2))
+        used = at_frequency(exc, frequency_hz=frequency)
+        if expected is None:
+            assert used is exc  # 9 ms at 2.5 Hz: the impulse itself
+            continue
+        fine = np.linspace(0, width, 20001)
+        pulse = np.sin(np.pi * fine / width)
+        truth = abs(np.trapezoid(pulse * np.exp(-2j * np.pi * frequency * fine), fine)) / np.trapezoid(
+            pulse, fine
+        )
+        assert used.value / 6.0 == pytest.approx(truth, abs=2e-3)
+        assert truth < 0.9
+
+
+def test_a_typed_excitation_is_not_weighed():
+    typed = Excitation(kind="step_release", value=6.0, uncertainty=0.1)
+    assert at_frequency(typed, frequency_hz=10.0) is typed
 
 
 def test_impulse_gives_m_from_v0_over_omega():
