@@ -122,6 +122,7 @@ PROBLEM_TYPES: Mapping[str, ProblemType] = {
     "insufficient-storage": ProblemType(507, "Insufficient storage"),
     "unavailable": ProblemType(503, "Service unavailable"),
     "too-many-uploads": ProblemType(503, "Service unavailable"),
+    "too-many-large-requests": ProblemType(503, "Service unavailable"),
     "not-ready": ProblemType(503, "Service unavailable"),
     "database-unavailable": ProblemType(503, "Service unavailable"),
     "storage-unavailable": ProblemType(503, "Service unavailable"),

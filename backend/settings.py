@@ -164,6 +164,13 @@ class Settings(BaseSettings):
         description="Largest body of a job request (POST /v1/jobs), KiB: by default room for a force log of "
         "the most samples allowed (200,000 of time and three components, about 20 MiB of JSON). 413 beyond.",
     )
+    max_large_bodies_in_flight: int = Field(
+        default=2,
+        ge=1,
+        description="Requests with bodies over EIGENSCOPE_MAX_JSON_BODY_KB (a job request carrying a force "
+        "log) read and checked at once per API process: each takes several times its size in memory while "
+        "it is parsed. 503 beyond, with Retry-After.",
+    )
     body_idle_timeout_s: float = Field(
         default=30,
         gt=0,

@@ -95,6 +95,7 @@ def create_app(settings: Settings | None = None, *, configure_log: bool | None =
         idle_timeout_s=settings.body_idle_timeout_s,
         # A job request may carry a force log (api_schemas.ForceLog): up to 200,000 samples.
         route_caps={("POST", "/v1/jobs"): BodyCap(settings.max_job_body_bytes, "EIGENSCOPE_MAX_JOB_BODY_KB")},
+        max_large_bodies=settings.max_large_bodies_in_flight,
     )
     install_problem_handlers(app)
     app.include_router(clips.router)

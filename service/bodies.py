@@ -5,6 +5,11 @@ Every route but the streamed clip upload gets its body read here first, under th
 - a cap (``EIGENSCOPE_MAX_JSON_BODY_KB``; a route may have its own: ``POST /v1/jobs``, whose request may
   carry a force log, has ``EIGENSCOPE_MAX_JOB_BODY_KB``): a body declared or found larger is answered 413
   before it is parsed, and never held in memory beyond the cap;
+- a bound on large bodies read at once (``EIGENSCOPE_MAX_LARGE_BODIES_IN_FLIGHT``): a body over the
+  general cap that a route's own cap allows (a job request with a force log, up to about 20 MiB, which
+  takes several times that while it is parsed and checked) holds one of a few slots from its first byte
+  over the general cap until its route has answered; with none free it is answered 503 with
+  ``Retry-After``, so that a burst of them cannot run the API out of memory;
 - an idle timeout (``EIGENSCOPE_BODY_IDLE_TIMEOUT_S``): a body that sends nothing for that long is
   answered 408 and its connection closed;
 - finite numbers: a JSON body holding ``NaN``, ``Infinity`` or a number that overflows (``1e309``, an
@@ -24,7 +29,13 @@ from collections.abc import Awaitable, Callable, Mapping, MutableMapping
 from dataclasses import dataclass
 from typing import Any
 
-from backend.errors import InvalidInputError, PayloadTooLargeError, RequestTimeoutError, ServiceError
+from backend.errors import (
+    InvalidInputError,
+    PayloadTooLargeError,
+    RequestTimeoutError,
+    ServiceError,
+    UnavailableError,
+)
 from backend.strict_json import NonFiniteNumberError, non_finite_path, strict_json_loads
 
 Scope = MutableMapping[str, Any]
@@ -79,6 +90,7 @@ class BodyLimits:
         idle_timeout_s: float,
         streamed: frozenset[tuple[str, str]] = STREAMED_BODIES,
         route_caps: Mapping[tuple[str, str], BodyCap] | None = None,
+        max_large_bodies: int | None = None,
     ) -> None:
         self.app = app
         self.max_body_bytes = max_body_bytes
@@ -87,6 +99,9 @@ class BodyLimits:
         #: Routes (method, path) with caps of their own; every other route has ``max_body_bytes``.
         self.route_caps = dict(route_caps or {})
         self._default_cap = BodyCap(max_body_bytes)
+        #: Bodies over ``max_body_bytes`` being read or handled at once, and how many may be (None: any).
+        self.max_large_bodies = max_large_bodies
+        self.large_in_flight = 0
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -99,8 +114,17 @@ class BodyLimits:
         if not _has_body(scope):  # no Content-Length, no Transfer-Encoding: HTTP/1.1 sends no body
             await self.app(scope, receive, send)
             return
+        slot = _Slot(self)
         try:
-            body = await self._read(scope, receive, self.route_caps.get(route, self._default_cap))
+            await self._handle(scope, receive, send, slot)
+        finally:
+            slot.release()
+
+    async def _handle(self, scope: Scope, receive: Receive, send: Send, slot: _Slot) -> None:
+        """Read the body (holding ``slot`` once it passes the general cap), check it, run the route."""
+        route = (scope["method"], scope["path"])
+        try:
+            body = await self._read(scope, receive, self.route_caps.get(route, self._default_cap), slot)
         except ServiceError as exc:
             await _problem(scope, receive, send, exc.problem(instance=scope["path"]), exc.headers())
             return
@@ -140,12 +164,16 @@ class BodyLimits:
                 "(EIGENSCOPE_BODY_IDLE_TIMEOUT_S); the connection is closed -- send the body without pauses"
             ) from None
 
-    async def _read(self, scope: Scope, receive: Receive, cap: BodyCap) -> bytes | None:
-        """The whole body (None if the client disconnected); 413 over the cap, 408 when it stalls."""
+    async def _read(self, scope: Scope, receive: Receive, cap: BodyCap, slot: _Slot) -> bytes | None:
+        """The whole body (None if the client disconnected); 413 over the cap, 408 when it stalls, 503 when
+        it passes the general cap with every large body's slot taken."""
         declared = _declared_length(scope)
         if declared is not None and declared > cap.max_bytes:
             await self._drain(receive, declared)
             raise self._too_large(declared, cap)
+        if declared is not None and declared > self.max_body_bytes and not slot.take():
+            await self._drain(receive, declared)
+            raise self._busy()
         chunks: list[bytes] = []
         size = 0
         more = True
@@ -160,6 +188,10 @@ class BodyLimits:
                 if more:
                     await self._drain(receive, _DRAIN_BYTES)
                 raise self._too_large(None, cap)
+            if size > self.max_body_bytes and not slot.take():
+                if more:
+                    await self._drain(receive, _DRAIN_BYTES)
+                raise self._busy()
             chunks.append(chunk)
         return b"".join(chunks)
 
@@ -179,6 +211,15 @@ class BodyLimits:
             if not message.get("more_body", False):
                 return
 
+    def _busy(self) -> UnavailableError:
+        return UnavailableError(
+            f"{self.large_in_flight} requests over {self.max_body_bytes} bytes (job requests carrying a "
+            "force log) are being read at once, the most this server takes together "
+            "(EIGENSCOPE_MAX_LARGE_BODIES_IN_FLIGHT); try again shortly",
+            code="too-many-large-requests",
+            retry_after_s=1,
+        )
+
     @staticmethod
     def _too_large(declared: int | None, cap: BodyCap) -> PayloadTooLargeError:
         size = f"of {declared} bytes " if declared is not None else ""
@@ -188,6 +229,31 @@ class BodyLimits:
             code="body-too-large",
             max_bytes=cap.max_bytes,
         )
+
+
+class _Slot:
+    """One request's hold on a large body's place in :class:`BodyLimits` (one event loop: no other request
+    runs between a check and its count)."""
+
+    def __init__(self, limits: BodyLimits) -> None:
+        self.limits = limits
+        self.held = False
+
+    def take(self) -> bool:
+        """Hold a place (True), or say there is none free (False); True when held already."""
+        limits = self.limits
+        if self.held:
+            return True
+        if limits.max_large_bodies is not None and limits.large_in_flight >= limits.max_large_bodies:
+            return False
+        limits.large_in_flight += 1
+        self.held = True
+        return True
+
+    def release(self) -> None:
+        if self.held:
+            self.limits.large_in_flight -= 1
+            self.held = False
 
 
 def _replay(body: bytes, receive: Receive) -> Receive:

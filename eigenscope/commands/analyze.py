@@ -85,12 +85,43 @@ def first_missing_folder(out: Path) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from eigenscope.commands._options import read_force_log_file
+    from workers.runner import run_analysis
+
+    params, excitation = _request(args)
+    force_log = (
+        None if args.force_log is None else read_force_log_file(args.force_log, args.force_log_offset_s)
+    )
+    created = first_missing_folder(Path(args.out))
+    try:
+        result = run_analysis(
+            args.clip,
+            args.out,
+            excitation=excitation,
+            parameters=params,
+            depth_path=args.depth,
+            flow_threads=args.flow_threads,
+            force_log=force_log,
+        )
+    except BaseException:
+        if created is not None:  # a failed run leaves no folder it made behind
+            shutil.rmtree(created, ignore_errors=True)
+        raise
+    if args.json:
+        json.dump(result.model_dump(mode="json"), sys.stdout, indent=2)
+        print()
+    else:
+        _print_summary(result, args)
+    return 0
+
+
+def _request(args: argparse.Namespace) -> tuple[Any, Any]:
+    """The analysis parameters and the typed excitation (or None) the options ask for; a bad value is a
+    usage error naming its option."""
     from pydantic import ValidationError
 
     from api_schemas import AnalysisParameters, ImpulseExcitation, StepReleaseExcitation
     from eigenscope.cli import UsageError
-    from eigenscope.commands._options import read_force_log_file
-    from workers.runner import run_analysis
 
     if args.flow_threads is not None and args.flow_threads < 1:
         raise UsageError(f"--flow-threads={args.flow_threads} must be at least 1")
@@ -114,51 +145,27 @@ def run(args: argparse.Namespace) -> int:
             max_frequency_hz=args.max_frequency_hz,
         )
         excitation: StepReleaseExcitation | ImpulseExcitation | None = None
+        where = {"object_id": args.object_id, "point_px": args.point, "box_px": args.box}
         if args.force_n is not None:
             excitation = StepReleaseExcitation(
-                type="step_release",
-                force_n=args.force_n,
-                force_uncertainty_n=args.force_uncertainty,
-                object_id=args.object_id,
-                point_px=args.point,
-                box_px=args.box,
+                type="step_release", force_n=args.force_n, force_uncertainty_n=args.force_uncertainty, **where
             )
         elif args.impulse_ns is not None:
             excitation = ImpulseExcitation(
                 type="impulse",
                 impulse_ns=args.impulse_ns,
                 impulse_uncertainty_ns=args.force_uncertainty,
-                object_id=args.object_id,
-                point_px=args.point,
-                box_px=args.box,
+                **where,
             )
     except ValidationError as exc:
         err = exc.errors()[0]
-        where = ".".join(str(x) for x in err["loc"]) or "input"
-        raise UsageError(f"--{where.replace('_', '-')}: {err['msg']}") from None
+        place = ".".join(str(x) for x in err["loc"]) or "input"
+        raise UsageError(f"--{place.replace('_', '-')}: {err['msg']}") from None
+    return params, excitation
 
-    force_log = (
-        None if args.force_log is None else read_force_log_file(args.force_log, args.force_log_offset_s)
-    )
-    created = first_missing_folder(Path(args.out))
-    try:
-        result = run_analysis(
-            args.clip,
-            args.out,
-            excitation=excitation,
-            parameters=params,
-            depth_path=args.depth,
-            flow_threads=args.flow_threads,
-            force_log=force_log,
-        )
-    except BaseException:
-        if created is not None:  # a failed run leaves no folder it made behind
-            shutil.rmtree(created, ignore_errors=True)
-        raise
-    if args.json:
-        json.dump(result.model_dump(mode="json"), sys.stdout, indent=2)
-        print()
-        return 0
+
+def _print_summary(result: Any, args: argparse.Namespace) -> None:
+    """The result in a few lines: the clip, each object with its notes, the quality flags, the files."""
     frames = f"frames {result.frames_used}" + (
         f", one in {result.frame_step}" if result.frame_step > 1 else ""
     )
@@ -173,8 +180,7 @@ def run(args: argparse.Namespace) -> int:
             line += f", A = {o.amplitude_m * 1000:.3g} mm"
         if o.stiffness_n_per_m is not None and o.mass_kg is not None:
             line += f", k = {o.stiffness_n_per_m:.4g} N/m, m = {o.mass_kg:.4g} kg"
-        line += f", {o.pixel_count} px"
-        print(line)
+        print(line + f", {o.pixel_count} px")
         if len(o.modes) > 1:
             print("  modes: " + "; ".join(_mode_text(m) for m in o.modes))
         if o.excitation is not None and o.excitation.source != "request":
@@ -184,7 +190,6 @@ def run(args: argparse.Namespace) -> int:
     for q in result.quality:
         print(f"{q.severity}: {q.message}")
     print(f"wrote {args.out}/result.json and {args.out}/{result.artifacts.mask}")
-    return 0
 
 
 def _mode_text(mode: Any) -> str:

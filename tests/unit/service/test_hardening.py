@@ -335,3 +335,73 @@ def test_uvicorn_limits_are_set_on_purpose(tmp_path: Path) -> None:
     assert context.params["h11_max_incomplete_event_size"] == settings.http_max_header_kb * 1024
     # Frames are images: compressing WebSocket messages would cost a live stream the CPU it needs.
     assert context.params["ws_per_message_deflate"] is False
+
+
+def test_large_bodies_read_at_once_are_bounded_and_the_rest_told_to_retry() -> None:
+    """A job request with a force log may be 20 MiB and take several times that while it is parsed: at most
+    EIGENSCOPE_MAX_LARGE_BODIES_IN_FLIGHT such bodies are read and handled at once; one more is answered 503
+    with Retry-After (declared or sent in chunks), small bodies pass meanwhile, and a freed place is taken
+    again."""
+    import asyncio
+
+    import httpx
+
+    from service.bodies import BodyCap, BodyLimits
+
+    release = asyncio.Event()
+    entered: list[int] = []
+
+    async def app(scope, receive, send):  # type: ignore[no-untyped-def]
+        body = b""
+        while True:
+            message = await receive()
+            body += message.get("body", b"")
+            if not message.get("more_body"):
+                break
+        entered.append(len(body))
+        if len(body) > 1024:
+            await release.wait()
+        await send(
+            {"type": "http.response.start", "status": 200, "headers": [(b"content-type", b"text/plain")]}
+        )
+        await send({"type": "http.response.body", "body": b"ok"})
+
+    limits = BodyLimits(
+        app,
+        max_body_bytes=1024,
+        idle_timeout_s=5,
+        route_caps={("POST", "/big"): BodyCap(1 << 20, "X")},
+        max_large_bodies=2,
+    )
+
+    async def chunks(n: int):  # type: ignore[no-untyped-def]
+        for _ in range(n):
+            yield b"x" * 1000
+
+    async def scenario() -> None:
+        transport = httpx.ASGITransport(app=limits)
+        async with httpx.AsyncClient(transport=transport, base_url="http://test") as client:
+            big = b"x" * 50_000
+            first = asyncio.create_task(client.post("/big", content=big))
+            second = asyncio.create_task(client.post("/big", content=chunks(40)))
+            while len(entered) < 2:
+                await asyncio.sleep(0.01)
+            assert limits.large_in_flight == 2
+            third = await client.post("/big", content=big)
+            assert third.status_code == 503
+            assert third.headers["retry-after"] == "1"
+            assert third.headers["content-type"] == "application/problem+json"
+            assert third.json()["type"].endswith("/too-many-large-requests")
+            assert "EIGENSCOPE_MAX_LARGE_BODIES_IN_FLIGHT" in third.json()["detail"]
+            chunked = await client.post("/big", content=chunks(40))
+            assert chunked.status_code == 503
+            small = await client.post("/big", content=b"{}")
+            assert small.status_code == 200  # under the general cap: no place needed
+            release.set()
+            assert (await first).status_code == 200
+            assert (await second).status_code == 200
+            assert limits.large_in_flight == 0
+            again = await client.post("/big", content=big)
+            assert again.status_code == 200
+
+    asyncio.run(scenario())
