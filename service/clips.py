@@ -17,7 +17,7 @@ from backend.storage import Quota
 from backend.store import ClipRecord, NewClip, new_id, storage_quota_error
 from service.context import ServiceContext
 from service.multipart import receive_file
-from service.probing import SLOW_PROBE_HOLD_S, SLOW_PROBE_MARKER, probe_clip
+from service.probing import SLOW_PROBE_HOLD_S, SLOW_PROBE_MARKER, ProbeCaps, probe_clip
 from service.retention import expiry
 
 #: Slack for the multipart framing when the Content-Length is compared with a quota.
@@ -145,11 +145,13 @@ async def _upload_clip(
                 sink.path,
                 timeout_s=settings.probe_timeout_s,
                 memory_mb=settings.probe_memory_mb,
-                max_frames=settings.max_frames,
-                max_pixels=settings.max_pixels_per_frame,
-                max_decoded_mb=settings.max_decoded_mb,
-                max_inflation_ratio=settings.max_inflation_ratio,
-                inflation_floor_mb=settings.inflation_floor_mb,
+                caps=ProbeCaps(
+                    max_frames=settings.max_frames,
+                    max_pixels=settings.max_pixels_per_frame,
+                    max_decoded_mb=settings.max_decoded_mb,
+                    max_inflation_ratio=settings.max_inflation_ratio,
+                    inflation_floor_mb=settings.inflation_floor_mb,
+                ),
                 scratch_dir=sink.path.parent,
                 nice=settings.background_niceness,
                 hold_s=SLOW_PROBE_HOLD_S

@@ -11,6 +11,7 @@ import logging
 import os
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -47,16 +48,52 @@ def _command(path: Path, *, timeout_s: float, memory_mb: int, nice: int, hold_s:
     return cmd
 
 
+@dataclass(frozen=True)
+class ProbeCaps:
+    """What a probed clip may hold and decode to (the readers' caps; None: the readers' own default).
+
+    Attributes
+    ----------
+    max_frames, max_pixels : int or None
+    max_decoded_mb : int or None
+        Also bounds what a zip may expand to.
+    max_inflation_ratio : float or None
+    inflation_floor_mb : int or None
+    """
+
+    max_frames: int | None = None
+    max_pixels: int | None = None
+    max_decoded_mb: int | None = None
+    max_inflation_ratio: float | None = None
+    inflation_floor_mb: int | None = None
+
+    def arguments(self) -> list[str]:
+        """The probe command's options for these caps."""
+        args: list[str] = []
+        if self.max_frames is not None:
+            args += ["--max-frames", str(self.max_frames)]
+        if self.max_pixels is not None:
+            args += ["--max-pixels", str(self.max_pixels)]
+        if self.max_decoded_mb is not None:
+            args += [
+                "--max-decoded-mb",
+                str(self.max_decoded_mb),
+                "--max-unpacked-mb",
+                str(self.max_decoded_mb),
+            ]
+        if self.max_inflation_ratio is not None:
+            args += ["--max-inflation-ratio", repr(float(self.max_inflation_ratio))]
+        if self.inflation_floor_mb is not None:
+            args += ["--inflation-floor-mb", str(self.inflation_floor_mb)]
+        return args
+
+
 def probe_clip(
     path: Path,
     *,
     timeout_s: float,
     memory_mb: int,
-    max_frames: int | None = None,
-    max_pixels: int | None = None,
-    max_decoded_mb: int | None = None,
-    max_inflation_ratio: float | None = None,
-    inflation_floor_mb: int | None = None,
+    caps: ProbeCaps | None = None,
     scratch_dir: Path | None = None,
     nice: int = 10,
     hold_s: float = 0.0,
@@ -65,8 +102,8 @@ def probe_clip(
 
     The probe dies with this process (a crashed API leaves no validator running); ``hold_s`` makes it
     wait that long first (the test hooks' stand-in for a long validation). The probe reads the clip under
-    the same caps as an analysis (``max_decoded_mb`` also bounds what a zip may expand to, and so what a
-    zipped ROS 2 bag unpacks to in ``scratch_dir``).
+    the same caps as an analysis (``caps``; its ``max_decoded_mb`` also bounds what a zip may expand to,
+    and so what a zipped ROS 2 bag unpacks to in ``scratch_dir``).
 
     Raises
     ------
@@ -77,16 +114,7 @@ def probe_clip(
     env = {k: v for k, v in os.environ.items() if k in _PASS_ENV}
     env.update({"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
     cmd = _command(path, timeout_s=timeout_s, memory_mb=memory_mb, nice=nice, hold_s=hold_s)
-    if max_frames is not None:
-        cmd += ["--max-frames", str(max_frames)]
-    if max_pixels is not None:
-        cmd += ["--max-pixels", str(max_pixels)]
-    if max_decoded_mb is not None:
-        cmd += ["--max-decoded-mb", str(max_decoded_mb), "--max-unpacked-mb", str(max_decoded_mb)]
-    if max_inflation_ratio is not None:
-        cmd += ["--max-inflation-ratio", repr(float(max_inflation_ratio))]
-    if inflation_floor_mb is not None:
-        cmd += ["--inflation-floor-mb", str(inflation_floor_mb)]
+    cmd += (caps or ProbeCaps()).arguments()
     if scratch_dir is not None:
         cmd += ["--scratch-dir", str(scratch_dir)]
     try:

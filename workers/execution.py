@@ -237,17 +237,39 @@ class _Progress:
             raise JobAbortedError(self.job_id)
 
 
+@dataclass(frozen=True)
+class ExecutionLimits:
+    """How a delivery runs: how often it reports progress, and what stops it.
+
+    Attributes
+    ----------
+    progress_interval_s : float
+        Least time between two progress writes of one stage.
+    soft_time_limit_s : float or None
+        The task's soft time limit (for the problem's message).
+    timeout_errors : tuple of exception types
+        Raised into the runner when the soft time limit strikes (Celery's ``SoftTimeLimitExceeded``).
+    test_hooks : bool
+        Enable fault injection (``EIGENSCOPE_TEST_HOOKS``; see :data:`KILL_WORKER_MARKER`). Off in
+        production: without it no request can trigger a hook.
+    memory_budget_mb : int
+        Address-space cap of this process while the runner runs (``EIGENSCOPE_JOB_MEMORY_MB``; 0: none).
+    """
+
+    progress_interval_s: float = 0.25
+    soft_time_limit_s: float | None = None
+    timeout_errors: tuple[type[BaseException], ...] = ()
+    test_hooks: bool = False
+    memory_budget_mb: int = 0
+
+
 def execute_job(
     store: Store,
     storage_root: Path,
     job_id: str,
     *,
     runner: Runner,
-    progress_interval_s: float = 0.25,
-    soft_time_limit_s: float | None = None,
-    timeout_errors: tuple[type[BaseException], ...] = (),
-    test_hooks: bool = False,
-    memory_budget_mb: int = 0,
+    limits: ExecutionLimits | None = None,
     observer: JobObserver | None = None,
 ) -> Outcome:
     """Run one delivery of job ``job_id``; see the module docstring.
@@ -259,13 +281,8 @@ def execute_job(
         The data directory (``clips/``, ``jobs/``, ``tmp/``).
     runner : callable
         :func:`workers.runner.run_analysis` or a stand-in with its signature.
-    timeout_errors : tuple of exception types
-        Raised into the runner when the soft time limit strikes (Celery's ``SoftTimeLimitExceeded``).
-    test_hooks : bool
-        Enable fault injection (``EIGENSCOPE_TEST_HOOKS``; see :data:`KILL_WORKER_MARKER`). Off in
-        production: without it no request can trigger a hook.
-    memory_budget_mb : int
-        Address-space cap of this process while the runner runs (``EIGENSCOPE_JOB_MEMORY_MB``; 0: none).
+    limits : ExecutionLimits, optional
+        Progress interval, time limit, fault injection and memory budget (the defaults: none).
     observer : JobObserver, optional
         Told when the job is claimed and how the delivery ended (the worker's metrics).
 
@@ -275,20 +292,21 @@ def execute_job(
     report = _Report(observer)
     try:
         outcome = _execute(
-            store,
-            storage_root,
-            job_id,
-            runner=runner,
-            progress_interval_s=progress_interval_s,
-            soft_time_limit_s=soft_time_limit_s,
-            timeout_errors=timeout_errors,
-            test_hooks=test_hooks,
-            memory_budget_mb=memory_budget_mb,
-            report=report,
+            store, storage_root, job_id, runner=runner, limits=limits or ExecutionLimits(), report=report
         )
         return report.done(outcome)
     finally:
         job_id_var.reset(token)
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """What a claimed job's runner takes: the clip's file and the stored request, checked."""
+
+    clip_path: Path
+    excitation: Any
+    parameters: AnalysisParameters
+    force_log: ForceLog | None
 
 
 def _execute(
@@ -297,14 +315,10 @@ def _execute(
     job_id: str,
     *,
     runner: Runner,
-    progress_interval_s: float,
-    soft_time_limit_s: float | None,
-    timeout_errors: tuple[type[BaseException], ...],
-    test_hooks: bool,
-    memory_budget_mb: int,
+    limits: ExecutionLimits,
     report: _Report,
 ) -> Outcome:
-    from backend.storage import Storage, tree_bytes
+    from backend.storage import Storage
 
     storage = Storage(storage_root)
     owner = lease_owner_token()
@@ -325,72 +339,104 @@ def _execute(
         store.fail_job(job_id, owner, p)
         return Outcome("failed")
 
+    inputs = _inputs(store, storage, job)
+    if not isinstance(inputs, _Inputs):
+        return fail(inputs)
     clip = store.find_clip(job.clip_id)
-    clip_path = storage.clip_path(clip.path) if clip is not None else None
-    if clip_path is None or not clip_path.is_file():
-        return fail(
-            problem_document(
-                "clip-gone",
-                f"clip {job.clip_id} was deleted before the job ran; upload it again and create a new job",
-            )
-        )
-    try:
-        excitation = _EXCITATION.validate_python(job.excitation) if job.excitation is not None else None
-        parameters = AnalysisParameters.model_validate(job.parameters)
-    except ValidationError as exc:
-        return fail(problem_document("invalid-parameter", f"stored job is invalid: {exc}"))
-    try:  # read apart from the job's record, which carries only its summary
-        stored_log = store.job_force_log(job_id) if job.force_log_summary is not None else None
-        force_log = ForceLog.model_validate(stored_log) if stored_log is not None else None
-    except ValidationError as exc:
-        return fail(problem_document("invalid-force", f"stored job's force log is invalid: {exc}"))
-
-    if test_hooks and clip is not None:
+    if limits.test_hooks and clip is not None:
         _fault_injection(clip)
     if storage.remove_job_workdirs(job_id):  # an earlier attempt was abandoned (its worker was killed)
         log.info("job %s: removed the folders of an abandoned attempt", job_id)
     workdir = storage.new_job_workdir(job_id, job.attempts)
     try:
         with Lease(store, job_id, owner) as lease:
-            callback = _Progress(store, job_id, owner, lease, progress_interval_s)
             try:
-                callback("starting", 0.0)
-                with memory_budget(memory_budget_mb):
-                    result = runner(
-                        clip_path,
-                        workdir,
-                        excitation=excitation,
-                        parameters=parameters,
-                        progress=callback,
-                        force_log=force_log,
-                    )
-                report.timings_s = dict(result.timings_s)
-                if lease.lost.is_set() or not store.renew_lease(job_id, owner):
-                    raise JobAbortedError(job_id)
-                output_bytes = tree_bytes(workdir)
-                storage.publish_job_outputs(job_id, workdir)
-                report.done(Outcome("succeeded"))
-                if not store.complete_job(
-                    job_id, owner, result.model_dump(mode="json"), output_bytes=output_bytes
-                ):
-                    log.info("job %s was cancelled as it finished", job_id)
-                return Outcome("succeeded")
+                delivery = _Delivery(store, storage, job_id, owner, lease, limits, report)
+                return _run(delivery, workdir, runner, inputs)
             except JobAbortedError:
                 log.info("job %s: cancelled or taken over; stopped", job_id)
                 return Outcome("aborted")
-            except timeout_errors:
+            except limits.timeout_errors:
                 return fail(
                     problem_document(
                         "time-limit",
-                        f"the analysis ran longer than the limit of {soft_time_limit_s or 0:g} s; analyse a "
-                        "shorter window (parameters.frames) or ask the operator to raise "
+                        f"the analysis ran longer than the limit of {limits.soft_time_limit_s or 0:g} s; "
+                        "analyse a shorter window (parameters.frames) or ask the operator to raise "
                         "EIGENSCOPE_TASK_SOFT_TIME_LIMIT_S",
                     )
                 )
             except Exception as exc:
-                return _failed(store, job_id, owner, job.attempts, exc, memory_budget_mb, fail)
+                return _failed(store, job_id, owner, job.attempts, exc, limits.memory_budget_mb, fail)
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _inputs(store: Store, storage: Any, job: Any) -> _Inputs | dict[str, Any]:
+    """The job's clip file and its stored request, checked; or the problem that fails the job."""
+    clip = store.find_clip(job.clip_id)
+    clip_path = storage.clip_path(clip.path) if clip is not None else None
+    if clip_path is None or not clip_path.is_file():
+        return problem_document(
+            "clip-gone",
+            f"clip {job.clip_id} was deleted before the job ran; upload it again and create a new job",
+        )
+    try:
+        excitation = _EXCITATION.validate_python(job.excitation) if job.excitation is not None else None
+        parameters = AnalysisParameters.model_validate(job.parameters)
+    except ValidationError as exc:
+        return problem_document("invalid-parameter", f"stored job is invalid: {exc}")
+    try:  # read apart from the job's record, which carries only its summary
+        stored_log = store.job_force_log(job.id) if job.force_log_summary is not None else None
+        force_log = ForceLog.model_validate(stored_log) if stored_log is not None else None
+    except ValidationError as exc:
+        return problem_document("invalid-force", f"stored job's force log is invalid: {exc}")
+    return _Inputs(clip_path, excitation, parameters, force_log)
+
+
+@dataclass(frozen=True)
+class _Delivery:
+    """One delivery of a claimed job: where it is recorded and stored, who holds it, and its limits."""
+
+    store: Store
+    storage: Any
+    job_id: str
+    owner: str
+    lease: Any
+    limits: ExecutionLimits
+    report: _Report
+
+
+def _run(delivery: _Delivery, workdir: Path, runner: Runner, inputs: _Inputs) -> Outcome:
+    """Run the analysis under the lease and the memory budget, publish its outputs and complete the job."""
+    from backend.storage import tree_bytes
+
+    store, job_id, owner, lease, limits = (
+        delivery.store,
+        delivery.job_id,
+        delivery.owner,
+        delivery.lease,
+        delivery.limits,
+    )
+    callback = _Progress(store, job_id, owner, lease, limits.progress_interval_s)
+    callback("starting", 0.0)
+    with memory_budget(limits.memory_budget_mb):
+        result = runner(
+            inputs.clip_path,
+            workdir,
+            excitation=inputs.excitation,
+            parameters=inputs.parameters,
+            progress=callback,
+            force_log=inputs.force_log,
+        )
+    delivery.report.timings_s = dict(result.timings_s)
+    if lease.lost.is_set() or not store.renew_lease(job_id, owner):
+        raise JobAbortedError(job_id)
+    output_bytes = tree_bytes(workdir)
+    delivery.storage.publish_job_outputs(job_id, workdir)
+    delivery.report.done(Outcome("succeeded"))
+    if not store.complete_job(job_id, owner, result.model_dump(mode="json"), output_bytes=output_bytes):
+        log.info("job %s was cancelled as it finished", job_id)
+    return Outcome("succeeded")
 
 
 def _failed(

@@ -11,6 +11,7 @@ import json
 import math
 import shutil
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -111,6 +112,25 @@ def _warming_up_for_images(
     return report
 
 
+@dataclass(frozen=True)
+class RunOptions:
+    """How :func:`run_analysis` runs, apart from what it measures.
+
+    Attributes
+    ----------
+    scratch_dir : path or None
+        Where a zipped ROS 2 bag may be unpacked (default: the system temporary folder).
+    flow_threads : int or None
+        Frame pairs whose flow is computed at once (default two).
+    limits : ReadLimits or None
+        What the clip may hold and decode to (default :class:`~workers.pipeline.clipio.ReadLimits`).
+    """
+
+    scratch_dir: str | Path | None = None
+    flow_threads: int | None = None
+    limits: ReadLimits | None = None
+
+
 def run_analysis(
     clip_path: str | Path,
     out_dir: str | Path,
@@ -122,10 +142,8 @@ def run_analysis(
     parameters: AnalysisParameters | None = None,
     progress: ProgressCallback | None = None,
     depth_path: str | Path | None = None,
-    scratch_dir: str | Path | None = None,
-    flow_threads: int | None = None,
-    limits: ReadLimits | None = None,
     force_log: ForceLog | None = None,
+    options: RunOptions | None = None,
 ) -> AnalysisResult:
     """Analyse the clip at ``clip_path`` and write the result files into ``out_dir``.
 
@@ -134,12 +152,10 @@ def run_analysis(
     force topic): see :func:`recorded_force`.
 
     Files are written to a temporary name and renamed, so a reader never sees half a result.
-    ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``scratch_dir`` is where a
-    zipped ROS 2 bag may be unpacked (default: the system temporary folder). ``flow_threads`` bounds the
-    frame pairs whose flow is computed at once (default two). The images are drawn by
-    :func:`workers.drawing.draw_all`; matplotlib is imported in the background from the mechanics stage
-    on (:func:`workers.drawing.warm_up`). ``limits`` caps what the
-    clip may hold and decode to (default :class:`~workers.pipeline.clipio.ReadLimits`).
+    ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``options`` says where to
+    unpack, how many flow threads to use and what the clip may hold (:class:`RunOptions`). The images are
+    drawn by :func:`workers.drawing.draw_all`; matplotlib is imported in the background from the
+    mechanics stage on (:func:`workers.drawing.warm_up`).
 
     Raises
     ------
@@ -154,6 +170,7 @@ def run_analysis(
     from workers.pipeline.model import QualityNote
 
     report = _warming_up_for_images(progress, warm_up)
+    opts = options or RunOptions()
 
     params = parameters or AnalysisParameters()
     overrides = ClipOverrides(
@@ -166,14 +183,14 @@ def run_analysis(
         color_topic=params.color_topic,
         depth_topic=params.depth_topic,
     )
-    config = analysis_config(params, flow_threads=flow_threads)
+    config = analysis_config(params, flow_threads=opts.flow_threads)
     requested = requested_excitations(excitation)
     exc = pipeline_excitations(requested)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with open_clip(
-        clip_path, overrides=overrides, limits=limits, depth=depth_path, scratch_dir=scratch_dir
+        clip_path, overrides=overrides, limits=opts.limits, depth=depth_path, scratch_dir=opts.scratch_dir
     ) as reader:
         recorded, notes = recorded_force(reader, params, force_log)
         chosen = chosen_excitations(exc, recorded)
@@ -476,7 +493,9 @@ def job_runner(settings: Settings) -> Callable[..., AnalysisResult]:
         scratch = Path(out_dir).with_name(Path(out_dir).name + "-scratch")
         scratch.mkdir(exist_ok=True)
         try:
-            return run_analysis(clip_path, out_dir, limits=limits, scratch_dir=scratch, **options)
+            return run_analysis(
+                clip_path, out_dir, options=RunOptions(scratch_dir=scratch, limits=limits), **options
+            )
         finally:
             shutil.rmtree(scratch, ignore_errors=True)
 

@@ -15,7 +15,7 @@ from celery.exceptions import MaxRetriesExceededError, SoftTimeLimitExceeded
 from backend.broker import TASK_RUN_JOB
 from backend.logs import traced
 from workers.celery_app import EigenscopeCelery
-from workers.execution import execute_job
+from workers.execution import ExecutionLimits, execute_job
 from workers.runner import job_runner
 
 log = logging.getLogger(__name__)
@@ -50,10 +50,12 @@ def _execute(ctx: Any, job_id: str) -> Any:
         ctx.storage.root,
         job_id,
         runner=job_runner(ctx.settings),
-        progress_interval_s=ctx.settings.progress_interval_s,
-        soft_time_limit_s=ctx.settings.task_soft_time_limit_s,
-        timeout_errors=(SoftTimeLimitExceeded,),
-        test_hooks=ctx.settings.test_hooks,
-        memory_budget_mb=ctx.settings.job_memory_mb,
+        limits=ExecutionLimits(
+            progress_interval_s=ctx.settings.progress_interval_s,
+            soft_time_limit_s=ctx.settings.task_soft_time_limit_s,
+            timeout_errors=(SoftTimeLimitExceeded,),
+            test_hooks=ctx.settings.test_hooks,
+            memory_budget_mb=ctx.settings.job_memory_mb,
+        ),
         observer=ctx.metrics,
     )

@@ -86,7 +86,7 @@ def first_missing_folder(out: Path) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     from eigenscope.commands._options import read_force_log_file
-    from workers.runner import run_analysis
+    from workers.runner import RunOptions, run_analysis
 
     params, excitation = _request(args)
     force_log = (
@@ -100,8 +100,8 @@ def run(args: argparse.Namespace) -> int:
             excitation=excitation,
             parameters=params,
             depth_path=args.depth,
-            flow_threads=args.flow_threads,
             force_log=force_log,
+            options=RunOptions(flow_threads=args.flow_threads),
         )
     except BaseException:
         if created is not None:  # a failed run leaves no folder it made behind

@@ -209,29 +209,68 @@ def _show(message: dict[str, Any], quiet: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eigenscope_client import EigenscopeError, StreamSession
+    from eigenscope_client import EigenscopeError
 
+    _check(args)
+    if args.clip is not None:
+        camera, frames = _clip_frames(args.clip, args.fps)
+    else:
+        camera, frames = _realsense_frames(args.bag, args.realtime)
+    session = _open(args, camera)
+    if not args.json:
+        print(f"stream {session.stream_id} open (job {session.job_id})", file=sys.stderr, flush=True)
+    try:
+        with session:
+            sent, started, last = _send(session, frames, args, camera)
+            result = session.finish(timeout_s=120)
+            latency = time.monotonic() - last
+    except EigenscopeError as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(
+        f"sent {sent} frames in {last - started:.2f} s; result {latency * 1000:.0f} ms after the last frame"
+        + (f"; converged: {session.converged}" if session.estimate else ""),
+        file=sys.stderr,
+    )
+    for obj in result.get("objects", []):
+        k_ = obj.get("stiffness_n_per_m")
+        m_ = obj.get("mass_kg")
+        mech = "" if k_ is None else f", k = {k_:.4g} N/m, m = {m_:.4g} kg"
+        print(
+            f"object {obj['id']}: f = {obj['eigenfrequency_hz']:.4f} Hz, "
+            f"ζ = {obj.get('damping_ratio') or 0:.3f}"
+            f"{mech}"
+        )
+    print(f"job {session.job_id}: {args.server.rstrip('/')}/v1/jobs/{session.job_id}")
+    return 0
+
+
+def _check(args: argparse.Namespace) -> None:
+    """The options' combinations: a clip or a camera, --bag with --realsense, enough frames."""
     if args.realsense == (args.clip is not None):
         raise UsageError("give either a CLIP to replay or --realsense (with --bag FILE for a recording)")
     if args.bag is not None and not args.realsense:
         raise UsageError("--bag needs --realsense")
     if args.frames is not None and args.frames < 8:
         raise UsageError(f"--frames={args.frames}: send at least 8 frames")
-    if args.clip is not None:
-        if not args.clip.exists():
-            raise UsageError(f"{args.clip}: no such file")
-        camera, frames = _clip_frames(args.clip, args.fps)
-    else:
-        camera, frames = _realsense_frames(args.bag, args.realtime)
-    fps = args.fps or camera.fps
+    if args.clip is not None and not args.clip.exists():
+        raise UsageError(f"{args.clip}: no such file")
+
+
+def _open(args: argparse.Namespace, camera: Any) -> Any:
+    """The live stream's session, opened on the server with the camera's rate, intrinsics and size."""
+    from eigenscope_client import EigenscopeError, StreamSession
+
     k = camera.intrinsics
     quiet = args.json
     try:
-        session = StreamSession(
+        return StreamSession(
             args.server,
             api_key=args.api_key or os.environ.get("EIGENSCOPE_API_KEY") or None,
             excitation=_excitation(args),
-            fps=fps,
+            fps=args.fps or camera.fps,
             fx=k[0] if k else None,
             fy=k[1] if k else None,
             cx=k[2] if k else None,
@@ -246,54 +285,31 @@ def run(args: argparse.Namespace) -> int:
         )
     except EigenscopeError as exc:
         raise UsageError(str(exc)) from None
-    if not quiet:
-        print(f"stream {session.stream_id} open (job {session.job_id})", file=sys.stderr, flush=True)
+
+
+def _send(session: Any, frames: Any, args: argparse.Namespace, camera: Any) -> tuple[int, float, float]:
+    """Send the frames (at their capture rate with --realtime) until --frames, the end, or convergence
+    with --stop-when-converged; the frames sent, and the clock when sending started and ended."""
     sent = 0
     started = time.monotonic()
     first_t: float | None = None
-    try:
-        with session:
-            for frame in frames:
-                if args.frames is not None and sent >= args.frames:
-                    break
-                if args.realtime:
-                    first_t = frame.timestamp_s if first_t is None else first_t
-                    delay = started + (frame.timestamp_s - first_t) - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                session.send_frame(
-                    _encode(frame.rgb, args.png),
-                    timestamp_s=frame.timestamp_s,
-                    depth=None if frame.depth_units is None else frame.depth_units.tobytes(),
-                    color_encoding="png" if args.png else "jpeg",
-                    width=camera.width,
-                    height=camera.height,
-                )
-                sent += 1
-                if args.stop_when_converged and session.converged:
-                    break
-            last = time.monotonic()
-            result = session.finish(timeout_s=120)
-            latency = time.monotonic() - last
-    except EigenscopeError as exc:
-        raise UsageError(str(exc)) from None
-    if args.json:
-        print(json.dumps(result, indent=2))
-        return 0
-    est = session.estimate
-    print(
-        f"sent {sent} frames in {last - started:.2f} s; result {latency * 1000:.0f} ms after the last frame"
-        + (f"; converged: {session.converged}" if est else ""),
-        file=sys.stderr,
-    )
-    for obj in result.get("objects", []):
-        k_ = obj.get("stiffness_n_per_m")
-        m_ = obj.get("mass_kg")
-        mech = "" if k_ is None else f", k = {k_:.4g} N/m, m = {m_:.4g} kg"
-        print(
-            f"object {obj['id']}: f = {obj['eigenfrequency_hz']:.4f} Hz, "
-            f"ζ = {obj.get('damping_ratio') or 0:.3f}"
-            f"{mech}"
+    for frame in frames:
+        if args.frames is not None and sent >= args.frames:
+            break
+        if args.realtime:
+            first_t = frame.timestamp_s if first_t is None else first_t
+            delay = started + (frame.timestamp_s - first_t) - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        session.send_frame(
+            _encode(frame.rgb, args.png),
+            timestamp_s=frame.timestamp_s,
+            depth=None if frame.depth_units is None else frame.depth_units.tobytes(),
+            color_encoding="png" if args.png else "jpeg",
+            width=camera.width,
+            height=camera.height,
         )
-    print(f"job {session.job_id}: {args.server.rstrip('/')}/v1/jobs/{session.job_id}")
-    return 0
+        sent += 1
+        if args.stop_when_converged and session.converged:
+            break
+    return sent, started, time.monotonic()

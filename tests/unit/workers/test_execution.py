@@ -13,7 +13,7 @@ from api_schemas import AnalysisResult, Spectrum
 from backend.settings import Settings
 from backend.storage import Storage
 from backend.store import NewClip, NewJob, Store
-from workers.execution import execute_job
+from workers.execution import ExecutionLimits, execute_job
 from workers.pipeline.errors import ClipError
 
 
@@ -56,7 +56,9 @@ def test_success_publishes_outputs(store: Store, settings: Settings, job_id: str
         (Path(out_dir) / "mask.png").write_bytes(b"\x89PNG")
         return result()
 
-    outcome = execute_job(store, settings.data_path, job_id, runner=runner, progress_interval_s=0)
+    outcome = execute_job(
+        store, settings.data_path, job_id, runner=runner, limits=ExecutionLimits(progress_interval_s=0)
+    )
     assert outcome.status == "succeeded"
     job = store.get_job(job_id)
     assert job.status == "succeeded"
@@ -216,7 +218,9 @@ def test_job_over_its_memory_budget_fails_once(store: Store, settings: Settings,
         np.ones(2 * 2**30, np.uint8)  # 2 GiB: past the budget
         raise AssertionError("the allocation succeeded")
 
-    outcome = execute_job(store, settings.data_path, job_id, runner=runner, memory_budget_mb=budget_mb)
+    outcome = execute_job(
+        store, settings.data_path, job_id, runner=runner, limits=ExecutionLimits(memory_budget_mb=budget_mb)
+    )
     assert outcome.status == "failed"
     assert seen["limit"] == budget_mb * 2**20
     assert resource.getrlimit(resource.RLIMIT_AS) == before  # restored for the next job
@@ -236,7 +240,10 @@ def test_budget_below_the_worker_itself_is_a_clear_failure(
         raise AssertionError("must not run")
 
     assert (
-        execute_job(store, settings.data_path, job_id, runner=runner, memory_budget_mb=1).status == "failed"
+        execute_job(
+            store, settings.data_path, job_id, runner=runner, limits=ExecutionLimits(memory_budget_mb=1)
+        ).status
+        == "failed"
     )
     job = store.get_job(job_id)
     assert job.error is not None
@@ -295,7 +302,9 @@ def test_cancel_while_running_stops_the_runner(store: Store, settings: Settings,
         raise AssertionError("not reached")
 
     assert (
-        execute_job(store, settings.data_path, job_id, runner=runner, progress_interval_s=0).status
+        execute_job(
+            store, settings.data_path, job_id, runner=runner, limits=ExecutionLimits(progress_interval_s=0)
+        ).status
         == "aborted"
     )
     job = store.get_job(job_id)
