@@ -1,6 +1,6 @@
 """The detection statistic's calibration (issue 25): the rate stated against the rate measured on
 simulated noise (log T independent Gumbel from bin to bin, B frequencies), for the fit the pipeline uses
-(``significance.fit_calibration``: quantiles of what is left after trimming) and for a candidate, the
+(``calibration.fit_calibration``: quantiles of what is left after trimming) and for a candidate, the
 maximum-likelihood fit of the Gumbel law *truncated* at the trimming cut, with the fit's own uncertainty
 averaged into the probabilities (the predictive law). For each fit: the share of clips whose smallest
 per-clip probability is at most 1e-3 and 1e-2 (calibrated: those numbers).
@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from workers.pipeline import significance  # noqa: E402
+from workers.pipeline import calibration  # noqa: E402
 
 _HERMITE = (
     np.polynomial.hermite_e.hermegauss(9)[0],
@@ -47,19 +47,19 @@ def truncated_fit(
     neighbours each side) left out and the law truncated at that cut fitted by maximum likelihood."""
     use = keep.copy()
     q10, q25, q50, q75 = np.percentile(log_t[use], [10, 25, 50, 75])
-    scale = max(min(float(q75 - q25) / 1.5725, float(q50 - q10) / 1.2007), significance.MIN_SCALE)
+    scale = max(min(float(q75 - q25) / 1.5725, float(q50 - q10) / 1.2007), calibration.MIN_SCALE)
     location = float(q50) + scale * math.log(math.log(2))
     spread = (0.0, 0.0, 0.0)
     for _ in range(rounds):
-        high = (log_t - location) / scale > significance.FIT_OUTLIER_Z
+        high = (log_t - location) / scale > calibration.FIT_OUTLIER_Z
         nxt = keep & ~(np.convolve(high.astype(np.float64), np.ones(5), mode="same") > 0)
         if nxt.sum() < max(8, int(keep.sum()) // 4):
             break
         use = nxt
         location, scale, spread = _truncated_gumbel(
-            log_t[use], location + significance.FIT_OUTLIER_Z * scale, location, scale
+            log_t[use], location + calibration.FIT_OUTLIER_Z * scale, location, scale
         )
-    return location, max(scale, significance.MIN_SCALE), spread
+    return location, max(scale, calibration.MIN_SCALE), spread
 
 
 def _truncated_gumbel(
@@ -123,7 +123,7 @@ def simulated(trials: int) -> None:
         old, new = np.zeros(2), np.zeros(2)
         for _ in range(trials):
             log_t = rng.gumbel(0.0, 0.3, bins)
-            cal = significance.fit_calibration(np.exp(log_t), frequencies_hz=f)
+            cal = calibration.fit_calibration(np.exp(log_t), frequencies_hz=f)
             p_old = float(cal.p_clip(cal.z(np.exp(log_t)).max()))
             residual = log_t if cal.trend is None else log_t - cal.trend
             loc, scale, spread = truncated_fit(residual, np.ones(bins, bool))

@@ -9,9 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
+from workers.pipeline.calibration import fit_calibration
 from workers.pipeline.confidence import flow_confidence
 from workers.pipeline.detection import find_candidates
-from workers.pipeline.significance import MAX_FALSE_ALARM, fit_calibration, motion_scan
+from workers.pipeline.significance import MAX_FALSE_ALARM, motion_scan
 
 FPS = 60.0
 N, H, W = 128, 48, 64
