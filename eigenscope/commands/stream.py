@@ -178,9 +178,7 @@ def _show(message: dict[str, Any], quiet: bool) -> None:
         return
     if kind == "estimate":
         e = message["estimate"]
-        k = e.get("stiffness_n_per_m")
-        m = e.get("mass_kg")
-        extra = "" if k is None else f", k = {k:.4g} N/m, m = {m:.4g} kg"
+        extra = _mechanics_text(e)
         print(
             f"estimate after {e['frames_received']} frames: f = {e['eigenfrequency_hz']:.4f} ± "
             f"{e['eigenfrequency_uncertainty_hz']:.4f} Hz ({e['relative_uncertainty'] * 100:.2f} %), "
@@ -235,16 +233,18 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     for obj in result.get("objects", []):
-        k_ = obj.get("stiffness_n_per_m")
-        m_ = obj.get("mass_kg")
-        mech = "" if k_ is None else f", k = {k_:.4g} N/m, m = {m_:.4g} kg"
         print(
             f"object {obj['id']}: f = {obj['eigenfrequency_hz']:.4f} Hz, "
-            f"ζ = {obj.get('damping_ratio') or 0:.3f}"
-            f"{mech}"
+            f"ζ = {obj.get('damping_ratio') or 0:.3f}{_mechanics_text(obj)}"
         )
     print(f"job {session.job_id}: {args.server.rstrip('/')}/v1/jobs/{session.job_id}")
     return 0
+
+
+def _mechanics_text(values: dict[str, Any]) -> str:
+    """``, k = … N/m, m = … kg`` of an estimate or a result's object, or nothing when they are null."""
+    k, m = values.get("stiffness_n_per_m"), values.get("mass_kg")
+    return "" if k is None or m is None else f", k = {k:.4g} N/m, m = {m:.4g} kg"
 
 
 def _check(args: argparse.Namespace) -> None:
