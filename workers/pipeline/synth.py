@@ -629,8 +629,14 @@ class _Renderer:
                 sh = cv2.GaussianBlur(sh, (0, 0), 2.0)
                 frame *= (1.0 - 0.55 * sh)[..., None]
             col = cv2.warpAffine(layer.tex, M, (W, H), flags=cv2.INTER_LINEAR)
-            frame = frame * (1 - a[..., None]) + col * a[..., None]
-            dmap = np.where(a >= 0.5, np.float32(Z), dmap)
+            # Blend where the layer covers (its alpha is exactly 0 elsewhere, which would leave the frame
+            # as it is: the same numbers, less work).
+            rows, cols = np.flatnonzero(a.any(axis=1)), np.flatnonzero(a.any(axis=0))
+            if rows.size:
+                box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+                cover = a[box][..., None]
+                frame[box] = frame[box] * (1 - cover) + col[box] * cover
+                dmap[box] = np.where(a[box] >= 0.5, np.float32(Z), dmap[box])
         tk = k / scene.fps
         gx = scene.shake_px * math.sin(2 * math.pi * scene.shake_hz * tk) + scene.drift_px_per_s[0] * tk
         gy = scene.shake_px * math.sin(2 * math.pi * scene.shake_hz * tk) + scene.drift_px_per_s[1] * tk
@@ -652,12 +658,18 @@ class _Renderer:
                 frame *= np.float32(1 + scene.flicker * math.sin(2 * math.pi * scene.flicker_hz * tk))
         if scene.keyframe_every and k % scene.keyframe_every == 0:
             frame += np.float32(scene.keyframe_pulse)
-        frame += rng.standard_normal(frame.shape, dtype=np.float32) * np.float32(scene.rgb_noise)
-        rgb = np.clip(frame, 0, 255).astype(np.uint8)
+        noise = rng.standard_normal(frame.shape, dtype=np.float32)
+        noise *= np.float32(scene.rgb_noise)
+        frame += noise
+        rgb = np.clip(frame, 0, 255, out=frame).astype(np.uint8)
         if not depth:
             return rgb, None
-        dn = rng.standard_normal((H, W), dtype=np.float32) * np.float32(scene.depth_noise_m) * dmap**2
-        return rgb, np.clip(np.rint((dmap + dn) * 1000.0), 0, 65535).astype(np.uint16)
+        dn = rng.standard_normal((H, W), dtype=np.float32)
+        dn *= np.float32(scene.depth_noise_m)
+        dn *= dmap**2
+        dn += dmap
+        dn *= 1000.0
+        return rgb, np.clip(np.rint(dn, out=dn), 0, 65535, out=dn).astype(np.uint16)
 
 
 def render(scene: Scene) -> SyntheticClip:
