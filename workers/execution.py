@@ -301,8 +301,9 @@ def execute_job(
 
 @dataclass(frozen=True)
 class _Inputs:
-    """What a claimed job's runner takes: the clip's file and the stored request, checked."""
+    """What a claimed job's runner takes: the clip (its record and file) and the stored request, checked."""
 
+    clip: ClipRecord
     clip_path: Path
     excitation: Any
     parameters: AnalysisParameters
@@ -342,9 +343,8 @@ def _execute(
     inputs = _inputs(store, storage, job)
     if not isinstance(inputs, _Inputs):
         return fail(inputs)
-    clip = store.find_clip(job.clip_id)
-    if limits.test_hooks and clip is not None:
-        _fault_injection(clip)
+    if limits.test_hooks:
+        _fault_injection(inputs.clip)
     if storage.remove_job_workdirs(job_id):  # an earlier attempt was abandoned (its worker was killed)
         log.info("job %s: removed the folders of an abandoned attempt", job_id)
     workdir = storage.new_job_workdir(job_id, job.attempts)
@@ -375,7 +375,7 @@ def _inputs(store: Store, storage: Any, job: Any) -> _Inputs | dict[str, Any]:
     """The job's clip file and its stored request, checked; or the problem that fails the job."""
     clip = store.find_clip(job.clip_id)
     clip_path = storage.clip_path(clip.path) if clip is not None else None
-    if clip_path is None or not clip_path.is_file():
+    if clip is None or clip_path is None or not clip_path.is_file():
         return problem_document(
             "clip-gone",
             f"clip {job.clip_id} was deleted before the job ran; upload it again and create a new job",
@@ -390,7 +390,7 @@ def _inputs(store: Store, storage: Any, job: Any) -> _Inputs | dict[str, Any]:
         force_log = ForceLog.model_validate(stored_log) if stored_log is not None else None
     except ValidationError as exc:
         return problem_document("invalid-force", f"stored job's force log is invalid: {exc}")
-    return _Inputs(clip_path, excitation, parameters, force_log)
+    return _Inputs(clip, clip_path, excitation, parameters, force_log)
 
 
 @dataclass(frozen=True)

@@ -201,7 +201,7 @@ def _strike(t: FloatArray, above: FloatArray, first: int, last: int, base: Basel
     if end >= n - 1:
         return f"a strike at {t[first]:.3f} s whose force has not settled by the end of the record"
     times, values = t[start : end + 1], above[start : end + 1]
-    weights = _trapezoid_weights(times)
+    weights = trapezoid_weights(times)
     impulse = float(weights @ values)
     if impulse <= 0:
         return f"a pulse at {t[first]:.3f} s whose impulse is not positive"
@@ -214,7 +214,7 @@ def _strike(t: FloatArray, above: FloatArray, first: int, last: int, base: Basel
     return Event("impulse", impulse, math.hypot(*shares), centroid, peak, pulse_s=pulse)
 
 
-def _trapezoid_weights(times: FloatArray) -> FloatArray:
+def trapezoid_weights(times: FloatArray) -> FloatArray:
     """Weights w (M,) such that w @ y is the trapezoid integral of y over ``times`` (M,)."""
     weights = np.empty_like(times)
     weights[1:-1] = 0.5 * (times[2:] - times[:-2])

@@ -330,7 +330,7 @@ def forced_mechanics(
     assert excitation.force_times_s is not None
     assert excitation.force_along_n is not None
     metres_per_px = metric.amplitude_m / release.amp_px
-    displacement_px = np.concatenate([[0.0], np.cumsum(track.velocity_px)])
+    displacement_px = _integrated(track)
     times = window.buffers.start_s + window.buffers.times_s[: displacement_px.size]
     try:
         fit = fit_response(
@@ -388,11 +388,16 @@ def _regime_reasons(fit: RingdownFit, regime: str) -> list[str]:
     ]
 
 
+def _integrated(track: Track) -> NDArray[np.float64]:
+    """The motion along its axis integrated from the window's first frame, input pixels (N + 1,)."""
+    return np.concatenate([[0.0], np.cumsum(track.velocity_px)])
+
+
 def _displacements(track: Track, release: _Release) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The integrated displacement along the motion's axis and the fitted model's, input pixels (N + 1,),
     the former aligned to the model's mean level after release."""
     n = len(track.velocity_px)
-    disp = np.concatenate([[0.0], np.cumsum(track.velocity_px)])
+    disp = _integrated(track)
     t = release.times_from_onset[: n + 1]
     model = np.full(n + 1, np.nan)
     after = t >= release.t_rel

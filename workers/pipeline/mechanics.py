@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from workers.pipeline.force_events import trapezoid_weights
 from workers.pipeline.model import Excitation
 from workers.pipeline.ringdown import RingdownFit
 
@@ -246,8 +247,8 @@ def at_frequency(excitation: Excitation, *, frequency_hz: float) -> Excitation:
     omega = 2 * math.pi * frequency_hz
     if excitation.kind == "step_release":
         change, when = np.diff(force), 0.5 * (t[1:] + t[:-1])
-    else:  # the pulse's trapezoid weights
-        change, when = force * np.gradient(t), t
+    else:  # the pulse's trapezoid integral, as its impulse was taken
+        change, when = force * trapezoid_weights(t), t
     plain = abs(float(change.sum()))
     if plain <= 0:
         return excitation
