@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.errors import ParameterError
-from workers.pipeline.peaks import interpolate_peak, noise_floor
+from workers.pipeline.peaks import interpolate_peak, nanmedian_over_time, noise_floor
 from workers.pipeline.ringdown import RingdownFit, damping_sd, fit_ringdown, frequency_sd_hz, regime_of_fit
 from workers.pipeline.roi import Roi
 from workers.pipeline.significance import tukey
@@ -430,9 +430,9 @@ def _mode_depth(
     if np.ndim(depth) == 0:
         return ModeDepth(np.full(len(pixels), float(depth), np.float32), *focal_px)
     series = np.asarray(depth, np.float32).reshape(len(depth), -1)[:, pixels]  # type: ignore[arg-type]
+    median = nanmedian_over_time(series)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        median = np.nanmedian(series, axis=0).astype(np.float32)
         spread = np.nanmax(series, axis=0) - np.nanmin(series, axis=0)
     filled = np.where(np.isfinite(series), series, median[None, :])
     change = np.nan_to_num(np.diff(filled, axis=0))[:, :, None]

@@ -307,13 +307,14 @@ class _Registration:
         found = self.translation(self.grays[k], start)
         return None if found is None else (found[0], found[1][:, 2])
 
-    def consistent_outline(self) -> NDArray[np.uint8]:
+    def consistent_outline(self, pool: Executor) -> NDArray[np.uint8]:
         """The outline without the pixels that stay put while the object moves.
 
         Flow smears motion a few pixels past the object's trailing edge, so the outline taken from it
         holds a strip of static background, which pulls the registered displacement low. In the frames
         most displaced from the reference, a pixel of the object matches the reference once the object's
-        shift is undone; a background pixel matches it where it is.
+        shift is undone; a background pixel matches it where it is. (The probe frames are registered on
+        ``pool``'s threads at once.)
         """
         import cv2
 
@@ -321,13 +322,11 @@ class _Registration:
         distance = np.hypot(initial_px[:, 0], initial_px[:, 1])
         keep = np.ones(ref_mask_crop.shape, bool)
         votes = 0
-        for k in np.argsort(distance)[::-1][:OUTLINE_PROBE_FRAMES]:
-            if distance[k] < 1.0:
-                break
-            found = self.fit(int(k), initial_px[k])
+        probes = [int(k) for k in np.argsort(distance)[::-1][:OUTLINE_PROBE_FRAMES] if distance[k] >= 1.0]
+        for k, found in zip(probes, pool.map(lambda k: self.fit(k, initial_px[k]), probes), strict=True):
             if found is None or found[0] < 0.5:
                 continue
-            cur = self.crop(int(k))
+            cur = self.crop(k)
             shift = np.array([[1, 0, found[1][0]], [0, 1, found[1][1]]], np.float32)
             aligned = cv2.warpAffine(
                 cur,
@@ -409,15 +408,15 @@ class _Registration:
 
     def run(self, *, affine: bool, threads: int) -> tuple[NDArray[np.float64], float]:
         """Register every frame; (displacement per frame, fraction of frames that failed)."""
-        outline = self.consistent_outline()
-        if outline is not self.mask_crop:
-            self.mask_crop = outline
-            self.translation = self.fitter(outline) or self.translation
-        large = np.count_nonzero(self.mask_crop) >= AFFINE_MIN_PIXELS
-        self.affine_fit = self.fitter(self.mask_crop, affine=True) if affine and large else None
-        self.out[self.ref_index] = 0.0
-        shares = [share for share in _tracking_shares(self.ref_index, self.t_count) if share]
         with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="ecc") as pool:
+            outline = self.consistent_outline(pool)
+            if outline is not self.mask_crop:
+                self.mask_crop = outline
+                self.translation = self.fitter(outline) or self.translation
+            large = np.count_nonzero(self.mask_crop) >= AFFINE_MIN_PIXELS
+            self.affine_fit = self.fitter(self.mask_crop, affine=True) if affine and large else None
+            self.out[self.ref_index] = 0.0
+            shares = [share for share in _tracking_shares(self.ref_index, self.t_count) if share]
             if threads == 1:
                 for share in shares:
                     self.track(share)

@@ -17,6 +17,7 @@ from workers.pipeline.peaks import (
     explained,
     fold_aliased_harmonics,
     interpolate_peak,
+    nanmedian_over_time,
     noise_floor,
     topographic_prominence,
 )
@@ -701,30 +702,6 @@ class Exclusion:
     reason: str
 
 
-def _nanmedian_over_time(stack: NDArray[np.float32]) -> NDArray[np.float32]:
-    """``np.nanmedian(stack, axis=0)`` (NaN where a pixel has no valid value), five times faster: the
-    frames of each pixel are sorted (NaNs last) along a contiguous axis and the middle valid ones taken.
-
-    Parameters
-    ----------
-    stack : ndarray of float32, shape (T, h, w)
-
-    Returns
-    -------
-    ndarray of float32, shape (h, w)
-    """
-    t = stack.shape[0]
-    rows = np.sort(np.ascontiguousarray(stack.reshape(t, -1).T), axis=1)
-    valid = np.count_nonzero(~np.isnan(rows), axis=1)
-    lo = np.maximum(valid - 1, 0) // 2
-    hi = valid // 2
-    pick = np.arange(rows.shape[0])
-    with np.errstate(invalid="ignore"):
-        median = (rows[pick, lo].astype(np.float64) + rows[pick, np.minimum(hi, t - 1)]) / 2
-    median[valid == 0] = np.nan
-    return np.asarray(median, np.float32).reshape(stack.shape[1:])
-
-
 def exclude_background_surfaces(
     labels: NDArray[np.int32],
     depth: NDArray[np.float32],
@@ -758,7 +735,7 @@ def exclude_background_surfaces(
     exclusions : list of Exclusion
     """
     step = max(1, depth.shape[0] // max_frames)
-    median = _nanmedian_over_time(depth[::step])
+    median = nanmedian_over_time(depth[::step])
     out = labels.copy()
     exclusions: list[Exclusion] = []
     background = median[(labels == 0) & np.isfinite(median)]

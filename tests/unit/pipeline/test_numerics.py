@@ -97,7 +97,7 @@ def test_least_squares_stays_in_bounds():
 def test_nanmedian_over_time_equals_numpy(frames):
     import warnings
 
-    from workers.pipeline.segmentation import _nanmedian_over_time
+    from workers.pipeline.peaks import nanmedian_over_time
 
     rng = np.random.default_rng(frames)
     stack = rng.random((frames, 30, 40)).astype(np.float32)
@@ -105,4 +105,4 @@ def test_nanmedian_over_time_equals_numpy(frames):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         expected = np.nanmedian(stack, axis=0)
-    np.testing.assert_allclose(_nanmedian_over_time(stack), expected, rtol=1e-6, equal_nan=True)
+    np.testing.assert_allclose(nanmedian_over_time(stack), expected, rtol=1e-6, equal_nan=True)
