@@ -114,7 +114,10 @@ def fit_calibration(
     side (a peak's skirt); below :data:`MIN_SURROGATES` frequencies fitted, the law allows for its own
     uncertainty. On Gumbel noise independent from bin to bin the per-clip rate so stated is optimistic
     (the trimmed fit narrows its own tail: at a stated 10⁻³, about 10⁻² are measured on 29 to 125 bins);
-    the rate measured on still footage (``bench/null_corpus.py``) is what holds it to account. And,
+    the rate measured on still footage (``bench/null_corpus.py``) is what holds it to account: on 77
+    still clips through H.264 and MPEG-4 and still crops of real footage, no line but the codecs' keyframe
+    combs (set aside as artefacts) and a real fork's reaching into a crop came below 10⁻², and at stated
+    rates of 0.05 to 0.5 the measured ones were 0.026 to 0.195 (``bench/README.md``). And,
     given ``tiles`` (the statistic of each of K tiles of the picture, (K, B)), the tiles where something
     stands out at any frequency, while at least two (or an eighth) remain: a strong object's broad skirt
     lifts the picture's T over many frequencies, but only in its own tiles. T is then the largest of the

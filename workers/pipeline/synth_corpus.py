@@ -181,17 +181,21 @@ class StillScene:
     keyframe_every: int
 
 
-def still_corpus(*, frames_per_second: tuple[float, ...] = (30.0, 60.0, 240.0)) -> Iterator[StillScene]:
+def still_corpus(
+    *, frames_per_second: tuple[float, ...] = (30.0, 60.0, 240.0), round_index: int = 0
+) -> Iterator[StillScene]:
     """Still scenes, textured and flat, at several rates and noise levels, each through one of
-    :data:`CAMERA_CODECS` in turn: the null corpus (nothing vibrates)."""
+    :data:`CAMERA_CODECS` in turn: the null corpus (nothing vibrates). Each ``round_index`` gives the same
+    scenes with other seeds (round 0 is the corpus the tests use)."""
     i = 0
     for background in ("noise", "shaded"):
         for fps in frames_per_second:
             for noise in (1.0, 2.5):
                 codec, bit_rate, gop = CAMERA_CODECS[i % len(CAMERA_CODECS)]
+                suffix = f"-r{round_index}" if round_index else ""
                 yield StillScene(
-                    f"still-{background}-{fps:g}fps-noise{noise:g}-{codec}-{gop}",
-                    still(background=background, fps=fps, rgb_noise=noise, seed=100 + i),
+                    f"still-{background}-{fps:g}fps-noise{noise:g}-{codec}-{gop}{suffix}",
+                    still(background=background, fps=fps, rgb_noise=noise, seed=100 + 1000 * round_index + i),
                     codec,
                     bit_rate,
                     gop,
