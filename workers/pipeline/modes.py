@@ -214,14 +214,14 @@ def find_modes(
         On a motion array of the wrong shape, a non-positive rate, or a window too short to fit.
     """
     x = _series(motion, sample_rate_hz)
+    x -= x.mean(axis=0)
     n = len(x)
     taper = tukey(n, TAPER_ALPHA).astype(np.float64)
-    spectra = np.fft.rfft((x - x.mean(axis=0)) * taper[:, None], axis=0)
-    power = np.sum(np.abs(spectra) ** 2, axis=1)
+    power = _summed_power(x, taper)
     freqs = np.asarray(np.fft.rfftfreq(n, d=1.0 / sample_rate_hz), np.float64)
     bin_hz = sample_rate_hz / n
     lines = _lines(power, freqs, band_hz=band_hz)
-    shapes = [align_phase(_dft(x, taper, f / sample_rate_hz)) for f, _ in lines]
+    shapes = [align_phase(s) for s in _dfts(x, taper, [f / sample_rate_hz for f, _ in lines])]
     modal, harmonics = _sort_out(lines, shapes, bin_hz=bin_hz)
     modal = modal[:max_modes]
     if not modal:
@@ -402,7 +402,7 @@ def object_modes(
     if len(pixels) > MAX_MODE_PIXELS:
         sample = pixels[np.linspace(0, len(pixels) - 1, MAX_MODE_PIXELS).astype(np.intp)]
     found = find_modes(
-        flat[:, sample, :].astype(np.float64),
+        flat[:, sample, :],
         sample_rate_hz=sample_rate_hz,
         band_hz=band_hz,
         max_modes=max_modes,
@@ -460,15 +460,15 @@ def _shapes_at(
     if not cycles_per_sample:
         return out, np.ones(0, np.complex64)
     taper = tukey(n, TAPER_ALPHA).astype(np.float64)
-    k = np.arange(n)
-    kernel = (taper[None, :] * np.exp(-2j * np.pi * np.outer(cycles_per_sample, k))).astype(np.complex64)
+    phase = -2 * np.pi * np.outer(cycles_per_sample, np.arange(n))
+    # Real and imaginary parts as two real products (a complex kernel would copy each block as complex).
+    cosine, sine = (taper * np.cos(phase)).astype(np.float32), (taper * np.sin(phase)).astype(np.float32)
     for first in range(0, len(pixels), _SHAPE_BLOCK):
         block = flat[:, pixels[first : first + _SHAPE_BLOCK], :].astype(np.float32)
         block = block.reshape(n, -1)
         block -= block.mean(axis=0, dtype=np.float64).astype(np.float32)
-        out[:, first : first + _SHAPE_BLOCK, :] = (kernel @ block).reshape(
-            len(cycles_per_sample), -1, channels
-        )
+        values = (cosine @ block) + 1j * (sine @ block)
+        out[:, first : first + _SHAPE_BLOCK, :] = values.reshape(len(cycles_per_sample), -1, channels)
     if factors is None:
         factors = np.array([_alignment(out[m].astype(np.complex128)) for m in range(len(out))], np.complex64)
     return out * factors[:, None, None], factors
@@ -480,12 +480,25 @@ def _shapes_at(
 MAX_DEPTH_SPREAD_M = 0.05
 MAX_DEPTH_SPREAD = 0.05
 
-#: Pixels per block of :func:`_shapes_at`.
-_SHAPE_BLOCK = 4096
+#: Pixels per block of :func:`_shapes_at` (a block of a 1000-sample window is 8 MB in single precision).
+_SHAPE_BLOCK = 1024
+#: Columns per block of :func:`_summed_power`.
+_SPECTRUM_COLUMNS = 512
+
+
+def _summed_power(x: NDArray[np.float64], taper: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The tapered power spectrum of ``x``'s (N, C) columns summed over them, (N // 2 + 1,): a block of
+    columns at a time (the whole spectrum of a 1000-sample window of 2048 pixels is 33 MB)."""
+    power = np.zeros(len(x) // 2 + 1)
+    for first in range(0, x.shape[1], _SPECTRUM_COLUMNS):
+        spectra = np.fft.rfft(x[:, first : first + _SPECTRUM_COLUMNS] * taper[:, None], axis=0)
+        power += (spectra.real**2 + spectra.imag**2).sum(axis=1)
+    return power
 
 
 def _series(motion: NDArray[np.floating], sample_rate_hz: float) -> NDArray[np.float64]:
-    """``motion`` (N, P, 2) as (N, 2P) float64 columns, checked."""
+    """``motion`` (N, P, 2) as (N, 2P) float64 columns, checked (a copy: the caller's array is left as it
+    is)."""
     arr = np.asarray(motion)
     if arr.ndim != 3 or arr.shape[2] != 2:
         raise ParameterError(f"find_modes: motion must be (samples, pixels, 2), got {arr.shape}")
@@ -496,7 +509,7 @@ def _series(motion: NDArray[np.floating], sample_rate_hz: float) -> NDArray[np.f
             f"find_modes: {arr.shape[0]} samples of {arr.shape[1]} pixels are too few; give at least 16 "
             "samples of one pixel"
         )
-    return arr.reshape(arr.shape[0], -1).astype(np.float64)
+    return np.array(arr.reshape(arr.shape[0], -1), dtype=np.float64)
 
 
 def _lines(
@@ -521,14 +534,17 @@ def _lines(
     return [line for line in found if line[1] >= MIN_MODE_SHARE * strongest]
 
 
-def _dft(
-    x: NDArray[np.float64], taper: NDArray[np.float64], cycles_per_sample: float
-) -> NDArray[np.complex128]:
-    """Each column's tapered DFT at ``cycles_per_sample``, as (P, 2) complex."""
-    k = np.arange(len(x))
-    kernel = taper * np.exp(-2j * np.pi * cycles_per_sample * k)
-    values = kernel @ (x - x.mean(axis=0))
-    return np.asarray(values.reshape(-1, 2), np.complex128)
+def _dfts(
+    x: NDArray[np.float64], taper: NDArray[np.float64], cycles_per_sample: list[float]
+) -> list[NDArray[np.complex128]]:
+    """Each column's tapered DFT at each of ``cycles_per_sample``, as (P, 2) complex each, of ``x``
+    (N, 2P) with its columns' means removed: two real products for every frequency at once (a complex
+    kernel times real columns would first copy them as complex)."""
+    if not cycles_per_sample:
+        return []
+    phase = -2 * np.pi * np.outer(cycles_per_sample, np.arange(len(x)))
+    values = (taper * np.cos(phase)) @ x + 1j * ((taper * np.sin(phase)) @ x)
+    return [np.asarray(v.reshape(-1, 2), np.complex128) for v in values]
 
 
 def _sort_out(
@@ -583,10 +599,13 @@ def _order(f: float, f0: float, bin_hz: float) -> int | None:
 
 
 def _modal_coordinates(x: NDArray[np.float64], shapes: list[NDArray[np.complex128]]) -> NDArray[np.float64]:
-    """The modal filter: each sample's motion projected on the modes' real shapes at once (least
-    squares), (N, M)."""
+    """The modal filter: each sample's motion ``x`` (N, 2P, columns' means removed) projected on the
+    modes' real shapes at once (least squares), (N, M)."""
     basis = np.stack([s.real.ravel() for s in shapes], axis=1)  # (2P, M)
-    coords, *_ = np.linalg.lstsq(basis, (x - x.mean(axis=0)).T, rcond=None)
+    # The same least squares through the basis's QR factors: Q^T x^T is one product on x as it lies (a
+    # solver given x^T itself would copy the whole window), R is M x M.
+    q, r = np.linalg.qr(basis)
+    coords, *_ = np.linalg.lstsq(r, q.T @ x.T, rcond=None)
     return np.asarray(coords.T, np.float64)
 
 
