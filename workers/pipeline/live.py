@@ -36,7 +36,7 @@ from workers.pipeline.analysis import analyze_window
 from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing, remove_camera_motion
 from workers.pipeline.clipio.types import ClipInfo, Intrinsics
 from workers.pipeline.errors import AnalysisError, ClipError, ParameterError
-from workers.pipeline.flow import FlowConfig, flow_stream, prepare_gray
+from workers.pipeline.flow import FlowConfig, flow_stream, pixel_columns, prepare_gray
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
 from workers.pipeline.measure import object_mechanics
 from workers.pipeline.mechanics import detect_release, release_amplitude, release_instant
@@ -515,7 +515,7 @@ class LiveAnalysis:
             idx = np.flatnonzero(mask.ravel())
             if len(idx) > _SIGNAL_PIXELS:
                 idx = idx[np.linspace(0, len(idx) - 1, _SIGNAL_PIXELS).astype(np.intp)]
-            mean = self._flow[:n].reshape(n, -1, 2)[:, idx, :].mean(axis=1, dtype=np.float64)
+            mean = pixel_columns(self._flow[:n], idx).reshape(n, -1, 2).mean(axis=1, dtype=np.float64)
             camera = self._camera[:n].astype(np.float64)
         if float(np.sqrt(np.mean(camera**2))) > CAMERA_MOTION_MIN_PX:
             mean -= camera

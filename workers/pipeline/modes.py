@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.errors import ParameterError
+from workers.pipeline.flow import pixel_columns
 from workers.pipeline.peaks import interpolate_peak, nanmedian_over_time, noise_floor
 from workers.pipeline.ringdown import RingdownFit, damping_sd, fit_ringdown, frequency_sd_hz, regime_of_fit
 from workers.pipeline.roi import Roi
@@ -402,7 +403,7 @@ def object_modes(
     if len(pixels) > MAX_MODE_PIXELS:
         sample = pixels[np.linspace(0, len(pixels) - 1, MAX_MODE_PIXELS).astype(np.intp)]
     found = find_modes(
-        flat[:, sample, :],
+        pixel_columns(flat, sample).reshape(len(flat), -1, flat.shape[-1]),
         sample_rate_hz=sample_rate_hz,
         band_hz=band_hz,
         max_modes=max_modes,
@@ -464,8 +465,7 @@ def _shapes_at(
     # Real and imaginary parts as two real products (a complex kernel would copy each block as complex).
     cosine, sine = (taper * np.cos(phase)).astype(np.float32), (taper * np.sin(phase)).astype(np.float32)
     for first in range(0, len(pixels), _SHAPE_BLOCK):
-        block = flat[:, pixels[first : first + _SHAPE_BLOCK], :].astype(np.float32)
-        block = block.reshape(n, -1)
+        block = pixel_columns(flat, pixels[first : first + _SHAPE_BLOCK]).astype(np.float32)
         block -= block.mean(axis=0, dtype=np.float64).astype(np.float32)
         values = (cosine @ block) + 1j * (sine @ block)
         out[:, first : first + _SHAPE_BLOCK, :] = values.reshape(len(cycles_per_sample), -1, channels)

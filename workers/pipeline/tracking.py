@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.confidence import Confidence
+from workers.pipeline.flow import pixel_columns
 from workers.pipeline.mechanics import detect_release
 from workers.pipeline.registration import register_translation
 from workers.pipeline.ringdown import RingdownFit, fit_ringdown
@@ -93,9 +94,8 @@ def object_motion(
     idx = np.flatnonzero(mask.ravel())
     if len(idx) > max_pixels:
         idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
-    n = flow.shape[0]
     # (N, 2P): the pixels' u and v, each column's mean removed (one copy of the masked flow)
-    mat = np.asarray(flow.reshape(n, -1, 2)[:, idx, :], np.float32).reshape(n, -1)
+    mat = np.asarray(pixel_columns(flow, idx), np.float32)
     mat -= mat.mean(axis=0, dtype=np.float64).astype(np.float32)
     weight = None if confidence is None else confidence.weight
     counts = (
@@ -454,7 +454,7 @@ def second_motion(
     if idx.size > max_pixels:
         idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
     n = flow.shape[0]
-    data = flow.reshape(n, -1, 2)[:, idx, :].reshape(n, -1).astype(np.float64)
+    data = pixel_columns(flow, idx).astype(np.float64)
     data -= data.mean(axis=0)
     bins = np.arange(n // 2 + 1) / n * sample_rate_hz  # the window's own lines: independent of each other
     near = np.flatnonzero(np.abs(bins - frequency_hz) <= lines * sample_rate_hz / n)

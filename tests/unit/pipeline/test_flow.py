@@ -51,3 +51,17 @@ def test_a_buffer_bounds_the_frames_consumed():
     assert len(list(flow_stream(source(), config=FlowConfig(threads=2), out=out))) == 4
     assert taken == [0, 1, 2, 3, 4], "five frames make the four flows; none is read beyond them"
     np.testing.assert_array_equal(out[2], compute_flow(frames[2], frames[3]))
+
+
+@pytest.mark.parametrize("channels", [1, 2])
+def test_pixel_columns_are_the_fancy_index_of_the_pixels(channels: int) -> None:
+    from workers.pipeline.flow import pixel_columns
+
+    rng = np.random.default_rng(channels)
+    maps = rng.standard_normal((7, 5, 6, channels)).astype(np.float16)
+    pixels = np.array([29, 0, 7, 7, 13], np.intp)
+    expected = maps.reshape(7, -1, channels)[:, pixels, :].reshape(7, -1)
+    got = pixel_columns(maps, pixels)
+    assert got.dtype == maps.dtype
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(pixel_columns(maps.reshape(7, 30, channels), pixels), expected)
