@@ -431,7 +431,10 @@ def keyframe_period(frame_change: NDArray[np.floating] | None) -> int | None:
     if frame_change is None or len(frame_change) < 24:
         return None
     series = np.asarray(frame_change, np.float64).reshape(len(frame_change), -1)
-    scores = {k: z for k in range(2, len(series) // 3 + 1) if (z := _pulse_score(series.mean(axis=1), k)) > 0}
+    whole = series.mean(axis=1)
+    centre = _robust_centre(whole)  # the same for every period tried
+    periods = range(2, len(series) // 3 + 1)
+    scores = {k: z for k in periods if (z := _pulse_score(whole, k, centre=centre)) > 0}
     if not scores:
         return None
     # Every multiple of the period folds the pulses as well: the period is the shortest that does nearly
@@ -535,11 +538,23 @@ def repair_keyframe_maps(flow: NDArray[np.float32], maps: NDArray[np.intp]) -> N
         np.clip(flow[i], lo, hi, out=flow[i])
 
 
-def _pulse_score(change: NDArray[np.float64], period: int, *, z_min: float = KEYFRAME_Z) -> float:
-    """How far the pulses of ``change`` every ``period`` samples stand out (robust deviations above its
-    median), or 0 when they do not all stand out (a few large changes sharing a phase by chance)."""
+def _robust_centre(change: NDArray[np.float64]) -> tuple[float, float]:
+    """The median of ``change`` and its median absolute deviation scaled to a standard deviation."""
     median = float(np.median(change))
-    mad = 1.4826 * float(np.median(np.abs(change - median))) + 1e-9
+    return median, 1.4826 * float(np.median(np.abs(change - median))) + 1e-9
+
+
+def _pulse_score(
+    change: NDArray[np.float64],
+    period: int,
+    *,
+    z_min: float = KEYFRAME_Z,
+    centre: tuple[float, float] | None = None,
+) -> float:
+    """How far the pulses of ``change`` every ``period`` samples stand out (robust deviations above its
+    median), or 0 when they do not all stand out (a few large changes sharing a phase by chance).
+    ``centre``: :func:`_robust_centre` of ``change``, when already known."""
+    median, mad = centre if centre is not None else _robust_centre(change)
     usable = len(change) - len(change) % period
     folded = change[:usable].reshape(-1, period)
     pulses = folded[:, int(np.argmax(folded.mean(axis=0)))]

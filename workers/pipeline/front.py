@@ -23,6 +23,7 @@ from workers.pipeline.camera import CameraRing
 from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.detection import Candidates, find_candidates
 from workers.pipeline.errors import AnalysisError
+from workers.pipeline.flow import pixel_columns
 from workers.pipeline.look import LOOK_WIDTH_PX, Look, frame_noise
 from workers.pipeline.roi import Roi
 from workers.pipeline.significance import MAX_FALSE_ALARM, MIN_BINS, MotionScan, motion_scan
@@ -95,7 +96,7 @@ class Front:
         # picture's flow can be let go, and a 1000-frame window's box holds 37 MiB instead of 74 (the
         # whole picture of a 3000-frame window 192 instead of 384)
         kept = self.flow[:, y0:y1, x0:x1].astype(np.float16)
-        ring = self.flow.reshape(len(self.flow), -1, 2)[:, self.ring.pixels].astype(np.float16)
+        ring = pixel_columns(self.flow, self.ring.pixels).reshape(len(self.flow), -1, 2).astype(np.float16)
         return replace(self, flow=kept, flow_origin=(y0, x0), ring_flow=ring)
 
     def coarse_view(self, region: NDArray[np.bool_]) -> CoarseView:
@@ -124,10 +125,8 @@ class Front:
         if self.ring_flow is not None:
             ring = self.ring_flow
         else:
-            ring = self.flow.reshape(n, -1, 2)[:, self.ring.pixels]
-        own: NDArray[np.floating[Any]] = np.take(
-            self.flow.reshape(n, -1, 2), np.flatnonzero(inside.ravel()), axis=1
-        )
+            ring = pixel_columns(self.flow, self.ring.pixels).reshape(n, -1, 2)
+        own = pixel_columns(self.flow, np.flatnonzero(inside.ravel())).reshape(n, -1, 2)
         half_width, rate = max(1.5, width_bins), self.scan.sample_rate_hz
         power = _band_power(own, frequency_hz, half_width, rate)
         region_power = float(np.median(power)) if power.size else 0.0

@@ -640,10 +640,18 @@ def line_contrast(statistic: NDArray[np.float64]) -> NDArray[np.float64]:
     log_t = np.log(np.maximum(t, 1e-30))
     bins = len(t)
     reach = CONTRAST_WIDTH_BINS
-    floor = np.empty(bins)
-    for k in range(bins):
-        around = np.concatenate([log_t[max(0, k - reach) : max(0, k - 1)], log_t[k + 2 : k + reach + 1]])
-        floor[k] = np.median(around) if around.size else log_t[k]
+    # every bin's neighbours 2 to ``reach`` away as one row (NaN beyond the band's edges), sorted (NaN
+    # last): the median is the middle of each row's valid values
+    offsets = np.r_[-reach:-1, 2 : reach + 1]
+    at = np.arange(bins)[:, None] + offsets[None, :]
+    valid = (at >= 0) & (at < bins)
+    around = np.sort(np.where(valid, log_t[np.clip(at, 0, max(bins - 1, 0))], np.nan), axis=1)
+    count = valid.sum(axis=1)
+    rows = np.arange(bins)
+    lo, hi = np.maximum(count - 1, 0) // 2, np.maximum(count, 1) // 2
+    floor = np.where(
+        count > 0, (around[rows, lo] + around[rows, np.minimum(hi, len(offsets) - 1)]) / 2, log_t
+    )
     return np.asarray(np.exp(log_t - floor), np.float64)
 
 

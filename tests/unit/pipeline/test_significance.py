@@ -223,3 +223,18 @@ def test_an_object_stands_out_by_its_strongest_line_its_rate_or_an_overtone():
     elsewhere = significance_verdict(wheel([11.25]), scan, region=region)
     assert elsewhere is not None
     assert elsewhere.evidence == "not_significant"
+
+
+@pytest.mark.parametrize("bins", [1, 2, 3, 5, 10, 17, 64, 490])
+def test_line_contrast_is_t_over_the_median_of_its_neighbours_2_to_8_bins_away(bins: int) -> None:
+    from workers.pipeline.significance import CONTRAST_WIDTH_BINS, line_contrast
+
+    rng = np.random.default_rng(bins)
+    t = rng.gamma(2.0, size=bins)
+    t[rng.random(bins) < 0.1] = 0.0
+    log_t = np.log(np.maximum(t, 1e-30))
+    expected = np.empty(bins)
+    for k in range(bins):
+        around = [log_t[j] for j in range(bins) if 2 <= abs(j - k) <= CONTRAST_WIDTH_BINS]
+        expected[k] = np.exp(log_t[k] - (np.median(around) if around else log_t[k]))
+    np.testing.assert_allclose(line_contrast(t), expected, rtol=1e-12)
