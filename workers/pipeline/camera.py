@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.fft import median_rows
+from workers.pipeline.flow import pixel_columns
 
 #: RMS per-frame motion of the picture's border (grid pixels) above which it may be camera motion.
 CAMERA_MOTION_MIN_PX = 0.05
@@ -116,7 +117,8 @@ class CameraRing:
         """
         if not self._used.size:
             return np.zeros((len(flows), 2), np.float32)
-        return np.asarray(np.median(flows[:, self._used, :], axis=1), np.float32)
+        ring = pixel_columns(flows, self._used).reshape(len(flows), -1, 2)
+        return np.asarray(np.median(ring, axis=1), np.float32)
 
     def still_fraction(self, flows: NDArray[np.float32], camera: NDArray[np.float32]) -> float:
         """Fraction of the textured ring pixels that moved less than ``STILL_POWER_RATIO`` of the camera's
@@ -132,7 +134,8 @@ class CameraRing:
         camera_power = float((camera.astype(np.float64) ** 2).sum())
         if camera_power <= 0:
             return 1.0
-        power = (flows[:, self.pixels, :].astype(np.float64) ** 2).sum(axis=(0, 2))
+        columns = pixel_columns(flows, self.pixels).astype(np.float64)  # (n, 2P): u, v of each pixel
+        power = (columns**2).sum(axis=0).reshape(-1, 2).sum(axis=1)
         textured = self.textured if self.textured.any() else np.ones_like(self.textured)
         return float(np.mean(power[textured] < STILL_POWER_RATIO * camera_power))
 

@@ -183,6 +183,7 @@ def crop_to_motion(
         gray=gray,
         gray_pixel_scale=gray_scale,
         roi=roi,
+        pooled_flow=None,
     )
 
 

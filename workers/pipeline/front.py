@@ -316,7 +316,7 @@ def front_of_buffers(
         How many objects the user's excitations name (see
         :func:`~workers.pipeline.detection.find_candidates`).
     """
-    flow, factor = _on_look_grid(buffers.flow)
+    flow, factor = _on_look_grid(buffers)
     h, w = flow.shape[1:3]
     if buffers.gray is not None:
         sampled = buffers.gray[:: max(1, len(buffers.gray) // 32)]
@@ -346,20 +346,35 @@ def front_of_buffers(
     )
 
 
-def _on_look_grid(flow: NDArray[np.float32]) -> tuple[NDArray[np.float32], int]:
-    """``flow`` area-averaged by the integer factor that brings its grid to about
-    :data:`~workers.pipeline.look.LOOK_WIDTH_PX` wide (in that grid's pixels), and the factor: the
-    first pass's grid, where a codec's and a sensor's noise average down and the scan costs a factor
-    squared less (a live stream's final analysis scanned its 320 px flow grid: 1 s of its latency)."""
+def look_factor(grid_width: int) -> int:
+    """The integer factor that brings a flow grid ``grid_width`` wide to about
+    :data:`~workers.pipeline.look.LOOK_WIDTH_PX` wide: the first pass's grid, where a codec's and a
+    sensor's noise average down and the scan costs a factor squared less (a live stream's final analysis
+    scanned its 320 px flow grid: 1 s of its latency)."""
+    return max(1, grid_width // LOOK_WIDTH_PX)
+
+
+def pool_map(flow_map: NDArray[np.float32], factor: int, *, out: NDArray[np.float32]) -> None:
+    """One flow map (h, w, 2) area-averaged by ``factor`` into ``out`` (h // factor, w // factor, 2), in
+    the pooled grid's pixels."""
+    hh, ww = out.shape[:2]
+    cv2.resize(flow_map[: hh * factor, : ww * factor], (ww, hh), dst=out, interpolation=cv2.INTER_AREA)
+    out /= np.float32(factor)
+
+
+def _on_look_grid(buffers: FrameBuffers) -> tuple[NDArray[np.float32], int]:
+    """The window's flow on the look's grid (:func:`look_factor`, :func:`pool_map`) and the factor: the
+    buffers' ``pooled_flow`` when the stream pooled each map as it arrived."""
+    flow = buffers.flow
     n, h, w = flow.shape[:3]
-    factor = max(1, w // LOOK_WIDTH_PX)
+    factor = look_factor(w)
     if factor == 1:
         return flow, 1
-    hh, ww = h // factor, w // factor
-    out = np.empty((n, hh, ww, 2), np.float32)
+    if buffers.pooled_flow is not None:
+        return buffers.pooled_flow, factor
+    out = np.empty((n, h // factor, w // factor, 2), np.float32)
     for i in range(n):
-        cv2.resize(flow[i, : hh * factor, : ww * factor], (ww, hh), dst=out[i], interpolation=cv2.INTER_AREA)
-    out /= np.float32(factor)
+        pool_map(flow[i], factor, out=out[i])
     return out, factor
 
 
@@ -377,4 +392,13 @@ def coarse_region(front: Front, mask_frame: NDArray[np.bool_]) -> NDArray[np.boo
     return np.asarray(coarse_share(front, mask_frame) > 0, bool)
 
 
-__all__ = ["Front", "coarse_region", "coarse_share", "front_of_buffers", "front_of_look", "still_flow_level"]
+__all__ = [
+    "Front",
+    "coarse_region",
+    "coarse_share",
+    "front_of_buffers",
+    "front_of_look",
+    "look_factor",
+    "pool_map",
+    "still_flow_level",
+]

@@ -37,6 +37,7 @@ from workers.pipeline.camera import CAMERA_MOTION_MIN_PX, CameraRing, remove_cam
 from workers.pipeline.clipio.types import ClipInfo, Intrinsics
 from workers.pipeline.errors import AnalysisError, ClipError, ParameterError
 from workers.pipeline.flow import FlowConfig, flow_stream, pixel_columns, prepare_gray
+from workers.pipeline.front import look_factor, pool_map
 from workers.pipeline.light import BRIGHTNESS_BLOCKS, block_brightness, block_change
 from workers.pipeline.measure import object_mechanics
 from workers.pipeline.mechanics import detect_release, release_amplitude, release_instant
@@ -237,6 +238,9 @@ class LiveAnalysis:
         cap = cfg.window_frames
         h, w = self.grid
         self._flow = np.empty((cap - 1, h, w, 2), np.float32)
+        # Each map also on the first pass's grid, pooled as it arrives: the final analysis scans there.
+        self._factor = f = look_factor(w)
+        self._pooled = np.empty((cap - 1, h // f, w // f, 2) if f > 1 else (0, 1, 1, 2), np.float32)
         self._camera = np.zeros((cap - 1, 2), np.float32)
         self._activity = np.zeros(cap - 1, np.float64)
         self._gray = np.empty((cap, height, width), np.uint8)
@@ -403,6 +407,7 @@ class LiveAnalysis:
             self._depth[:n] = self._depth[keep_from : self._stored]
         flows_kept = max(0, self._flow_count - self._base - keep_from)
         self._flow[:flows_kept] = self._flow[keep_from : keep_from + flows_kept]
+        self._pooled[:flows_kept] = self._pooled[keep_from : keep_from + flows_kept]
         self._camera[:flows_kept] = self._camera[keep_from : keep_from + flows_kept]
         self._activity[:flows_kept] = self._activity[keep_from : keep_from + flows_kept]
         self._base += keep_from
@@ -425,8 +430,11 @@ class LiveAnalysis:
 
     def _flow_loop(self) -> None:
         try:
+            pooled = np.empty(self._pooled.shape[1:], np.float32)
             for k, flow in enumerate(flow_stream(self._gray_source(), config=self.config.flow)):
                 camera = self._ring.motion(flow)
+                if self._factor > 1:
+                    pool_map(flow, self._factor, out=pooled)
                 speed = np.hypot(flow[..., 0] - camera[0], flow[..., 1] - camera[1])
                 activity = float(np.percentile(speed, 99.5))
                 with self._lock:
@@ -434,6 +442,8 @@ class LiveAnalysis:
                     slot = k - self._base
                     if slot == self._flows and slot < min(self.config.window_frames - 1, self._stored - 1):
                         self._flow[slot] = flow
+                        if self._factor > 1:
+                            self._pooled[slot] = pooled
                         self._camera[slot] = camera
                         self._activity[slot] = activity
                         self._accumulate(slot)
@@ -751,6 +761,11 @@ class LiveAnalysis:
         ring = CameraRing(self.grid)
         ring.set_texture(prepare_gray(self._first_rgb, self.grid))
         camera = remove_camera_motion(flow, self._camera[:n].copy(), ring)
+        pooled = None
+        if self._factor > 1:
+            pooled = self._pooled[:n]
+            if camera.removed:
+                pooled -= (camera.camera_px / np.float32(self._factor))[:, None, None, :]
         times = self._times[: n + 1]
         return FrameBuffers(
             flow=flow,
@@ -767,6 +782,7 @@ class LiveAnalysis:
             camera_still_fraction=camera.still_fraction,
             border_px=camera.border_px,
             announced=n,
+            pooled_flow=pooled,
         )
 
 

@@ -65,6 +65,10 @@ class FrameBuffers:
         The box of the frame the flow grid covers (None: the whole frame).
     gray_pixel_scale : float
         Input pixels per pixel of ``gray`` (1: input resolution).
+    pooled_flow : ndarray of float32, shape (N, h / k, w / k, 2), or None
+        ``flow`` on the first pass's grid (:func:`workers.pipeline.front.pool_map`, the camera's motion
+        removed alike) when the stream pooled each map as it arrived (a live stream); None: pooled when
+        needed.
     """
 
     flow: NDArray[np.float32]
@@ -84,6 +88,7 @@ class FrameBuffers:
     announced: int = 0
     roi: Roi | None = None
     gray_pixel_scale: float = 1.0
+    pooled_flow: NDArray[np.float32] | None = None
 
     def box(self, frame_shape: tuple[int, int]) -> Roi:
         """The box the flow grid covers (the whole frame when ``roi`` is None)."""
