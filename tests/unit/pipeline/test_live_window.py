@@ -70,3 +70,32 @@ def test_the_camera_motion_is_judged_as_the_batch_stream_judges_it() -> None:
     assert buffers.camera_removed
     assert buffers.camera_still_fraction == pytest.approx(expected.still_fraction)
     np.testing.assert_array_equal(buffers.flow, raw)
+
+
+@pytest.mark.parametrize("shake_px", [0.0, 1.5], ids=["still-camera", "shaking-camera"])
+def test_maps_pooled_as_they_arrive_are_the_window_flow_pooled(shake_px: float) -> None:
+    """The final analysis scans the look's grid; a stream pools each flow map onto it as it arrives
+    (after the window slid, and with the camera's motion removed as from the flow itself), so that the
+    last frame's result waits for no pooling of the whole window."""
+    from workers.pipeline.front import _on_look_grid, look_factor, pool_map
+
+    obj = SceneObject(center_px=(160, 120), size_px=(70, 50), frequency_hz=4.0, force_n=6.0, release_frame=30)
+    scene = Scene(
+        width=320, height=240, frames=60, fps=30.0, objects=(obj,), seed=4, shake_px=shake_px, shake_hz=2.0
+    )
+    live, _ = _pushed(scene, window_frames=32, lead_frames=4)
+    if not shake_px:
+        assert live._base > 0, "the window should have slid"  # (a shaking camera moves from the start)
+    n = live._flows
+    buffers = live._window_buffers(n)
+    factor = look_factor(buffers.flow.shape[2])
+    assert factor == 2
+    assert buffers.camera_removed == (shake_px > 0)
+    assert buffers.pooled_flow is not None
+    expected = np.empty_like(buffers.pooled_flow)
+    for i in range(n):
+        pool_map(buffers.flow[i], factor, out=expected[i])
+    np.testing.assert_allclose(buffers.pooled_flow, expected, atol=1e-5)
+    pooled, used = _on_look_grid(buffers)
+    assert used == factor
+    assert pooled is buffers.pooled_flow
