@@ -5,13 +5,13 @@ never fails.
 
     python bench/realistic_sweep.py
 
-Measured 2026-12-07 (commit of this file): handheld camera (shake 1.2 px at 1.7 Hz, drift) found; an
-object at 0.5 Mbit/s with keyframes every 12 found; **exposure pumping** (gain ±12 % at 0.7 Hz, as an
-auto-exposure hunts) gives a second object at the object's frequency in a band beside it (lossless too);
-**a second, strongly damped object** (9.7 Hz, ζ 0.03, released later: a line five bins wide) is missed
-although its statistic is far beyond the bound (p 2.6e-7): its line contrast is 1.76 against
-``detection.LINE_CONTRAST`` 3; a 17 Hz ring-down under rolling-shutter flicker at 100 Hz and 240 fps, and a
-40 x 30 px object moving 0.44 px at 60 fps through MPEG-4, are missed (not yet looked into).
+Measured 2026-12-07: handheld camera (shake 1.2 px at 1.7 Hz, drift) found; an object at 0.5 Mbit/s with
+keyframes every 12 found; a second, strongly damped object (9.7 Hz, ζ 0.03, released later: a line five bins
+wide, line contrast 1.76 against ``detection.LINE_CONTRAST`` 3, p 2.6e-7) found since its contrast is taken
+beyond its own width (9.674 Hz). Left: **exposure pumping** (gain ±12 % at 0.7 Hz, as an auto-exposure
+hunts) reports the object twice, a second region in a band beside it at its frequency (lossless too); a 17
+Hz ring-down under rolling-shutter flicker at 100 Hz and 240 fps, and a 40 x 30 px object moving 0.44 px at
+60 fps through MPEG-4, are missed (not yet looked into).
 """
 
 from __future__ import annotations

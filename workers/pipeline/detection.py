@@ -39,7 +39,7 @@ from workers.pipeline.model import ObjectMeasurement, QualityNote, RejectedPeak,
 from workers.pipeline.peaks import Peak, PeakPolicy, interpolate_peak
 from workers.pipeline.ringdown import MIN_DECAY
 from workers.pipeline.segmentation import Segmentation
-from workers.pipeline.significance import MAX_FALSE_ALARM, MotionScan
+from workers.pipeline.significance import CONTRAST_WIDTH_BINS, MAX_FALSE_ALARM, MotionScan
 
 #: The evidence that a peak is an artefact of the camera or the light (rather than no object).
 ARTEFACT_EVIDENCE = ("camera_motion", "illumination_flicker", "codec_keyframes")
@@ -79,8 +79,14 @@ LEAKAGE_LEVEL = 0.05
 #: Relative tolerance of a harmonic's frequency (or a bin and a half, whichever is wider).
 HARMONIC_TOLERANCE = 0.02
 #: An oscillation is a line: its statistic at least this many times its neighbours' in frequency
-#: (:func:`workers.pipeline.significance.line_contrast`).
+#: (:func:`workers.pipeline.significance.line_contrast`) ...
 LINE_CONTRAST = 3.0
+#: ... the neighbours beyond its own width when it is a damped oscillation's broad line: one whose
+#: half-power half-width is at most this share of its frequency (a damping ratio of about a tenth, with the
+#: window's own width) and its neighbours' median there stands this far below it. (A ring-down of
+#: damping 0.03 at 9.7 Hz, released a second into a 256-frame window at 30 fps, is five bins wide: 1.76
+#: times the neighbours two to eight bins away, against a false-alarm probability of 2.6e-7.)
+MAX_LINE_HALF_WIDTH = 0.1
 #: A survey's detectors (Welch-averaged spectra: less noisy, so a weak peak must stand higher; adjacent
 #: bins of different detectors are two components, since a Hann window resolves about two).
 SURVEY_PEAKS = PeakPolicy(
@@ -158,7 +164,8 @@ class Footing:
 
 
 def significant_bins(scan: MotionScan, *, limit: float = MAX_FALSE_ALARM) -> list[int]:
-    """Bins of the scan's local maxima that are lines (their contrast at least :data:`LINE_CONTRAST`)
+    """Bins of the scan's local maxima that are lines (their contrast at least :data:`LINE_CONTRAST`,
+    beside them or, a damped oscillation's broad line, beyond its width: :func:`_broad_line_contrast`)
     whose false-alarm probability per clip is at most ``limit``, highest first."""
     z = scan.z
     # The band's edge bins are no peaks: what lies beyond them rises towards them (below the lowest a drift,
@@ -166,8 +173,42 @@ def significant_bins(scan: MotionScan, *, limit: float = MAX_FALSE_ALARM) -> lis
     padded = np.concatenate(([np.inf], z, [np.inf]))
     local = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]) & scan.searched)
     p = scan.calibration.p_clip(z[local])
-    chosen = local[(p <= limit) & (scan.contrast[local] >= LINE_CONTRAST)]
+    line = scan.contrast[local] >= LINE_CONTRAST
+    for i in np.flatnonzero(~line & (p <= limit)):
+        line[i] = _broad_line_contrast(scan, int(local[i])) >= LINE_CONTRAST
+    chosen = local[(p <= limit) & line]
     return [int(k) for k in chosen[np.argsort(-z[chosen])]]
+
+
+def _broad_line_contrast(scan: MotionScan, k: int) -> float:
+    """The statistic at bin ``k`` over the median of its neighbours beyond its half-power half-width
+    (the neighbours :func:`~workers.pipeline.significance.line_contrast` takes, moved out by it), or 0
+    when it is no single broad line: narrower than two bins each side (the plain contrast judges it),
+    wider than a damped oscillation's (:data:`MAX_LINE_HALF_WIDTH`), or rising again before it falls to
+    half on either side (one peak of a speckled stretch lifted at once,
+    which stands out of nothing)."""
+    t = scan.statistic
+    half = 0.5 * t[k]
+    lo, hi = k, k
+    while lo > 0 and t[lo - 1] > half:
+        if t[lo - 1] > t[lo]:
+            return 0.0
+        lo -= 1
+    while hi < len(t) - 1 and t[hi + 1] > half:
+        if t[hi + 1] > t[hi]:
+            return 0.0
+        hi += 1
+    width = max(k - lo, hi - k)
+    if width < 2 or width * scan.bin_hz > MAX_LINE_HALF_WIDTH * scan.frequencies_hz[k]:
+        # within a bin either side, the plain contrast's neighbours (from two bins on) judge it already
+        return 0.0
+    reach = CONTRAST_WIDTH_BINS
+    offsets = np.r_[-(width + reach) : -width, width + 1 : width + reach + 1]
+    at = k + offsets
+    at = at[(at >= 0) & (at < len(t))]
+    if at.size < reach:
+        return 0.0
+    return float(t[k] / max(float(np.median(t[at])), 1e-30))
 
 
 def _peak_at(scan: MotionScan, k: int) -> Peak:

@@ -238,3 +238,44 @@ def test_line_contrast_is_t_over_the_median_of_its_neighbours_2_to_8_bins_away(b
         around = [log_t[j] for j in range(bins) if 2 <= abs(j - k) <= CONTRAST_WIDTH_BINS]
         expected[k] = np.exp(log_t[k] - (np.median(around) if around else log_t[k]))
     np.testing.assert_allclose(line_contrast(t), expected, rtol=1e-12)
+
+
+def _ring(flow: np.ndarray, f: float, zeta: float, amplitude: float, start: int, region) -> np.ndarray:
+    t = np.arange(N - start) / FPS
+    motion = amplitude * np.exp(-zeta * 2 * np.pi * f * t) * np.sin(2 * np.pi * f * t)
+    flow[start:, region[0], region[1], 0] += motion[:, None, None].astype(np.float32)
+    return flow
+
+
+def test_a_strongly_damped_ring_down_is_a_line_beyond_its_own_width():
+    """A ring-down of damping 0.08 at 20 Hz makes a line several bins wide: its neighbours two to eight
+    bins away lie inside it (contrast under LINE_CONTRAST), but beyond its width it stands out, and it is
+    found."""
+    from workers.pipeline.detection import LINE_CONTRAST, significant_bins
+
+    flow = _ring(_noise(21), 20.0, 0.08, 0.6, 30, (slice(18, 30), slice(20, 32)))
+    scan = _scan(flow, _picture(21))
+    k = int(np.argmin(np.abs(scan.frequencies_hz - 20.0)))
+    near = slice(k - 2, k + 3)
+    assert scan.contrast[near].max() < LINE_CONTRAST  # the line is broad ...
+    found = [scan.frequencies_hz[j] for j in significant_bins(scan)]
+    assert any(abs(f - 20.0) <= 2 * scan.bin_hz for f in found), found  # ... and found
+
+
+def test_a_broad_stretch_of_motion_is_no_line_however_strong():
+    """Band-limited random motion over 5-15 Hz (a strong object's broadband flow errors, a codec's noise)
+    lifts a whole stretch at once, speckled: no peak inside it is taken for a damped oscillation's broad
+    line (its cliffs at the stretch's edges are the plain contrast's to judge)."""
+    from workers.pipeline.detection import LINE_CONTRAST, significant_bins
+
+    rng = np.random.default_rng(22)
+    freqs = np.linspace(5.0, 15.0, 60)
+    t = np.arange(N) / FPS
+    motion = np.sin(2 * np.pi * freqs[None, :] * t[:, None] + rng.uniform(0, 2 * np.pi, 60)).sum(axis=1)
+    flow = _noise(22)
+    flow[:, 18:30, 20:32, 0] += (0.08 * motion)[:, None, None].astype(np.float32)
+    scan = _scan(flow, _picture(22))
+    inside = (scan.frequencies_hz > 6.0) & (scan.frequencies_hz < 14.0)
+    assert scan.calibration.p_clip(scan.z[inside].max()) <= MAX_FALSE_ALARM  # it stands out ...
+    broad = [scan.frequencies_hz[j] for j in significant_bins(scan) if scan.contrast[j] < LINE_CONTRAST]
+    assert not [f for f in broad if 6.0 < f < 14.0], broad  # ... as no broad line
