@@ -36,102 +36,70 @@ def _pumped(rgb: np.ndarray) -> np.ndarray:
     return np.clip(rgb * gain, 0, 255).astype(np.uint8)
 
 
-def scenes() -> list[tuple[str, Scene, list[float], tuple[str, int, int], object]]:
-    o = SceneObject
+def _ringing(
+    f: float,
+    force: float,
+    release: int,
+    *,
+    at: tuple[int, int] = (320, 240),
+    size: tuple[int, int] = (140, 110),
+    zeta: float = 0.03,
+) -> SceneObject:
+    """A pushed object released at frame ``release``."""
+    return SceneObject(
+        center_px=at, size_px=size, frequency_hz=f, force_n=force, release_frame=release, damping_ratio=zeta
+    )
+
+
+Case = tuple[str, Scene, list[float], tuple[str, int, int], object]
+
+
+def scenes() -> list[Case]:
     h264 = ("libx264", 1_000_000, 30)
+    handheld = Scene(
+        frames=180,
+        fps=30.0,
+        objects=(_ringing(5.3, 8.0, 20),),
+        shake_px=1.2,
+        shake_hz=1.7,
+        drift_px_per_s=(3.0, 1.0),
+        seed=11,
+    )
+    flicker = Scene(
+        frames=256,
+        fps=240.0,
+        objects=(_ringing(17.0, 8.0, 10, zeta=0.01),),
+        flicker=0.08,
+        flicker_hz=100.0,
+        flicker_rolling_px=300.0,
+        seed=12,
+    )
+    two = (
+        _ringing(2.2, 6.0, 10, at=(200, 240), size=(100, 80)),
+        _ringing(9.7, 6.0, 40, at=(460, 240), size=(90, 90)),
+    )
+    small = (_ringing(11.0, 2.0, 10, at=(300, 200), size=(40, 30), zeta=0.01),)
     return [
-        (
-            "handheld",
-            Scene(
-                frames=180,
-                fps=30.0,
-                objects=(o(frequency_hz=5.3, force_n=8.0, release_frame=20),),
-                shake_px=1.2,
-                shake_hz=1.7,
-                drift_px_per_s=(3.0, 1.0),
-                seed=11,
-            ),
-            [5.3],
-            h264,
-            None,
-        ),
-        (
-            "flicker, rolling shutter",
-            Scene(
-                frames=256,
-                fps=240.0,
-                objects=(o(frequency_hz=17.0, force_n=8.0, release_frame=10, damping_ratio=0.01),),
-                flicker=0.08,
-                flicker_hz=100.0,
-                flicker_rolling_px=300.0,
-                seed=12,
-            ),
-            [17.0],
-            h264,
-            None,
-        ),
+        ("handheld", handheld, [5.3], h264, None),
+        ("flicker, rolling shutter", flicker, [17.0], h264, None),
         (
             "exposure pumping",
-            Scene(
-                frames=200, fps=30.0, objects=(o(frequency_hz=4.1, force_n=8.0, release_frame=15),), seed=13
-            ),
+            Scene(frames=200, objects=(_ringing(4.1, 8.0, 15),), seed=13),
             [4.1],
             h264,
             _pumped,
         ),
         (
             "0.5 Mbit/s",
-            Scene(
-                frames=150, fps=30.0, objects=(o(frequency_hz=6.6, force_n=8.0, release_frame=10),), seed=14
-            ),
+            Scene(frames=150, objects=(_ringing(6.6, 8.0, 10),), seed=14),
             [6.6],
             ("libx264", 500_000, 12),
             None,
         ),
-        (
-            "two objects, the second damped",
-            Scene(
-                frames=256,
-                fps=30.0,
-                objects=(
-                    o(
-                        center_px=(200, 240),
-                        size_px=(100, 80),
-                        frequency_hz=2.2,
-                        force_n=6.0,
-                        release_frame=10,
-                    ),
-                    o(
-                        center_px=(460, 240),
-                        size_px=(90, 90),
-                        frequency_hz=9.7,
-                        force_n=6.0,
-                        release_frame=40,
-                    ),
-                ),
-                seed=15,
-            ),
-            [2.2, 9.7],
-            h264,
-            None,
-        ),
+        ("two objects, the second damped", Scene(frames=256, objects=two, seed=15), [2.2, 9.7], h264, None),
         (
             "small object, 60 fps MPEG-4",
-            Scene(
-                frames=240,
-                fps=60.0,
-                objects=(
-                    o(
-                        center_px=(300, 200),
-                        size_px=(40, 30),
-                        frequency_hz=11.0,
-                        force_n=2.0,
-                        release_frame=10,
-                        damping_ratio=0.01,
-                    ),
-                ),
-                seed=16,
-            ),
+            Scene(frames=240, fps=60.0, objects=small, seed=16),
             [11.0],
             ("mpeg4", 1_500_000, 15),
             None,
