@@ -185,20 +185,12 @@ def _broad_line_contrast(scan: MotionScan, k: int) -> float:
     (the neighbours :func:`~workers.pipeline.significance.line_contrast` takes, moved out by it), or 0
     when it is no single broad line: narrower than two bins each side (the plain contrast judges it),
     wider than a damped oscillation's (:data:`MAX_LINE_HALF_WIDTH`), or rising again before it falls to
-    half on either side (one peak of a speckled stretch lifted at once,
-    which stands out of nothing)."""
+    half on either side (one peak of a speckled stretch lifted at once, which stands out of nothing)."""
     t = scan.statistic
-    half = 0.5 * t[k]
-    lo, hi = k, k
-    while lo > 0 and t[lo - 1] > half:
-        if t[lo - 1] > t[lo]:
-            return 0.0
-        lo -= 1
-    while hi < len(t) - 1 and t[hi + 1] > half:
-        if t[hi + 1] > t[hi]:
-            return 0.0
-        hi += 1
-    width = max(k - lo, hi - k)
+    span = _half_power_span(t, k, single_lobe=True)
+    if span is None:
+        return 0.0
+    width = max(k - span[0], span[1] - k)
     if width < 2 or width * scan.bin_hz > MAX_LINE_HALF_WIDTH * scan.frequencies_hz[k]:
         # within a bin either side, the plain contrast's neighbours (from two bins on) judge it already
         return 0.0
@@ -211,17 +203,30 @@ def _broad_line_contrast(scan: MotionScan, k: int) -> float:
     return float(t[k] / max(float(np.median(t[at])), 1e-30))
 
 
+def _half_power_span(t: NDArray[np.float64], k: int, *, single_lobe: bool = False) -> tuple[int, int] | None:
+    """The bins ``(lo, hi)`` around ``k`` over which ``t`` stays above half of ``t[k]``; with
+    ``single_lobe``, None when ``t`` rises again on the way out (more than one peak above the half)."""
+    half = 0.5 * t[k]
+    lo, hi = k, k
+    while lo > 0 and t[lo - 1] > half:
+        if single_lobe and t[lo - 1] > t[lo]:
+            return None
+        lo -= 1
+    while hi < len(t) - 1 and t[hi + 1] > half:
+        if single_lobe and t[hi + 1] > t[hi]:
+            return None
+        hi += 1
+    return lo, hi
+
+
 def _peak_at(scan: MotionScan, k: int) -> Peak:
     """The scan's peak at bin ``k``: parabolic interpolation of log T, its half-power width."""
     t = scan.statistic
     offset = interpolate_peak(t, k) - k
     f = float(scan.frequencies_hz[k] + offset * scan.bin_hz)
-    half = 0.5 * t[k]
-    lo, hi = k, k
-    while lo > 0 and t[lo - 1] > half:
-        lo -= 1
-    while hi < len(t) - 1 and t[hi + 1] > half:
-        hi += 1
+    span = _half_power_span(t, k)
+    assert span is not None  # only a single lobe's span can be refused
+    lo, hi = span
     return Peak(
         frequency_hz=f,
         bin=k,

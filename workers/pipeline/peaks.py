@@ -501,17 +501,18 @@ def explained(
     return False
 
 
-def nanmedian_over_time(stack: NDArray[np.float32]) -> NDArray[np.float32]:
+def nanmedian_over_time(stack: NDArray[np.floating]) -> NDArray[np.floating]:
     """``np.nanmedian(stack, axis=0)`` (NaN where a pixel has no valid value), five times faster: the
-    frames of each pixel are sorted (NaNs last) along a contiguous axis and the middle valid ones taken.
+    frames of each pixel are sorted (NaNs last) along a contiguous axis and the middle valid ones taken
+    (averaged in double precision, returned in the stack's own).
 
     Parameters
     ----------
-    stack : ndarray of float32, shape (T, ...)
+    stack : ndarray of float32 or float64, shape (T, ...)
 
     Returns
     -------
-    ndarray of float32, shape (...)
+    ndarray of the stack's dtype, shape (...)
     """
     t = stack.shape[0]
     rows = np.sort(np.ascontiguousarray(stack.reshape(t, -1).T), axis=1)
@@ -522,7 +523,7 @@ def nanmedian_over_time(stack: NDArray[np.float32]) -> NDArray[np.float32]:
     with np.errstate(invalid="ignore"):
         median = (rows[pick, lo].astype(np.float64) + rows[pick, np.minimum(hi, t - 1)]) / 2
     median[valid == 0] = np.nan
-    return np.asarray(median, np.float32).reshape(stack.shape[1:])
+    return np.asarray(median, stack.dtype).reshape(stack.shape[1:])
 
 
 __all__ = [

@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.calibration import Calibration, fit_calibration
 from workers.pipeline.confidence import Confidence, mixed_pair, tensor_sqrt
-from workers.pipeline.peaks import noise_floor
+from workers.pipeline.peaks import nanmedian_over_time, noise_floor
 
 #: An object is reported when the probability that noise alone gives a peak as high, anywhere in the
 #: clip's band, is at most this.
@@ -640,18 +640,13 @@ def line_contrast(statistic: NDArray[np.float64]) -> NDArray[np.float64]:
     log_t = np.log(np.maximum(t, 1e-30))
     bins = len(t)
     reach = CONTRAST_WIDTH_BINS
-    # every bin's neighbours 2 to ``reach`` away as one row (NaN beyond the band's edges), sorted (NaN
-    # last): the median is the middle of each row's valid values
+    # every bin's neighbours 2 to ``reach`` away, one column a bin (NaN beyond the band's edges)
     offsets = np.r_[-reach:-1, 2 : reach + 1]
-    at = np.arange(bins)[:, None] + offsets[None, :]
+    at = offsets[:, None] + np.arange(bins)[None, :]
     valid = (at >= 0) & (at < bins)
-    around = np.sort(np.where(valid, log_t[np.clip(at, 0, max(bins - 1, 0))], np.nan), axis=1)
-    count = valid.sum(axis=1)
-    rows = np.arange(bins)
-    lo, hi = np.maximum(count - 1, 0) // 2, np.maximum(count, 1) // 2
-    floor = np.where(
-        count > 0, (around[rows, lo] + around[rows, np.minimum(hi, len(offsets) - 1)]) / 2, log_t
-    )
+    around = np.where(valid, log_t[np.clip(at, 0, max(bins - 1, 0))], np.nan)
+    floor = nanmedian_over_time(around)
+    floor = np.where(valid.any(axis=0), floor, log_t)
     return np.asarray(np.exp(log_t - floor), np.float64)
 
 
