@@ -23,7 +23,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.artefacts import Suspect, artefact_verdict, block_coverage, camera_intermodulation
+from workers.pipeline.artefacts import (
+    Suspect,
+    artefact_verdict,
+    block_coverage,
+    camera_intermodulation,
+    light_images,
+)
 from workers.pipeline.bodies import join_bodies
 from workers.pipeline.clipio.types import ClipInfo, ClipReader
 from workers.pipeline.confidence import Confidence, flow_confidence, tensor_sqrt
@@ -526,11 +532,20 @@ def _artefacts(
                 and o.id not in out
                 and shared_region(cand.region, regions.candidates[o.id - 1].region)
             ]
+            tolerance_hz = max(1.5 * front.scan.bin_hz, 2 * (obj.eigenfrequency_uncertainty_hz or 0.0))
             verdict = camera_intermodulation(
+                front.evidence, obj.eigenfrequency_hz, objects_hz=stronger, tolerance_hz=tolerance_hz
+            ) or light_images(
                 front.evidence,
                 obj.eigenfrequency_hz,
-                objects_hz=stronger,
-                tolerance_hz=max(1.5 * front.scan.bin_hz, 2 * (obj.eigenfrequency_uncertainty_hz or 0.0)),
+                tolerance_hz=tolerance_hz,
+                motion_at=front.scan.statistic_at,
+                amplitude_px=obj.amplitude_px,
+                objects=[
+                    (o.eigenfrequency_hz, o.amplitude_px)
+                    for o in objects
+                    if (o.detection_z or 0.0) > (obj.detection_z or 0.0) and o.id not in out
+                ],
             )
         if verdict is not None:
             out[obj.id] = verdict

@@ -11,6 +11,7 @@ also not be localised on a region. The numbers behind each verdict go into the r
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,6 +45,13 @@ KEYFRAME_PATTERN_RATIO = 1.3
 MAX_PATTERN_FRAMES = 8
 PATTERN_P = 1e-6
 PATTERN_RATIO = 1.3
+#: The flow of a flickering picture (a rolling shutter's bands sweep across the texture) holds the
+#: flicker's overtones up to this order, folded back below the Nyquist rate: the 5th of 100 Hz at 240 fps
+#: is 20 Hz ...
+MAX_FLICKER_ORDER = 6
+#: ... and an object lit by it moves at n f_L +- f_o (n up to this) at most this share of its amplitude.
+MAX_MIXING_ORDER = 2
+MIXING_SHARE = 0.2
 #: A motion with at least this share of the picture's excess power at its frequency inside its region is
 #: localised: an object, not the light, the codec or the camera (they move the whole picture).
 LOCALISED = 0.5
@@ -172,6 +180,33 @@ class WindowEvidence:
             f"level){where}, without motion of its own",
             {"rows_in_phase": float(rows), "relative_amplitude": relative},
         )
+
+    def flicker_frequencies(self) -> list[float]:
+        """Frequencies at which the picture's light flickers: lines of its blocks' brightness standing
+        ``FLICKER_SNR`` above their floor, in phase along ``FLICKER_ROWS`` of its block rows."""
+        spectra = self._brightness_spectra()
+        if spectra is None:
+            return []
+        if "flicker_lines" not in self._cache:
+            spec, _ = spectra
+            power = (np.abs(spec) ** 2).reshape(len(spec), -1).sum(axis=1)
+            band = (float(self.frequencies_hz[1]), float(self.frequencies_hz[-1]))
+            found = find_peaks(
+                self.frequencies_hz,
+                power,
+                band_hz=band,
+                noise=floor_of(power),
+                criteria=PeakCriteria(min_snr_db=10 * math.log10(FLICKER_SNR)),
+            )
+            self._cache["flicker_lines"] = [
+                p.frequency_hz
+                for p in found
+                if flickering_rows(spec, self.frequencies_hz, p.frequency_hz, 1.5 * self.bin_hz)[0]
+                >= FLICKER_ROWS
+            ]
+        lines = self._cache["flicker_lines"]
+        assert isinstance(lines, list)
+        return lines
 
     # -- the codec ---------------------------------------------------------------------------------
     def keyframe_period(self) -> int | None:
@@ -413,6 +448,70 @@ def camera_intermodulation(
                         "camera_motion",
                         figures={"shake_hz": shake_hz, "object_hz": f0},
                     )
+    return None
+
+
+def folded(frequency_hz: float, sample_rate_hz: float) -> float:
+    """Where a frequency appears in samples taken at ``sample_rate_hz`` (folded back below Nyquist)."""
+    return abs(frequency_hz - sample_rate_hz * round(frequency_hz / sample_rate_hz))
+
+
+def light_images(
+    evidence: WindowEvidence,
+    frequency_hz: float,
+    *,
+    tolerance_hz: float,
+    motion_at: Callable[[float], float],
+    amplitude_px: float | None,
+    objects: Sequence[tuple[float, float | None]],
+) -> RejectedPeak | None:
+    """Why a motion is the flicker of the light seen through the flow, or None, when the light flickers
+    at f_L (:meth:`WindowEvidence.flicker_frequencies`) and the motion lies within ``tolerance_hz`` of
+
+    - an overtone n f_L (n from 2 to :data:`MAX_FLICKER_ORDER`, folded back below the Nyquist rate) while
+      the picture moves more at f_L itself (``motion_at``, the scan's statistic): the flow follows a
+      rolling shutter's bands, not a sine, and its overtones fold back anywhere in the band; or
+    - n f_L +- f_o of a stronger object at f_o (n up to :data:`MAX_MIXING_ORDER`), moving at most
+      :data:`MIXING_SHARE` of its amplitude: the object's texture lit by a flickering light.
+
+    The brightness need not oscillate at the motion's frequency (:meth:`WindowEvidence.flicker` asks
+    that): the light flickers at f_L alone.
+
+    Parameters
+    ----------
+    objects : sequence of (frequency_hz, amplitude_px)
+        The stronger objects.
+    """
+    rate = evidence.sample_rate_hz
+    for light_hz in evidence.flicker_frequencies():
+        for order in range(2, MAX_FLICKER_ORDER + 1):
+            image = folded(order * light_hz, rate)
+            if abs(image - frequency_hz) <= tolerance_hz and motion_at(light_hz) >= motion_at(frequency_hz):
+                back = "" if image == order * light_hz else f", folded back from {order * light_hz:.4g} Hz"
+                return RejectedPeak(
+                    frequency_hz,
+                    f"{frequency_hz:.4g} Hz is illumination flicker: overtone {order} of the light's "
+                    f"flicker at {light_hz:.4g} Hz{back}, in the flow of the flickering picture, which "
+                    "moves more at the flicker itself",
+                    "illumination_flicker",
+                    figures={"flicker_hz": light_hz, "order": float(order)},
+                )
+        for object_hz, object_px in objects:
+            if amplitude_px is None or object_px is None or amplitude_px > MIXING_SHARE * object_px:
+                continue
+            for order in range(1, MAX_MIXING_ORDER + 1):
+                for sign in (1, -1):
+                    image = folded(order * light_hz + sign * object_hz, rate)
+                    if abs(image - frequency_hz) <= tolerance_hz:
+                        how = f"{order} x " if order > 1 else ""
+                        return RejectedPeak(
+                            frequency_hz,
+                            f"{frequency_hz:.4g} Hz is the object at {object_hz:.4g} Hz lit by the light's "
+                            f"flicker at {light_hz:.4g} Hz ({how}{light_hz:.4g} {'+' if sign > 0 else '-'} "
+                            f"{object_hz:.4g} Hz), at {amplitude_px / object_px:.1%} of its amplitude",
+                            "illumination_flicker",
+                            figures={"flicker_hz": light_hz, "object_hz": object_hz, "order": float(order)},
+                        )
     return None
 
 
@@ -680,8 +779,10 @@ __all__ = [
     "block_coverage",
     "camera_intermodulation",
     "flow_level",
+    "folded",
     "frame_pattern_period",
     "keyframe_maps",
     "keyframe_period",
+    "light_images",
     "repair_keyframe_maps",
 ]

@@ -76,6 +76,17 @@ SHARED_REGION = 0.3
 #: two bins on, :data:`~workers.pipeline.significance.TAPER_ALPHA`).
 LEAKAGE_BINS = 4.5
 LEAKAGE_LEVEL = 0.05
+#: A region apart from a stronger object, at its frequency, is that object's motion seen elsewhere (flow's
+#: leakage, a mount) when it moves at most this share of the object's amplitude ...
+ECHO_AMPLITUDE = 0.05
+#: ... and its displacement less the best scaled copy of the object's keeps at most this share of its
+#: power at that frequency (a copy keeps almost none: 2e-4 for a 0.04 % copy seen across the background
+#: of an auto-exposure hunting at 0.7 Hz through H.264; a second object has its own phase or release).
+ECHO_RESIDUAL = 0.1
+#: ... or no more than this many times the remainder's median 3 to 12 lines beside it (its noise: a copy
+#: whose own region is noisy leaves noise; a power of 4 times the median of exponential powers has odds
+#: of about 6 % under noise alone, and then the region is simply kept).
+ECHO_FLOOR = 4.0
 #: Relative tolerance of a harmonic's frequency (or a bin and a half, whichever is wider).
 HARMONIC_TOLERANCE = 0.02
 #: An oscillation is a line: its statistic at least this many times its neighbours' in frequency
@@ -810,12 +821,17 @@ def _overtone(
             folded = images_of(
                 f0, order, sample_rate_hz=sample_rate_hz, max_folded_order=rules.max_folded_order
             )
+            where, figures = "on the same pixels", {"fundamental_hz": f0}
             for image, how in same + folded:
                 if abs(f - image) > slack:
                     continue
                 if order == 1 and not how:
                     if not touching(region, seg.labels == base.id):
-                        continue  # the same frequency elsewhere: another object
+                        if not faint_copy(obj, base, sample_rate_hz=sample_rate_hz):
+                            continue  # the same frequency elsewhere: another object
+                        share = (obj.amplitude_px or 0.0) / (base.amplitude_px or 1.0)
+                        where = f"seen elsewhere, a copy in step with it at {share:.2%} of its amplitude"
+                        figures["amplitude_share"] = share
                 elif float(np.median(seg.band_power[index][region])) < rules.shared_power * own_power:
                     continue  # its pixels do not move at the stronger object's frequency: another object
                 break
@@ -828,11 +844,44 @@ def _overtone(
             )
             return RejectedPeak(
                 f,
-                f"{f:.4g} Hz is {what} of the object at {f0:.4g} Hz, on the same pixels{how}",
+                f"{f:.4g} Hz is {what} of the object at {f0:.4g} Hz, {where}{how}",
                 "harmonic",
-                figures={"fundamental_hz": f0, "order": float(order)},
+                figures={**figures, "order": float(order)},
             )
     return None
+
+
+def faint_copy(obj: ObjectMeasurement, base: ObjectMeasurement, *, sample_rate_hz: float) -> bool:
+    """Whether ``obj``'s motion is a faint copy of the stronger ``base``'s: at most :data:`ECHO_AMPLITUDE`
+    of its amplitude, and its displacement, less the best scaled copy of ``base``'s, has no line of its own
+    at its frequency: at most :data:`ECHO_RESIDUAL` of the line's power is left, or no more than
+    :data:`ECHO_FLOOR` times the remainder's own floor beside it (Hann-windowed lines of the window).
+
+    Optical flow carries a strong motion faintly into the rest of the picture (DIS's coarse scales, a
+    codec's motion search) and a mount passes it on: the copy is in step with the object, released with
+    it, damped with it. A second object at the same frequency has its own phase, release or amplitude.
+    """
+    own, other = obj.displacement_px, base.displacement_px
+    if own is None or other is None or not obj.amplitude_px or not base.amplitude_px:
+        return False
+    if obj.amplitude_px > ECHO_AMPLITUDE * base.amplitude_px:
+        return False
+    n = min(len(own), len(other))
+    if n < 32:
+        return False
+    d1 = np.nan_to_num(own[:n] - np.nanmean(own[:n]))
+    d0 = np.nan_to_num(other[:n] - np.nanmean(other[:n]))
+    scale = float(d0 @ d0)
+    if scale <= 0:
+        return False
+    residual = d1 - (float(d1 @ d0) / scale) * d0
+    offsets = np.r_[0, np.arange(3, 13), -np.arange(3, 13)] * sample_rate_hz / n
+    probes = np.hanning(n) * np.exp(
+        -2j * np.pi * (obj.eigenfrequency_hz + offsets[:, None]) * np.arange(n) / sample_rate_hz
+    )
+    left = np.abs(probes @ residual) ** 2
+    line = abs(complex(probes[0] @ d1)) ** 2
+    return line > 0 and left[0] <= max(ECHO_RESIDUAL * line, ECHO_FLOOR * float(np.median(left[1:])))
 
 
 def touching(a: NDArray[np.bool_], b: NDArray[np.bool_], *, gap_px: int = 3) -> bool:

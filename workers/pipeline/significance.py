@@ -158,6 +158,14 @@ class MotionScan:
     def bin_hz(self) -> float:
         return float(self.frequencies_hz[1] - self.frequencies_hz[0]) if len(self.frequencies_hz) > 1 else 1.0
 
+    def statistic_at(self, frequency_hz: float) -> float:
+        """T at the band's bin nearest ``frequency_hz`` (0 outside the band)."""
+        if not len(self.frequencies_hz) or not (
+            self.frequencies_hz[0] - self.bin_hz <= frequency_hz <= self.frequencies_hz[-1] + self.bin_hz
+        ):
+            return 0.0
+        return float(self.statistic[int(np.argmin(np.abs(self.frequencies_hz - frequency_hz)))])
+
     def near(self, frequency_hz: float, *, half_width_bins: float = 1.5) -> NDArray[np.intp]:
         """Band bins within ``half_width_bins`` of ``frequency_hz`` (at least the nearest one)."""
         gap = np.abs(self.frequencies_hz - frequency_hz)

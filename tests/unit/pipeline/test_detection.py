@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from workers.pipeline.artefacts import WindowEvidence
+from workers.pipeline.artefacts import WindowEvidence, light_images
 from workers.pipeline.camera import CameraRing
-from workers.pipeline.detection import Footing, held_verdict, oscillation_verdict
+from workers.pipeline.detection import Footing, faint_copy, held_verdict, oscillation_verdict
 from workers.pipeline.model import ObjectMeasurement
 from workers.pipeline.ringdown import Ringdown, fit_ringdown, regime_of
 from workers.pipeline.tracking import follow_region, second_motion
@@ -88,6 +88,30 @@ def test_a_line_on_a_stronger_objects_pixels_is_that_objects_second_motion():
         )
         is None
     )
+
+
+def _ringing(amplitude: float, *, phase: float = 0.0, release: int = 20, noise: float = 0.0, seed: int = 0):
+    t = (np.arange(N) - release) / FPS
+    d = amplitude * np.exp(-0.6 * t) * np.cos(2 * np.pi * 5.0 * t + phase) * (t >= 0)
+    return d + noise * np.random.default_rng(seed).standard_normal(N)
+
+
+def test_a_faint_copy_of_a_stronger_motion_elsewhere_is_that_motion():
+    """Flow carries a strong motion faintly across the picture: a region at its frequency moving a
+    0.04 % copy in step with it, under noise of 40 % of its amplitude per sample, is no object of its
+    own. A second object at the same frequency, released later, or out of phase, or as strong, is."""
+    base = _object(amplitude_px=12.0, displacement_px=_ringing(12.0))
+    copy = _ringing(0.005, noise=0.002)
+    assert faint_copy(_object(id=2, amplitude_px=0.005, displacement_px=copy), base, sample_rate_hz=FPS)
+    # anti-phase is a copy too (the sign of a projection)
+    flipped = _object(id=2, amplitude_px=0.005, displacement_px=-copy)
+    assert faint_copy(flipped, base, sample_rate_hz=FPS)
+    for other in (_ringing(0.5, release=90), _ringing(0.5, phase=math.pi / 2)):
+        second = _object(id=2, amplitude_px=0.5, displacement_px=other)
+        assert not faint_copy(second, base, sample_rate_hz=FPS)
+    twin = _object(id=2, amplitude_px=12.0, displacement_px=_ringing(12.0, noise=0.05))
+    assert not faint_copy(twin, base, sample_rate_hz=FPS)
+    assert not faint_copy(_object(id=2, amplitude_px=0.005), base, sample_rate_hz=FPS)
 
 
 def test_a_clear_ring_down_is_an_object():
@@ -252,6 +276,40 @@ def test_flicker_is_brightness_in_phase_along_rows_also_where_nothing_moves():
     signs = rng.choice([-1.0, 1.0], (2, 2)) * rng.uniform(0.5, 3.0, (2, 2))
     moving[:, 2:4, 2:4] += (np.sin(2 * np.pi * 10.0 * t)[:, None, None] * signs[None]).astype(np.float32)
     assert _evidence(brightness=moving).flicker(10.0, 1.0, small) is None
+
+
+def test_the_flow_of_a_flickering_picture_holds_the_flickers_overtones_and_mixes_with_objects():
+    """Light flickering at 11.3 Hz (30 fps): the flow's overtone 2 folds back to 7.4 Hz, an object at
+    2 Hz lit by it moves faintly at 9.3 and 13.3 Hz; none of them is an object. A motion whose picture
+    moves more at it than at the flicker, an object's own strong motion there, a frequency the light does
+    not explain, or a picture whose light is steady, is not judged so."""
+    t = np.arange(N + 1) / FPS
+    base = _blocks(N)
+    evidence = _evidence(brightness=(base * (1 + 0.03 * np.sin(2 * np.pi * 11.3 * t))[:, None, None]))
+    assert evidence.flicker_frequencies() == [pytest.approx(11.3, abs=FPS / N)]
+
+    def moving_most_at(f0: float):
+        return lambda f: 100.0 if abs(f - f0) < 0.2 else 10.0
+
+    def judge(f: float, *, ev=evidence, at=11.3, amplitude=0.05, objects=((2.0, 1.0),)):
+        return light_images(
+            ev, f, tolerance_hz=0.18, motion_at=moving_most_at(at), amplitude_px=amplitude, objects=objects
+        )
+
+    overtone = judge(7.4, objects=())
+    assert overtone is not None
+    assert overtone.evidence == "illumination_flicker"
+    assert overtone.figures["order"] == 2.0
+    assert "folded back from 22." in overtone.reason
+    assert judge(7.4, at=7.4, objects=()) is None
+    for mixed in (9.3, 13.3):
+        found = judge(mixed)
+        assert found is not None
+        assert found.figures["object_hz"] == 2.0
+        assert "lit by" in found.reason
+    assert judge(9.3, amplitude=0.5) is None
+    assert judge(5.0) is None
+    assert judge(7.4, ev=_evidence(brightness=base)) is None
 
 
 def test_keyframe_pulses_are_whole_picture_changes_at_a_period():
