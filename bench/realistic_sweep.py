@@ -10,14 +10,14 @@ keyframes every 12 found; a second, strongly damped object (9.7 Hz, ζ 0.03, rel
 wide, line contrast 1.76 against ``detection.LINE_CONTRAST`` 3, p 2.6e-7) found since its contrast is taken
 beyond its own width (9.674 Hz). **Exposure pumping** (gain ±12 % at 0.7 Hz, as an auto-exposure hunts,
 through H.264) reported the object twice: the flow carried a 0.04 % copy of its motion across the background
-(``detection.faint_copy``: now "the motion of the object, seen elsewhere"). A 17 Hz ring-down under rolling-
+(``verdicts.faint_copy``: now "the motion of the object, seen elsewhere"). A 17 Hz ring-down under rolling-
 shutter flicker at 100 Hz and 240 fps, lossless, came with two strays: the flow's 5th overtone of the
 flicker folded back to 20 Hz and the object lit by it at 100 - 17 Hz (``artefacts.light_images``: now
-``illumination_flicker``). Left, both codec-bound: through MPEG-4 at 4 Mbit/s the flickering ring-down
-stands at z 10.0 where a false-alarm probability of 1e-3 needs 11.7 (without flicker, through H.264 at 2
-Mbit/s, it is found; at 1 Mbit/s and 240 fps the encoder leaves 247 of 255 frames unchanged); a 40 x 30 px
-object ringing 0.44 px at 60 fps through MPEG-4 at 1.5 Mbit/s is redrawn by the encoder in only about 25
-frames before it stops updating it (its mean flow's line at 14 dB, z 0.7 in the scan).
+``illumination_flicker``). Through MPEG-4 at 4 Mbit/s with a keyframe every 12 frames the flickering ring-
+down is found (16.982 Hz). Left, codec-bound: a 40 x 30 px object ringing 0.44 px at 60 fps through MPEG-4
+at 1.5 Mbit/s is redrawn by the encoder in only about 25 frames before it stops updating it (its mean flow's
+line at 14 dB, z 0.7 in the scan). The same ring-down through H.264 at 1 Mbit/s and 240 fps is lost too (the
+encoder leaves 247 of 255 frames unchanged); at 2 Mbit/s it is found.
 """
 
 from __future__ import annotations

@@ -33,16 +33,7 @@ from workers.pipeline.artefacts import (
 from workers.pipeline.bodies import join_bodies
 from workers.pipeline.clipio.types import ClipInfo, ClipReader
 from workers.pipeline.confidence import Confidence, flow_confidence, tensor_sqrt
-from workers.pipeline.detection import (
-    MIN_PERIODS,
-    Candidate,
-    Footing,
-    clip_regime,
-    drop_objects,
-    folded_verdicts,
-    judge_objects,
-    shared_region,
-)
+from workers.pipeline.detection import Candidate, shared_region
 from workers.pipeline.fine import crop_to_motion, plan_roi, stream_roi
 from workers.pipeline.flow import needs_resampling, resample_uniform
 from workers.pipeline.front import Front, coarse_region, coarse_share, front_of_buffers, front_of_look
@@ -84,6 +75,14 @@ from workers.pipeline.segmentation import (
 from workers.pipeline.spectra import PixelSpectra, background_spectrum, pixel_spectra
 from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.tracking import CoarseView
+from workers.pipeline.verdicts import (
+    MIN_PERIODS,
+    Footing,
+    clip_regime,
+    drop_objects,
+    folded_verdicts,
+    judge_objects,
+)
 from workers.pipeline.window import Plan, analysis_band, plan_analysis, survey_notes
 
 

@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from workers.pipeline.detection import SECOND_MOTION_SHARE
 from workers.pipeline.model import ObjectMeasurement, QualityNote
+from workers.pipeline.verdicts import SECOND_MOTION_SHARE
 
 if TYPE_CHECKING:
     from workers.pipeline.clipio.types import ClipInfo

@@ -12,10 +12,10 @@ import pytest
 
 from workers.pipeline.artefacts import WindowEvidence, light_images
 from workers.pipeline.camera import CameraRing
-from workers.pipeline.detection import Footing, faint_copy, held_verdict, oscillation_verdict
 from workers.pipeline.model import ObjectMeasurement
 from workers.pipeline.ringdown import Ringdown, fit_ringdown, regime_of
 from workers.pipeline.tracking import follow_region, second_motion
+from workers.pipeline.verdicts import Footing, faint_copy, held_verdict, oscillation_verdict
 
 FPS = 30.0
 N = 256

@@ -190,8 +190,8 @@ def test_an_object_stands_out_by_its_strongest_line_its_rate_or_an_overtone():
     """A wheel reported at its turning rate, faint, with its marks' passing (twice as fast, strong) among
     its harmonics on the same pixels, is significant by that line; reported at the faint rate alone it is
     not; and an overtone line elsewhere in the picture does not lend the object its significance."""
-    from workers.pipeline.detection import significance_verdict
     from workers.pipeline.model import ObjectMeasurement
+    from workers.pipeline.verdicts import significance_verdict
 
     patch = (slice(14, 34), slice(18, 38))
     flow = _vibrate(_noise(21), 3.75, 0.004, patch)

@@ -46,7 +46,7 @@ def test_evidence_is_every_reason_a_peak_is_rejected_for() -> None:
 
     calls = _calls(ROOT / "workers" / "pipeline", "RejectedPeak")
     given = {_constant(c.args[2]) for c in calls if len(c.args) > 2 and isinstance(c.args[2], ast.Constant)}
-    source = (ROOT / "workers" / "pipeline" / "detection.py").read_text()
+    source = (ROOT / "workers" / "pipeline" / "verdicts.py").read_text()
     artefacts = ast.literal_eval(source.split("ARTEFACT_EVIDENCE = ", 1)[1].split("\n", 1)[0])
     assert given | set(artefacts) | {"incoherent"} == set(typing.get_args(Evidence))
 
