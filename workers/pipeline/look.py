@@ -179,6 +179,9 @@ class Look:
         Mean grey level of B x B blocks of each frame.
     frame_change : ndarray of float32, shape (N, B, B)
         Mean absolute change of each block between consecutive frames.
+    keyframe_maps : ndarray of intp, shape (M,)
+        The maps that span a codec's keyframe (:func:`~workers.pipeline.artefacts.keyframe_maps`), repaired
+        in ``flow`` (and to be repaired in any other flow of the window).
     border_px : ndarray of float32, shape (N, 2)
         Median motion of the picture's border in each map, grid pixels (before any removal).
     camera_px : ndarray of float32, shape (N, 2)
@@ -207,6 +210,7 @@ class Look:
     first_rgb: NDArray[np.uint8]
     brightness: NDArray[np.float32]
     frame_change: NDArray[np.float32]
+    keyframe_maps: NDArray[np.intp]
     border_px: NDArray[np.float32]
     camera_px: NDArray[np.float32]
     camera_removed: bool
@@ -399,7 +403,8 @@ class _LookState:
     def finish(self, *, first_rgb: NDArray[np.uint8], decode_s: float) -> Look:
         count = min(self.flows, self.frames - 1)
         flow, times = self.flow[:count], self.times[: count + 1]
-        repair_keyframe_maps(flow, keyframe_maps(self.change[:count]))
+        keyframes = keyframe_maps(self.change[:count])
+        repair_keyframe_maps(flow, keyframes)
         mean = (self.sum / max(self.frames, 1)).astype(np.float32)
         self.ring.set_texture(np.clip(mean, 0, 255).astype(np.uint8))
         flat = flow.reshape(count, -1, 2)
@@ -419,6 +424,7 @@ class _LookState:
             first_rgb=first_rgb,
             brightness=self.brightness[: count + 1],
             frame_change=self.change[:count],
+            keyframe_maps=keyframes,
             border_px=camera.border_px,
             camera_px=camera.camera_px,
             camera_removed=camera.removed,
