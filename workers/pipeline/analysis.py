@@ -369,23 +369,38 @@ def _segment(
     spectra: _Spectra, buffers: FrameBuffers, box: Roi, front: Front, config: AnalysisConfig
 ) -> _Regions:
     """Label the candidates' pixels on the window's grid (the look already scanned the whole picture for
-    weak local motion, so the segmentation does not): on the confidence-weighed flow, and for the
-    candidates that gave no region there (a thin, plain object moving a fraction of a pixel, whose flat
-    inside shows nothing), on the constrained flow."""
+    weak local motion, so the segmentation does not): on the plain flow, and for the candidates that gave
+    no region there or a region off where the scan found them (:func:`_off_target`: a thin, plain object
+    moving a fraction of a pixel, whose flat inside, and the flat wall beside its ends, carry flow the
+    image does not constrain), on the constrained flow."""
     from dataclasses import replace
 
     cfg = replace(config.segmentation, local_snr=None)
     peaks = front.candidates.peaks
     seg = segment(spectra.pixels, peaks, grid_shape=box.grid_shape, band_hz=front.band_hz, config=cfg)
+    off = [i for i in range(len(seg.peaks)) if _off_target(seg, i, front, box)]
     missing = [p for p in peaks if all(abs(p.frequency_hz - q.frequency_hz) > 1e-9 for q in seg.peaks)]
-    if missing:
-        seg = _merged(
-            seg,
-            segment(
-                spectra.constrained, missing, grid_shape=box.grid_shape, band_hz=front.band_hz, config=cfg
-            ),
-            order=peaks,
+    if missing or off:
+        second = segment(
+            spectra.constrained,
+            missing + [seg.peaks[i] for i in off],
+            grid_shape=box.grid_shape,
+            band_hz=front.band_hz,
+            config=cfg,
         )
+        better = [
+            i
+            for i in off
+            if _held_in(second, seg.peaks[i], front, box)
+            >= min(ON_TARGET_SHARE, RETARGET_GAIN * _held_in(seg, seg.peaks[i], front, box))
+        ]
+        wanted = missing + [seg.peaks[i] for i in better]
+        unwanted = [
+            j
+            for j, q in enumerate(second.peaks)
+            if all(abs(q.frequency_hz - p.frequency_hz) > 1e-9 for p in wanted)
+        ]
+        seg = _merged(_without(seg, better), _without(second, unwanted), order=peaks)
     # Parts of one body ringing in several modes are one object (its modes are sought on it later).
     seg = join_bodies(seg, spectra.pixels.power, frequencies_hz=spectra.pixels.frequencies_hz)
     # The segmentation may hand back copies of the peaks (with folded harmonics): match by frequency.
@@ -396,6 +411,62 @@ def _segment(
         labels_grid, exclusions = exclude_background_surfaces(labels_grid, buffers.depth)
     labels_full = np.asarray(box.to_frame(labels_grid.astype(np.uint16)), np.uint16)
     return _Regions(seg, labels_grid, labels_full, exclusions, candidates)
+
+
+#: A region holding less than this share of where the scan found its line (its candidate's region, on the
+#: scan's grid) is off target ...
+ON_TARGET_SHARE = 0.3
+#: The constrained flow's region replaces it when it holds that share, or this many times the plain one's
+#: (on a thin bar of low contrast, 0.045 of where the scan found it by the plain flow's region at its ends,
+#: 0.245 by the constrained flow's along it; a flickering light's apparent motion holds about as little
+#: of the picture either way).
+RETARGET_GAIN = 2.0
+#: ... unless other objects' regions hold this share of it: a line found on a stronger object's pixels and
+#: measured elsewhere is that object's (:func:`~workers.pipeline.verdicts.held_verdict` says so).
+HELD_ELSEWHERE = 0.3
+
+
+def _held_share(region: NDArray[np.bool_], found: NDArray[np.bool_], front: Front, box: Roi) -> float:
+    """The share of ``found`` (on the scan's grid) that ``region`` (on the window's grid) holds."""
+    frame = np.asarray(box.to_frame(region.astype(np.uint8)), bool)
+    return float(coarse_share(front, frame)[found].mean())
+
+
+def _off_target(seg: Segmentation, index: int, front: Front, box: Roi) -> bool:
+    """Whether the region of ``seg.peaks[index]`` holds less than :data:`ON_TARGET_SHARE` of where the
+    scan found it, while the other regions hold less than :data:`HELD_ELSEWHERE` of it."""
+    found = _candidate_of(seg.peaks[index], front.candidates.found).region
+    if not found.any():
+        return False
+    own = seg.labels == index + 1
+    others = (seg.labels > 0) & ~own
+    return (
+        _held_share(own, found, front, box) < ON_TARGET_SHARE
+        and _held_share(others, found, front, box) < HELD_ELSEWHERE
+    )
+
+
+def _held_in(seg: Segmentation, peak: Peak, front: Front, box: Roi) -> float:
+    """The share of where the scan found ``peak`` that its region in ``seg`` holds (0 without one)."""
+    found = _candidate_of(peak, front.candidates.found).region
+    for j, q in enumerate(seg.peaks):
+        if abs(q.frequency_hz - peak.frequency_hz) <= 1e-9 and found.any():
+            return _held_share(seg.labels == j + 1, found, front, box)
+    return 0.0
+
+
+def _without(seg: Segmentation, drop: list[int]) -> Segmentation:
+    """``seg`` without the regions of its peaks ``drop`` (indices), the rest relabelled in order."""
+    keep = [i for i in range(len(seg.peaks)) if i not in drop]
+    labels = np.zeros_like(seg.labels)
+    for new, i in enumerate(keep, start=1):
+        labels[seg.labels == i + 1] = new
+    return Segmentation(
+        labels=labels,
+        peaks=[seg.peaks[i] for i in keep],
+        band_power=seg.band_power[keep] if keep else np.zeros((0, *labels.shape), np.float32),
+        noise_power=np.asarray(seg.noise_power)[keep] if keep else np.zeros(0),
+    )
 
 
 def _candidate_of(peak: Peak, found: list[Candidate]) -> Candidate:
