@@ -5,9 +5,10 @@ here).
 
 Where each decision lives: :mod:`~workers.pipeline.window` (which frames), :mod:`~workers.pipeline.look`
 (the first pass: the whole picture on a coarse grid), :mod:`~workers.pipeline.significance` and
-:mod:`~workers.pipeline.detection` (which frequencies stand out of the noise, where, and which measured
-regions are objects), :mod:`~workers.pipeline.fine` (the second pass: flow over the region that moves, at
-the resolution it needs), :mod:`~workers.pipeline.segmentation` (which pixels),
+:mod:`~workers.pipeline.detection` (which frequencies stand out of the noise, and where),
+:mod:`~workers.pipeline.fine` (the second pass: flow over the region that moves, at the resolution it
+needs), :mod:`~workers.pipeline.regions` and :mod:`~workers.pipeline.segmentation` (which pixels),
+:mod:`~workers.pipeline.verdicts` (which measured regions are objects),
 :mod:`~workers.pipeline.artefacts` (the camera, the light, the codec), :mod:`~workers.pipeline.measure`
 (each object's figures).
 """
@@ -30,10 +31,9 @@ from workers.pipeline.artefacts import (
     camera_intermodulation,
     light_images,
 )
-from workers.pipeline.bodies import join_bodies
 from workers.pipeline.clipio.types import ClipInfo, ClipReader
 from workers.pipeline.confidence import Confidence, flow_confidence, tensor_sqrt
-from workers.pipeline.detection import Candidate, shared_region
+from workers.pipeline.detection import shared_region
 from workers.pipeline.fine import crop_to_motion, plan_roi, stream_roi
 from workers.pipeline.flow import needs_resampling, resample_uniform
 from workers.pipeline.front import Front, coarse_region, coarse_share, front_of_buffers, front_of_look
@@ -64,13 +64,10 @@ from workers.pipeline.quality import (
     object_quality_notes,
     resolution_notes,
 )
+from workers.pipeline.regions import Regions, segment_candidates
 from workers.pipeline.roi import Roi
 from workers.pipeline.segmentation import (
-    Exclusion,
-    Segmentation,
     at_rest,
-    exclude_background_surfaces,
-    segment,
 )
 from workers.pipeline.spectra import PixelSpectra, background_spectrum, pixel_spectra
 from workers.pipeline.stream import FrameBuffers
@@ -354,163 +351,9 @@ def _window_spectra(
     return _Spectra(spectra, summed, background_spectrum(spectra), confidence, flow)
 
 
-@dataclass(frozen=True)
-class _Regions:
-    """The segmented objects: labels on the window's grid and over the whole frame, their candidates."""
-
-    seg: Segmentation
-    labels_grid: NDArray[np.int32]
-    labels_full: NDArray[np.uint16]
-    exclusions: list[Exclusion]
-    candidates: list[Candidate]
-
-
-def _segment(
-    spectra: _Spectra, buffers: FrameBuffers, box: Roi, front: Front, config: AnalysisConfig
-) -> _Regions:
-    """Label the candidates' pixels on the window's grid (the look already scanned the whole picture for
-    weak local motion, so the segmentation does not): on the plain flow, and for the candidates that gave
-    no region there or a region off where the scan found them (:func:`_off_target`: a thin, plain object
-    moving a fraction of a pixel, whose flat inside, and the flat wall beside its ends, carry flow the
-    image does not constrain), on the constrained flow."""
-    from dataclasses import replace
-
-    cfg = replace(config.segmentation, local_snr=None)
-    peaks = front.candidates.peaks
-    seg = segment(spectra.pixels, peaks, grid_shape=box.grid_shape, band_hz=front.band_hz, config=cfg)
-    off = [i for i in range(len(seg.peaks)) if _off_target(seg, i, front, box)]
-    missing = [p for p in peaks if all(abs(p.frequency_hz - q.frequency_hz) > 1e-9 for q in seg.peaks)]
-    if missing or off:
-        second = segment(
-            spectra.constrained,
-            missing + [seg.peaks[i] for i in off],
-            grid_shape=box.grid_shape,
-            band_hz=front.band_hz,
-            config=cfg,
-        )
-        better = [
-            i
-            for i in off
-            if _held_in(second, seg.peaks[i], front, box)
-            >= min(ON_TARGET_SHARE, RETARGET_GAIN * _held_in(seg, seg.peaks[i], front, box))
-        ]
-        wanted = missing + [seg.peaks[i] for i in better]
-        unwanted = [
-            j
-            for j, q in enumerate(second.peaks)
-            if all(abs(q.frequency_hz - p.frequency_hz) > 1e-9 for p in wanted)
-        ]
-        seg = _merged(_without(seg, better), _without(second, unwanted), order=peaks)
-    # Parts of one body ringing in several modes are one object (its modes are sought on it later).
-    seg = join_bodies(seg, spectra.pixels.power, frequencies_hz=spectra.pixels.frequencies_hz)
-    # The segmentation may hand back copies of the peaks (with folded harmonics): match by frequency.
-    candidates = [_candidate_of(p, front.candidates.found) for p in seg.peaks]
-    labels_grid = seg.labels
-    exclusions: list[Exclusion] = []
-    if buffers.depth is not None and seg.peaks:
-        labels_grid, exclusions = exclude_background_surfaces(labels_grid, buffers.depth)
-    labels_full = np.asarray(box.to_frame(labels_grid.astype(np.uint16)), np.uint16)
-    return _Regions(seg, labels_grid, labels_full, exclusions, candidates)
-
-
-#: A region holding less than this share of where the scan found its line (its candidate's region, on the
-#: scan's grid) is off target ...
-ON_TARGET_SHARE = 0.3
-#: The constrained flow's region replaces it when it holds that share, or this many times the plain one's
-#: (on a thin bar of low contrast, 0.045 of where the scan found it by the plain flow's region at its ends,
-#: 0.245 by the constrained flow's along it; a flickering light's apparent motion holds about as little
-#: of the picture either way).
-RETARGET_GAIN = 2.0
-#: ... unless other objects' regions hold this share of it: a line found on a stronger object's pixels and
-#: measured elsewhere is that object's (:func:`~workers.pipeline.verdicts.held_verdict` says so).
-HELD_ELSEWHERE = 0.3
-
-
-def _held_share(region: NDArray[np.bool_], found: NDArray[np.bool_], front: Front, box: Roi) -> float:
-    """The share of ``found`` (on the scan's grid) that ``region`` (on the window's grid) holds."""
-    frame = np.asarray(box.to_frame(region.astype(np.uint8)), bool)
-    return float(coarse_share(front, frame)[found].mean())
-
-
-def _off_target(seg: Segmentation, index: int, front: Front, box: Roi) -> bool:
-    """Whether the region of ``seg.peaks[index]`` holds less than :data:`ON_TARGET_SHARE` of where the
-    scan found it, while the other regions hold less than :data:`HELD_ELSEWHERE` of it."""
-    found = _candidate_of(seg.peaks[index], front.candidates.found).region
-    if not found.any():
-        return False
-    own = seg.labels == index + 1
-    others = (seg.labels > 0) & ~own
-    return (
-        _held_share(own, found, front, box) < ON_TARGET_SHARE
-        and _held_share(others, found, front, box) < HELD_ELSEWHERE
-    )
-
-
-def _held_in(seg: Segmentation, peak: Peak, front: Front, box: Roi) -> float:
-    """The share of where the scan found ``peak`` that its region in ``seg`` holds (0 without one)."""
-    found = _candidate_of(peak, front.candidates.found).region
-    for j, q in enumerate(seg.peaks):
-        if abs(q.frequency_hz - peak.frequency_hz) <= 1e-9 and found.any():
-            return _held_share(seg.labels == j + 1, found, front, box)
-    return 0.0
-
-
-def _without(seg: Segmentation, drop: list[int]) -> Segmentation:
-    """``seg`` without the regions of its peaks ``drop`` (indices), the rest relabelled in order."""
-    keep = [i for i in range(len(seg.peaks)) if i not in drop]
-    labels = np.zeros_like(seg.labels)
-    for new, i in enumerate(keep, start=1):
-        labels[seg.labels == i + 1] = new
-    return Segmentation(
-        labels=labels,
-        peaks=[seg.peaks[i] for i in keep],
-        band_power=seg.band_power[keep] if keep else np.zeros((0, *labels.shape), np.float32),
-        noise_power=np.asarray(seg.noise_power)[keep] if keep else np.zeros(0),
-    )
-
-
-def _candidate_of(peak: Peak, found: list[Candidate]) -> Candidate:
-    """The candidate whose peak ``peak`` is (the nearest in frequency)."""
-    return min(found, key=lambda c: abs(c.peak.frequency_hz - peak.frequency_hz))
-
-
-def _merged(first: Segmentation, second: Segmentation, *, order: list[Peak]) -> Segmentation:
-    """Two segmentations of different peaks as one, labelled in ``order`` (the second's regions only
-    where the first has none)."""
-    sources = [(p, first, i) for i, p in enumerate(first.peaks)] + [
-        (p, second, i) for i, p in enumerate(second.peaks)
-    ]
-
-    def rank(peak: Peak) -> int:
-        return min(range(len(order)), key=lambda k: abs(order[k].frequency_hz - peak.frequency_hz))
-
-    sources.sort(key=lambda item: rank(item[0]))
-    labels = np.zeros_like(first.labels)
-    placed: list[tuple[Peak, Segmentation, int]] = []
-    for peak, seg, i in sources:
-        region = (seg.labels == i + 1) & (labels == 0)
-        if region.any():
-            placed.append((peak, seg, i))
-            labels[region] = len(placed)
-    sources = placed
-    if not sources:  # neither gave a region
-        return Segmentation(
-            labels=labels,
-            peaks=[],
-            band_power=np.zeros((0, *labels.shape), np.float32),
-            noise_power=np.zeros(0),
-        )
-    return Segmentation(
-        labels=labels,
-        peaks=[p for p, _, _ in sources],
-        band_power=np.stack([seg.band_power[i] for _, seg, i in sources]),
-        noise_power=np.array([seg.noise_power[i] for _, seg, i in sources]),
-    )
-
-
 def _measure(
     window: _Window,
-    regions: _Regions,
+    regions: Regions,
     spectra: _Spectra,
     front: Front,
     *,
@@ -546,7 +389,7 @@ def _measure(
     return objects, by_label
 
 
-def _coarse_view(front: Front, regions: _Regions, label: int) -> CoarseView:
+def _coarse_view(front: Front, regions: Regions, label: int) -> CoarseView:
     """Object ``label`` on the first pass's grid: where its candidate moved there and where its mask lies."""
     region = regions.candidates[label - 1].region | coarse_region(front, regions.labels_full == label)
     return front.coarse_view(region)
@@ -572,7 +415,7 @@ def plan_band(plan: Plan, config: AnalysisConfig, buffers: FrameBuffers) -> tupl
 
 
 def _artefacts(
-    objects: list[ObjectMeasurement], regions: _Regions, front: Front, *, sample_rate_hz: float
+    objects: list[ObjectMeasurement], regions: Regions, front: Front, *, sample_rate_hz: float
 ) -> dict[int, RejectedPeak]:
     """The objects (by id) that are artefacts of the light, the codec or the camera."""
     out: dict[int, RejectedPeak] = {}
@@ -695,7 +538,14 @@ def analyze_window(
     spectra = _window_spectra(buffers, plan, info, quality)
     watch.lap("spectrum")
     report_progress(progress, "segmentation")
-    regions = _segment(spectra, buffers, window.box, front, config)
+    regions = segment_candidates(
+        spectra.pixels,
+        lambda: spectra.constrained,
+        front=front,
+        box=window.box,
+        depth=buffers.depth,
+        config=config.segmentation,
+    )
     watch.lap("segmentation")
     report_progress(progress, "mechanics")
     objects, by_label = _measure(window, regions, spectra, front, excitations=excitations)
@@ -731,7 +581,7 @@ def _whole_frame_front(
     return buffers, front.keeping_flow_of(buffers.box(frame_shape))
 
 
-def _footing(front: Front, regions: _Regions, label: int) -> Footing:
+def _footing(front: Front, regions: Regions, label: int) -> Footing:
     """Where object ``label``'s line was found and where its mask lies, on the scan's grid."""
     held = coarse_share(front, regions.labels_full == label)
     return Footing(found=regions.candidates[label - 1].region, held=held)
@@ -739,7 +589,7 @@ def _footing(front: Front, regions: _Regions, label: int) -> Footing:
 
 def _judge(
     objects: list[ObjectMeasurement],
-    regions: _Regions,
+    regions: Regions,
     front: Front,
     plan: Plan,
     by_label: dict[int, Excitation],
