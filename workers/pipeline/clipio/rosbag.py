@@ -52,7 +52,13 @@ from workers.pipeline.clipio._common import (
     image_header,
     pairing_tolerance,
     resolve_timing,
-    to_rgb8,
+)
+from workers.pipeline.clipio.ros_images import (
+    COLOR_ENCODINGS,
+    DEPTH_ENCODINGS,
+    check_raw_size,
+    image_to_depth,
+    image_to_rgb,
 )
 from workers.pipeline.clipio.types import (
     ClipInfo,
@@ -69,11 +75,6 @@ IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 DEFAULT_DEPTH_SCALE = 0.001
-_DEPTH_ENCODINGS = {"16uc1", "mono16", "32fc1", "16sc1"}
-_COLOR_ENCODINGS = {
-    "rgb8", "bgr8", "rgba8", "bgra8", "mono8", "8uc1", "8uc3", "8uc4",
-    "yuv422", "uyvy", "yuyv", "yuv422_yuy2", "rgb16", "bgr16",
-}  # fmt: skip
 #: Most colour frames held while waiting for their depth partner.
 _MAX_PENDING = 512
 
@@ -306,9 +307,9 @@ class BagClip(ClosingReader):
         if topic.msgtype == IMAGE:
             enc = str(msg.encoding).lower()
             topic.encoding, topic.width, topic.height = enc, int(msg.width), int(msg.height)
-            if enc in _DEPTH_ENCODINGS and not (infra and enc == "mono16"):
+            if enc in DEPTH_ENCODINGS and not (infra and enc == "mono16"):
                 topic.role = "depth"
-            elif enc in _COLOR_ENCODINGS or enc.startswith("bayer"):
+            elif enc in COLOR_ENCODINGS or enc.startswith("bayer"):
                 topic.role = "infrared" if infra else "color"
         else:
             fmt = str(msg.format).lower()
@@ -670,8 +671,8 @@ class BagClip(ClosingReader):
             check_image(image_header(data, what), what, self._limits, size=size)
             rgb = decode_color(data, what)
         else:
-            _check_raw_size(msg, what, size)
-            rgb = _image_to_rgb(msg, what)
+            check_raw_size(msg, what, size)
+            rgb = image_to_rgb(msg, what)
         if rgb.shape[:2] != (self._info.height, self._info.width):
             raise ClipError(
                 f"{what}: a frame is {rgb.shape[1]}x{rgb.shape[0]}, the topic started at "
@@ -692,8 +693,8 @@ class BagClip(ClosingReader):
             check_image(image_header(data, what), what, self._limits, size=(t.width, t.height), depth=True)
             arr = decode_depth_png(data, what)
         else:
-            _check_raw_size(msg, what, (t.width, t.height))
-            arr = _image_to_depth(msg, what)
+            check_raw_size(msg, what, (t.width, t.height))
+            arr = image_to_depth(msg, what)
         if arr.shape != (t.height, t.width):
             raise ClipError(
                 f"{what}: a depth frame is {arr.shape[1]}x{arr.shape[0]}, expected {t.width}x{t.height}"
@@ -760,78 +761,6 @@ class BagClip(ClosingReader):
 
     def close(self) -> None:
         self._src.close()
-
-
-def _check_raw_size(msg: Any, what: str, size: tuple[int, int]) -> None:
-    """A raw Image must declare the topic's frame size (checked before its rows are converted)."""
-    if (int(msg.width), int(msg.height)) != size:
-        raise ClipError(
-            f"{what}: a frame is {int(msg.width)}x{int(msg.height)}, the topic started at "
-            f"{size[0]}x{size[1]}; the resolution must not change"
-        )
-
-
-def _rows(msg: Any, what: str, bytes_per_pixel: int) -> NDArray[np.uint8]:
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if step < w * bytes_per_pixel or data.size < step * h:
-        raise ClipError(
-            f"{what}: image data is {data.size} bytes, too short for {w}x{h} with row step {step}; "
-            "the message is truncated"
-        )
-    return data[: step * h].reshape(h, step)[:, : w * bytes_per_pixel]
-
-
-def _image_to_rgb(msg: Any, what: str) -> NDArray[np.uint8]:
-    enc = str(msg.encoding).lower()
-    h, w = int(msg.height), int(msg.width)
-    if enc in ("rgb8", "bgr8", "8uc3"):
-        arr = _rows(msg, what, 3).reshape(h, w, 3)
-        return to_rgb8(arr, "bgr" if enc != "rgb8" else "rgb", what)
-    if enc in ("rgba8", "bgra8", "8uc4"):
-        arr = _rows(msg, what, 4).reshape(h, w, 4)
-        return to_rgb8(arr, "rgb" if enc == "rgba8" else "bgr", what)
-    if enc in ("rgb16", "bgr16"):
-        big = bool(msg.is_bigendian)
-        arr16 = _rows(msg, what, 6).copy().view(">u2" if big else "<u2").reshape(h, w, 3).astype(np.uint16)
-        return to_rgb8(arr16, "rgb" if enc == "rgb16" else "bgr", what)
-    if enc in ("mono8", "8uc1"):
-        return to_rgb8(_rows(msg, what, 1).reshape(h, w), "rgb", what)
-    import cv2
-
-    if enc in ("yuv422", "uyvy", "yuyv", "yuv422_yuy2"):
-        packed = np.ascontiguousarray(_rows(msg, what, 2).reshape(h, w, 2))
-        code = cv2.COLOR_YUV2RGB_UYVY if enc in ("yuv422", "uyvy") else cv2.COLOR_YUV2RGB_YUY2
-        return np.asarray(cv2.cvtColor(packed, code), dtype=np.uint8)
-    bayer = {
-        "bayer_rggb8": cv2.COLOR_BayerBG2RGB,
-        "bayer_bggr8": cv2.COLOR_BayerRG2RGB,
-        "bayer_gbrg8": cv2.COLOR_BayerGR2RGB,
-        "bayer_grbg8": cv2.COLOR_BayerGB2RGB,
-    }
-    if enc in bayer:
-        raw = np.ascontiguousarray(_rows(msg, what, 1).reshape(h, w))
-        return np.asarray(cv2.cvtColor(raw, bayer[enc]), dtype=np.uint8)
-    raise ClipError(f"{what}: colour encoding {msg.encoding!r} is not supported; record rgb8 or bgr8")
-
-
-def _image_to_depth(msg: Any, what: str) -> NDArray[Any]:
-    enc = str(msg.encoding).lower()
-    h, w = int(msg.height), int(msg.width)
-    big = bool(msg.is_bigendian)
-    if enc in ("16uc1", "mono16"):
-        rows = np.ascontiguousarray(_rows(msg, what, 2))
-        return rows.view(">u2" if big else "<u2").reshape(h, w).astype(np.uint16)
-    if enc == "16sc1":
-        rows = np.ascontiguousarray(_rows(msg, what, 2))
-        signed = rows.view(">i2" if big else "<i2").reshape(h, w)
-        clipped: NDArray[np.uint16] = np.clip(signed, 0, None).astype(np.uint16)
-        return clipped
-    if enc == "32fc1":
-        rows = np.ascontiguousarray(_rows(msg, what, 4))
-        out: NDArray[np.float32] = rows.view(">f4" if big else "<f4").reshape(h, w).astype(np.float32)
-        return out
-    raise ClipError(f"{what}: depth encoding {msg.encoding!r} is not supported; record 16UC1 or 32FC1")
 
 
 def _size_of(path: Path) -> int:
