@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from workers.pipeline.flow import pixel_columns
 from workers.pipeline.light import FLICKER_ROWS, FLICKER_SNR, flickering_rows, floor_of
 from workers.pipeline.model import RejectedPeak
-from workers.pipeline.peaks import Peak, PeakCriteria, find_peaks
+from workers.pipeline.peaks import Peak, PeakCriteria, find_peaks, folded
 from workers.pipeline.segmentation import band_mask
 
 #: Keyframe evidence: pulses every K frames stand this many robust deviations above the typical change
@@ -405,13 +405,13 @@ class WindowEvidence:
         for shake_hz, shake_power in self.camera_frequencies():
             for order in range(2, 4):
                 multiple = order * shake_hz
-                image = abs(multiple - sample_rate_hz * round(multiple / sample_rate_hz))
+                image = folded(multiple, sample_rate_hz)
                 if abs(image - frequency_hz) <= slack and region_power < CAMERA_OVERTONE_POWER * shake_power:
-                    folded = "" if image == multiple else f" (folded back from {multiple:.4g} Hz)"
+                    back = "" if image == multiple else f" (folded back from {multiple:.4g} Hz)"
                     return Finding(
                         "camera_motion",
                         f"{frequency_hz:.4g} Hz is camera motion: overtone {order} of the camera's shake at "
-                        f"{shake_hz:.4g} Hz{folded}, left where that shake was removed, weaker than it",
+                        f"{shake_hz:.4g} Hz{back}, left where that shake was removed, weaker than it",
                         {"shake_hz": shake_hz, "order": float(order)},
                     )
         return None
@@ -449,11 +449,6 @@ def camera_intermodulation(
                         figures={"shake_hz": shake_hz, "object_hz": f0},
                     )
     return None
-
-
-def folded(frequency_hz: float, sample_rate_hz: float) -> float:
-    """Where a frequency appears in samples taken at ``sample_rate_hz`` (folded back below Nyquist)."""
-    return abs(frequency_hz - sample_rate_hz * round(frequency_hz / sample_rate_hz))
 
 
 def light_images(
@@ -779,7 +774,6 @@ __all__ = [
     "block_coverage",
     "camera_intermodulation",
     "flow_level",
-    "folded",
     "frame_pattern_period",
     "keyframe_maps",
     "keyframe_period",

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.model import RejectedPeak
-from workers.pipeline.peaks import Peak, PeakPolicy, interpolate_peak
+from workers.pipeline.peaks import Peak, PeakPolicy, folded, interpolate_peak
 from workers.pipeline.significance import CONTRAST_WIDTH_BINS, MAX_FALSE_ALARM, MotionScan
 
 #: A peak's fundamental is sought at these fractions of it ...
@@ -201,7 +201,7 @@ def images_of(
         (sample_rate_hz, "folded back below the Nyquist rate"),
         (sample_rate_hz / 2, "mirrored about a quarter of the frame rate"),
     ):
-        image = abs(multiple - rate * round(multiple / rate))
+        image = folded(multiple, rate)
         if abs(image - multiple) > 1e-9 and image > 0:
             found.append((image, f", {how} from {multiple:.4g} Hz"))
     return found

@@ -469,8 +469,8 @@ def fold_aliased_harmonics(
         for i, base in enumerate(kept):
             for order in range(2, max_order + 1):
                 multiple = order * base.frequency_hz
-                folded = abs(multiple - sample_rate_hz * round(multiple / sample_rate_hz))
-                if folded != multiple and abs(f - folded) <= max(tolerance * f, 1.01 * bin_hz):
+                image = folded(multiple, sample_rate_hz)
+                if image != multiple and abs(f - image) <= max(tolerance * f, 1.01 * bin_hz):
                     parent = i
                     break
             if parent is not None:
@@ -481,6 +481,12 @@ def fold_aliased_harmonics(
             base = kept[parent]
             kept[parent] = dataclasses.replace(base, harmonics_hz=sorted([*base.harmonics_hz, f]))
     return kept
+
+
+def folded(frequency_hz: float, sample_rate_hz: float) -> float:
+    """Where a frequency shows in samples taken at ``sample_rate_hz``: folded back below the Nyquist rate,
+    |f - m fs| for the nearest whole m (the frequency itself below it)."""
+    return abs(frequency_hz - sample_rate_hz * round(frequency_hz / sample_rate_hz))
 
 
 def explained(
@@ -494,9 +500,7 @@ def explained(
                 return True
         slack = max(tolerance * frequency_hz, 1.01 * bin_hz)
         for order in range(2, 33):
-            multiple = order * peak.frequency_hz
-            folded = abs(multiple - sample_rate_hz * round(multiple / sample_rate_hz))
-            if abs(frequency_hz - folded) <= slack:
+            if abs(frequency_hz - folded(order * peak.frequency_hz, sample_rate_hz)) <= slack:
                 return True
     return False
 
@@ -536,6 +540,7 @@ __all__ = [
     "find_peaks",
     "fold_aliased_harmonics",
     "fold_harmonics",
+    "folded",
     "interpolate_peak",
     "nanmedian_over_time",
     "noise_floor",

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from workers.pipeline.detection import images_of
 from workers.pipeline.model import ObjectMeasurement, QualityNote, RejectedPeak, Survey
+from workers.pipeline.peaks import folded
 from workers.pipeline.ringdown import MIN_DECAY
 from workers.pipeline.segmentation import Segmentation
 from workers.pipeline.significance import MAX_FALSE_ALARM, MotionScan
@@ -416,7 +417,7 @@ def folded_image(
         f = peak.frequency_hz
         if f <= nyquist:
             continue
-        image = abs(f - sample_rate_hz * round(f / sample_rate_hz))
+        image = folded(f, sample_rate_hz)
         if abs(image - frequency_hz) <= tolerance_hz:
             return f
     return None
