@@ -439,26 +439,25 @@ def _artefacts(
         verdict = artefact_verdict(front.evidence, suspect, sample_rate_hz=sample_rate_hz)
         if verdict is None:
             stronger = [
-                o.eigenfrequency_hz
-                for o in objects
-                if (o.detection_z or 0.0) > (obj.detection_z or 0.0)
-                and o.id not in out
-                and shared_region(cand.region, regions.candidates[o.id - 1].region)
+                o for o in objects if (o.detection_z or 0.0) > (obj.detection_z or 0.0) and o.id not in out
             ]
             tolerance_hz = max(1.5 * front.scan.bin_hz, 2 * (obj.eigenfrequency_uncertainty_hz or 0.0))
             verdict = camera_intermodulation(
-                front.evidence, obj.eigenfrequency_hz, objects_hz=stronger, tolerance_hz=tolerance_hz
+                front.evidence,
+                obj.eigenfrequency_hz,
+                objects_hz=[
+                    o.eigenfrequency_hz
+                    for o in stronger
+                    if shared_region(cand.region, regions.candidates[o.id - 1].region)
+                ],
+                tolerance_hz=tolerance_hz,
             ) or light_images(
                 front.evidence,
                 obj.eigenfrequency_hz,
                 tolerance_hz=tolerance_hz,
                 motion_at=front.scan.statistic_at,
                 amplitude_px=obj.amplitude_px,
-                objects=[
-                    (o.eigenfrequency_hz, o.amplitude_px)
-                    for o in objects
-                    if (o.detection_z or 0.0) > (obj.detection_z or 0.0) and o.id not in out
-                ],
+                objects=[(o.eigenfrequency_hz, o.amplitude_px) for o in stronger],
             )
         if verdict is not None:
             out[obj.id] = verdict

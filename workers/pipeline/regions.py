@@ -52,7 +52,7 @@ def segment_candidates(
 ) -> Regions:
     """Label the front's candidates' pixels on the window's grid (the look already scanned the whole
     picture for weak local motion, so the segmentation does not): on the plain flow, and for the
-    candidates that gave no region there or a region off where the scan found them (:func:`_off_target`: a
+    candidates that gave no region there or a region off where the scan found them (:func:`_held_in`: a
     thin, plain object moving a fraction of a pixel, whose flat inside, and the flat wall beside its ends,
     carry flow the image does not constrain), on the constrained flow.
 
@@ -77,8 +77,13 @@ def segment_candidates(
     cfg = replace(config, local_snr=None)
     peaks = front.candidates.peaks
     seg = segment(plain, peaks, grid_shape=box.grid_shape, band_hz=front.band_hz, config=cfg)
-    off = [i for i in range(len(seg.peaks)) if _off_target(seg, i, front, box)]
-    missing = [p for p in peaks if all(abs(p.frequency_hz - q.frequency_hz) > 1e-9 for q in seg.peaks)]
+    own = [_held_in(seg, p, front, box) for p in seg.peaks]
+    off = [
+        i
+        for i, share in enumerate(own)
+        if share < ON_TARGET_SHARE and not _held_elsewhere(seg, i, front, box)
+    ]
+    missing = [p for p in peaks if _index_in(seg.peaks, p) is None]
     if missing or off:
         second = segment(
             constrained(),
@@ -90,15 +95,10 @@ def segment_candidates(
         better = [
             i
             for i in off
-            if _held_in(second, seg.peaks[i], front, box)
-            >= min(ON_TARGET_SHARE, RETARGET_GAIN * _held_in(seg, seg.peaks[i], front, box))
+            if _held_in(second, seg.peaks[i], front, box) >= min(ON_TARGET_SHARE, RETARGET_GAIN * own[i])
         ]
         wanted = missing + [seg.peaks[i] for i in better]
-        unwanted = [
-            j
-            for j, q in enumerate(second.peaks)
-            if all(abs(q.frequency_hz - p.frequency_hz) > 1e-9 for p in wanted)
-        ]
+        unwanted = [j for j, q in enumerate(second.peaks) if _index_in(wanted, q) is None]
         seg = _merged(_without(seg, better), _without(second, unwanted), order=peaks)
     # Parts of one body ringing in several modes are one object (its modes are sought on it later).
     seg = join_bodies(seg, plain.power, frequencies_hz=plain.frequencies_hz)
@@ -131,27 +131,27 @@ def _held_share(region: NDArray[np.bool_], found: NDArray[np.bool_], front: Fron
     return float(coarse_share(front, frame)[found].mean())
 
 
-def _off_target(seg: Segmentation, index: int, front: Front, box: Roi) -> bool:
-    """Whether the region of ``seg.peaks[index]`` holds less than :data:`ON_TARGET_SHARE` of where the
-    scan found it, while the other regions hold less than :data:`HELD_ELSEWHERE` of it."""
+def _held_elsewhere(seg: Segmentation, index: int, front: Front, box: Roi) -> bool:
+    """Whether the regions of ``seg``'s other peaks hold :data:`HELD_ELSEWHERE` of where the scan found
+    ``seg.peaks[index]``."""
     found = candidate_of(seg.peaks[index], front.candidates.found).region
-    if not found.any():
-        return False
-    own = seg.labels == index + 1
-    others = (seg.labels > 0) & ~own
-    return (
-        _held_share(own, found, front, box) < ON_TARGET_SHARE
-        and _held_share(others, found, front, box) < HELD_ELSEWHERE
-    )
+    others = (seg.labels > 0) & (seg.labels != index + 1)
+    return bool(found.any()) and _held_share(others, found, front, box) >= HELD_ELSEWHERE
 
 
 def _held_in(seg: Segmentation, peak: Peak, front: Front, box: Roi) -> float:
-    """The share of where the scan found ``peak`` that its region in ``seg`` holds (0 without one)."""
+    """The share of where the scan found ``peak`` that its region in ``seg`` holds (0 without one; 1 when
+    the scan's region is empty: nothing to miss)."""
     found = candidate_of(peak, front.candidates.found).region
-    for j, q in enumerate(seg.peaks):
-        if abs(q.frequency_hz - peak.frequency_hz) <= 1e-9 and found.any():
-            return _held_share(seg.labels == j + 1, found, front, box)
-    return 0.0
+    if not found.any():
+        return 1.0
+    j = _index_in(seg.peaks, peak)
+    return 0.0 if j is None else _held_share(seg.labels == j + 1, found, front, box)
+
+
+def _index_in(peaks: list[Peak], peak: Peak) -> int | None:
+    """The index of ``peak`` among ``peaks`` (the same frequency), or None."""
+    return next((i for i, q in enumerate(peaks) if abs(q.frequency_hz - peak.frequency_hz) <= 1e-9), None)
 
 
 def _without(seg: Segmentation, drop: list[int]) -> Segmentation:
