@@ -181,7 +181,12 @@ class Settings(BaseSettings):
         default=32, ge=1, description="Uploads received at once per API process (503 beyond, Retry-After)."
     )
     http_timeout_keep_alive_s: int = Field(
-        default=5, ge=1, description="Uvicorn: an idle keep-alive connection is closed after this."
+        default=75,
+        ge=1,
+        description="Uvicorn: an idle keep-alive connection is closed after this. Longer than any "
+        "client's or proxy's own idle expiry (httpx 5 s, nginx and cloud load balancers 60 s): a server "
+        "that closes first races a client reusing the connection, which then sees a reset (ReadError) "
+        "instead of an answer — a robot polling every 5 s would hit it.",
     )
     http_limit_concurrency: int = Field(
         default=512,

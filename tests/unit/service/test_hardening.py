@@ -337,6 +337,17 @@ def test_uvicorn_limits_are_set_on_purpose(tmp_path: Path) -> None:
     assert context.params["ws_per_message_deflate"] is False
 
 
+def test_the_server_keeps_an_idle_connection_longer_than_clients_and_proxies_do(tmp_path: Path) -> None:
+    """A server that closes an idle keep-alive connection first races the client that reuses it: the
+    request meets a reset (httpx.ReadError) instead of an answer. uvicorn's 5 s equals httpx's own
+    expiry, and a load run lost a request to it; the default outlasts httpx and common proxies (60 s)."""
+    import httpx
+
+    default = Settings(data_dir=tmp_path).http_timeout_keep_alive_s
+    assert default > (httpx.Limits().keepalive_expiry or 0.0)
+    assert default > 60
+
+
 def test_large_bodies_read_at_once_are_bounded_and_the_rest_told_to_retry() -> None:
     """A job request with a force log may be 20 MiB and take several times that while it is parsed: at most
     EIGENSCOPE_MAX_LARGE_BODIES_IN_FLIGHT such bodies are read and handled at once; one more is answered 503
