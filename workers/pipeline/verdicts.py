@@ -317,8 +317,7 @@ def _overtone(
     own_power = float(np.median(seg.band_power[own][region]))
     slack = max(rules.tolerance * f, 1.5 * bin_hz)
     for base in stronger:
-        index = base.id - 1
-        if not 0 <= index < len(seg.peaks):
+        if not 0 <= base.id - 1 < len(seg.peaks):
             continue
         f0 = base.eigenfrequency_hz
         for order in range(1, rules.max_order + 1):
@@ -326,34 +325,59 @@ def _overtone(
             folded = images_of(
                 f0, order, sample_rate_hz=sample_rate_hz, max_folded_order=rules.max_folded_order
             )
-            where, figures = "on the same pixels", {"fundamental_hz": f0}
             for image, how in same + folded:
                 if abs(f - image) > slack:
                     continue
-                if order == 1 and not how:
-                    if not touching(region, seg.labels == base.id):
-                        if not faint_copy(obj, base, sample_rate_hz=sample_rate_hz):
-                            continue  # the same frequency elsewhere: another object
-                        share = (obj.amplitude_px or 0.0) / (base.amplitude_px or 1.0)
-                        where = f"seen elsewhere, a copy in step with it at {share:.2%} of its amplitude"
-                        figures["amplitude_share"] = share
-                elif float(np.median(seg.band_power[index][region])) < rules.shared_power * own_power:
-                    continue  # its pixels do not move at the stronger object's frequency: another object
-                break
-            else:
-                continue
-            what = (
-                "the motion"
-                if order == 1 and not how
-                else ("an image" if order == 1 else f"overtone {order}")
-            )
-            return RejectedPeak(
-                f,
-                f"{f:.4g} Hz is {what} of the object at {f0:.4g} Hz, {where}{how}",
-                "harmonic",
-                figures={**figures, "order": float(order)},
-            )
+                direct = order == 1 and not how
+                shared = _shared_motion(
+                    obj,
+                    base,
+                    region,
+                    seg,
+                    direct=direct,
+                    own_power=own_power,
+                    sample_rate_hz=sample_rate_hz,
+                    rules=rules,
+                )
+                if shared is None:
+                    continue
+                where, figures = shared
+                what = "the motion" if direct else ("an image" if order == 1 else f"overtone {order}")
+                return RejectedPeak(
+                    f,
+                    f"{f:.4g} Hz is {what} of the object at {f0:.4g} Hz, {where}{how}",
+                    "harmonic",
+                    figures={"fundamental_hz": f0, **figures, "order": float(order)},
+                )
     return None
+
+
+def _shared_motion(
+    obj: ObjectMeasurement,
+    base: ObjectMeasurement,
+    region: NDArray[np.bool_],
+    seg: Segmentation,
+    *,
+    direct: bool,
+    own_power: float,
+    sample_rate_hz: float,
+    rules: OvertoneRules,
+) -> tuple[str, dict[str, float]] | None:
+    """Where ``obj`` (on ``region``) shows the motion of the stronger ``base`` at a frequency of it (its
+    own when ``direct``, else an overtone or an image): how to say so and its figures, or None when it is
+    another object. The same frequency is ``base``'s motion on pixels touching it, or a faint copy of it
+    elsewhere; an overtone or image needs ``region`` to move at ``base``'s frequency too."""
+    if direct:
+        if touching(region, seg.labels == base.id):
+            return "on the same pixels", {}
+        if not faint_copy(obj, base, sample_rate_hz=sample_rate_hz):
+            return None  # the same frequency elsewhere: another object
+        share = (obj.amplitude_px or 0.0) / (base.amplitude_px or 1.0)
+        where = f"seen elsewhere, a copy in step with it at {share:.2%} of its amplitude"
+        return where, {"amplitude_share": share}
+    if float(np.median(seg.band_power[base.id - 1][region])) < rules.shared_power * own_power:
+        return None  # its pixels do not move at the stronger object's frequency: another object
+    return "on the same pixels", {}
 
 
 def faint_copy(obj: ObjectMeasurement, base: ObjectMeasurement, *, sample_rate_hz: float) -> bool:
