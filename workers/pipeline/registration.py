@@ -86,8 +86,12 @@ class MaskedFit:
         v = by + y0 - self.centre[1]
         self.radius = float(np.sqrt(np.mean(u * u + v * v)))
         grad = np.stack([gx * u, gx * v, gy * u, gy * v, gx, gy] if affine else [gx, gy])
-        self._grad = grad - grad.mean(axis=1, keepdims=True)  # zero-mean, as the template is
-        self._inverse_hessian = np.linalg.inv(self._grad @ self._grad.T)
+        grad -= grad.mean(axis=1, keepdims=True)  # zero-mean, as the template is
+        self._inverse_hessian = np.linalg.inv(grad @ grad.T)
+        # One product per iteration gives every sum it needs (see __call__): the template, the gradients
+        # and a row of ones against the sampled values.
+        self._basis = np.vstack([self._template, grad, np.ones(len(self._idx))])
+        self._grad_template = grad @ self._template
 
     def _smooth(self, image: NDArray[np.float32]) -> NDArray[np.float32]:
         import cv2
@@ -118,7 +122,7 @@ class MaskedFit:
         )
 
     def __call__(
-        self, frame: NDArray[np.uint8], start: NDArray[np.float64]
+        self, frame: NDArray[np.uint8], start: NDArray[np.float64], *, strict: bool = False
     ) -> tuple[float, NDArray[np.float64]] | None:
         """``(correlation, warp)``: the reference's masked pixel p is the frame's ``warp @ (p, 1)``;
         None when the fit diverges or the frame is flat there.
@@ -128,6 +132,9 @@ class MaskedFit:
         frame : ndarray of uint8, shape (H, W)
         start : ndarray of float64, shape (2,) or (2, 3)
             Initial shift (dx, dy), or initial warp.
+        strict : bool
+            Also None when the fit has not converged within ``max_iterations`` (where the texture
+            cannot hold some of the warp's parameters, a flat bar's scale along itself, they wander).
 
         Returns
         -------
@@ -140,18 +147,21 @@ class MaskedFit:
         else:
             warp[:] = start
         rho = -1.0
+        count = len(self._idx)
         for _ in range(self._max_iterations):
-            values = self._smooth(self._sample(frame, warp)).ravel()[self._idx].astype(np.float64)
-            values -= values.mean()
-            power = float(values @ values)
-            if power <= 0.0:
+            values = self._smooth(self._sample(frame, warp)).ravel().take(self._idx).astype(np.float64)
+            # With v the values less their mean, and template T and gradients G of zero mean:
+            # T.v = T.values, G.v = G.values, v.v = values.values - count mean^2.
+            sums = self._basis @ values
+            power = float(values @ values) - sums[-1] * sums[-1] / count
+            if power <= 1e-9 * float(values @ values):  # flat (to rounding)
                 return None
-            overlap = float(self._template @ values)
+            overlap = float(sums[0])
             rho = overlap / (self._template_norm * math.sqrt(power))
             # The frame, scaled to the template by least squares, against the reference moved by the
-            # update: frame(W(p)) ~ reference(D(p)), so the new warp is W composed with D's inverse.
-            residual = (overlap / power) * values - self._template
-            delta = self._inverse_hessian @ (self._grad @ residual)
+            # update: frame(W(p)) ~ reference(D(p)), so the new warp is W composed with D's inverse;
+            # G.((overlap / power) v - T) is the gradient of the residual.
+            delta = self._inverse_hessian @ ((overlap / power) * sums[1:-1] - self._grad_template)
             if self._affine:
                 step = np.eye(3)
                 step[:2, :2] += delta[:4].reshape(2, 2)
@@ -168,6 +178,9 @@ class MaskedFit:
                 return None
             if moved < self.TOLERANCE_PX:
                 break
+        else:
+            if strict:
+                return None
         return rho, warp
 
 
@@ -350,7 +363,7 @@ class _Registration:
         """Displacement of the outline's centroid in frame k from an affine fit, and the fit's scale
         (square root of the determinant of the map from the frame to the reference), or None."""
         assert self.affine_fit is not None
-        found = self.affine_fit(self.grays[k], self.out[k])
+        found = self.affine_fit(self.grays[k], self.out[k], strict=True)
         if found is None:
             return None
         warp = found[1]

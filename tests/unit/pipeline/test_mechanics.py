@@ -290,3 +290,66 @@ def test_masked_fit_measures_translation_and_scale_to_hundredths_of_a_pixel():
     assert flat(np.full((h, w), 128, np.uint8), np.zeros(2)) is None
     with pytest.raises(np.linalg.LinAlgError):
         MaskedFit(np.full((h, w), 128, np.uint8), mask)
+
+
+def _flat_bar(dx: float, shape: tuple[int, int] = (200, 200)) -> np.ndarray:
+    """A plain bar 7 px wide and 140 long on a flat wall, moved ``dx`` px across itself (rendered 4x
+    finer and area-averaged)."""
+    import cv2
+
+    h, w, s = *shape, 4
+    big = np.full((h * s, w * s), 100, np.float32)
+    bar = np.zeros((h * s, w * s), np.float32)
+    bar[30 * s : 170 * s, 97 * s : 104 * s] = 60
+    big += cv2.warpAffine(bar, np.float32([[1, 0, dx * s], [0, 1, 0]]), (w * s, h * s))
+    return np.clip(cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA) + 0.5, 0, 255).astype(np.uint8)
+
+
+def test_an_affine_fit_a_flat_bar_cannot_hold_is_no_measurement_when_strict():
+    """A flat bar holds its motion across itself, not its scale along itself: the translation converges
+    on the shift, the affine fit wanders for all of its iterations (its scale off by percents), and a
+    strict call says so (None) rather than return where it stopped."""
+    from workers.pipeline.registration import MaskedFit
+
+    reference, frame = _flat_bar(0.0), _flat_bar(0.6)
+    mask = np.zeros(reference.shape, bool)
+    mask[20:180, 85:116] = True
+    found = MaskedFit(reference, mask)(frame, np.zeros(2), strict=True)
+    assert found is not None
+    assert found[1][:, 2] == pytest.approx((0.6, 0.0), abs=0.01)
+    affine = MaskedFit(reference, mask, affine=True, max_iterations=25)
+    wandered = affine(frame, np.zeros(2))
+    assert wandered is not None
+    assert abs(np.linalg.det(wandered[1][:, :2]) - 1) > 0.01
+    assert affine(frame, np.zeros(2), strict=True) is None
+
+
+def test_a_flat_bar_is_registered_by_translation_without_refining_every_frame():
+    """The affine refinement runs on every frame only where the probe frames' scales change; a flat
+    bar's affine fits never converge, so they decide nothing (refining all 40 frames with fits that
+    wander cost a thin bar's analysis 1.5 s) and the translations stand, to hundredths of a pixel."""
+    from workers.pipeline import registration
+    from workers.pipeline.registration import register_translation
+
+    t = np.arange(40)
+    truth = 0.8 * np.sin(2 * np.pi * t / 9.0)
+    frames = np.stack([_flat_bar(float(dx)) for dx in truth])
+    outline = np.zeros(frames.shape[1:], bool)
+    outline[20:180, 80:121] = True
+    calls = []
+    original = registration.MaskedFit.__call__
+
+    def counted(self, frame, start, **kwargs):  # type: ignore[no-untyped-def]
+        calls.append(self._affine)
+        return original(self, frame, start, **kwargs)
+
+    registration.MaskedFit.__call__ = counted  # type: ignore[method-assign]
+    try:
+        disp, failed = register_translation(
+            frames, outline, ref_index=0, initial_px=np.stack([truth * 0.9, 0 * truth], axis=1), threads=1
+        )
+    finally:
+        registration.MaskedFit.__call__ = original  # type: ignore[method-assign]
+    assert failed == 0
+    assert sum(calls) <= registration.AFFINE_PROBE_FRAMES  # the probe, not every frame
+    assert np.abs(disp[:, 0] - (truth - truth[0])).max() < 0.03
