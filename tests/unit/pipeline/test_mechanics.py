@@ -9,7 +9,6 @@ import pytest
 
 from workers.pipeline.mechanics import DIRECTION_SD_RAD, along_motion, at_frequency, stiffness_and_mass
 from workers.pipeline.model import Excitation
-from workers.pipeline.registration import _tracking_shares
 
 
 def test_step_release_gives_k_from_force_over_amplitude_and_m_from_omega():
@@ -211,33 +210,11 @@ def test_registration_stops_once_more_frames_failed_than_the_caller_keeps():
     outline = np.zeros((96, 128), bool)
     outline[30:70, 40:90] = True
     initial = np.zeros((60, 2))
-    _, every = register_translation(frames, outline, ref_index=0, initial_px=initial, threads=1)
+    _, every = register_translation(frames, outline, ref_index=0, initial_px=initial)
     assert every > 0.9
-    disp, stopped = register_translation(
-        frames, outline, ref_index=0, initial_px=initial, threads=1, max_failed=0.1
-    )
+    disp, stopped = register_translation(frames, outline, ref_index=0, initial_px=initial, max_failed=0.1)
     assert 0.1 < stopped <= 0.1 + 2 / 59
     np.testing.assert_array_equal(disp, initial)  # failed frames keep their starting estimate
-    two = register_translation(frames, outline, ref_index=0, initial_px=initial, threads=2, max_failed=0.1)[1]
-    assert 0.1 < two <= 0.1 + 3 / 59
-
-
-@pytest.mark.parametrize(
-    ("ref", "count"), [(0, 257), (12, 257), (128, 257), (256, 257), (3, 10), (9, 10), (0, 2), (1, 2), (0, 1)]
-)
-def test_registration_work_is_shared_evenly_in_chains_running_outward(ref: int, count: int):
-    """Both registration threads get half the frames (within one), each frame once, the reference never;
-    every chain steps away from the reference one frame at a time, seeded by the frame before it."""
-    shares = _tracking_shares(ref, count)
-    frames = [[k for order, _ in share for k in order] for share in shares]
-    assert sorted(frames[0] + frames[1]) == [k for k in range(count) if k != ref]
-    assert abs(len(frames[0]) - len(frames[1])) <= 1
-    for share in shares:
-        for order, seed in share:
-            chain = [seed, *order]
-            steps = set(np.diff(chain).tolist())
-            assert steps in ({1}, {-1}, set()), chain
-            assert (chain[1] - ref) * (chain[1] - seed) > 0 if len(chain) > 1 else True
 
 
 def test_masked_fit_measures_translation_and_scale_to_hundredths_of_a_pixel():
@@ -346,7 +323,7 @@ def test_a_flat_bar_is_registered_by_translation_without_refining_every_frame():
     registration.MaskedFit.__call__ = counted  # type: ignore[method-assign]
     try:
         disp, failed = register_translation(
-            frames, outline, ref_index=0, initial_px=np.stack([truth * 0.9, 0 * truth], axis=1), threads=1
+            frames, outline, ref_index=0, initial_px=np.stack([truth * 0.9, 0 * truth], axis=1)
         )
     finally:
         registration.MaskedFit.__call__ = original  # type: ignore[method-assign]
