@@ -168,7 +168,7 @@ def test_a_turning_wheel_is_reported_at_its_rate_not_its_marks_passing() -> None
     strongest line is 7.24 Hz, but the turning rate moves the same pixels, so the wheel is reported at
     3.62 Hz with 7.24 Hz among its harmonics. (Its rim's steady flow, 9 px a frame, once buried the
     rate under the taper's own spectrum: the scan now removes each pixel's mean before the taper.)"""
-    with SceneReader(wheel()) as reader:
+    with SceneReader(wheel(), depth=False) as reader:  # a colour camera's footage, as the issue's
         analysis = analyze(reader)
     _row("turning wheel", 3.62, analysis)
     reported = [o.eigenfrequency_hz for o in analysis.objects]
