@@ -134,8 +134,10 @@ class CameraRing:
         camera_power = float((camera.astype(np.float64) ** 2).sum())
         if camera_power <= 0:
             return 1.0
-        columns = pixel_columns(flows, self.pixels).astype(np.float64)  # (n, 2P): u, v of each pixel
-        power = (columns**2).sum(axis=0).reshape(-1, 2).sum(axis=1)
+        columns = pixel_columns(flows, self.pixels)  # (n, 2P): u, v of each pixel
+        # summed in double precision as it goes: no double (and squared) copy of the columns, whose fresh
+        # pages cost two thirds of the time (22 -> 7.5 ms for 120 maps of 320 x 240)
+        power = np.einsum("tc,tc->c", columns, columns, dtype=np.float64).reshape(-1, 2).sum(axis=1)
         textured = self.textured if self.textured.any() else np.ones_like(self.textured)
         return float(np.mean(power[textured] < STILL_POWER_RATIO * camera_power))
 
