@@ -150,9 +150,9 @@ class MaskedFit:
             values = self._smooth(self._sample(frame, warp)).ravel().take(self._idx).astype(np.float64)
             # With v the values less their mean, and template T and gradients G of zero mean:
             # T.v = T.values, G.v = G.values, v.v = values.values - count mean^2.
-            sums = self._basis @ values
-            power = float(values @ values) - sums[-1] * sums[-1] / count
-            if power <= 1e-9 * float(values @ values):  # flat (to rounding)
+            sums, square = self._basis @ values, float(values @ values)
+            power = square - sums[-1] * sums[-1] / count
+            if power <= 1e-9 * square:  # flat (to rounding)
                 return None
             overlap = float(sums[0])
             rho = overlap / (self._template_norm * math.sqrt(power))
