@@ -169,17 +169,20 @@ def crop_to_motion(
     gx0, gy0 = box[0] // s, box[1] // s
     gx1, gy1 = min(w, -(-box[2] // s)), min(h, -(-box[3] // s))
     roi = Roi(gx0 * s, gy0 * s, (gx1 - gx0) * s, (gy1 - gy0) * s, (gy1 - gy0, gx1 - gx0), frame_shape)
+    # The grey frames and the depth are views (they are read a frame or a few pixels at a time: copying
+    # them cost a stream's final analysis 5 ms of fresh memory); the flow is copied, its pixels' series
+    # are read whole.
     gray, gray_scale = buffers.gray, buffers.gray_pixel_scale
     if gray is not None and gray.shape[1:] == (H, W):
         rows, cols = slice(roi.y, roi.y + roi.height), slice(roi.x, roi.x + roi.width)
-        gray, gray_scale = np.ascontiguousarray(gray[:, rows, cols]), 1.0
+        gray, gray_scale = gray[:, rows, cols], 1.0
     elif gray is not None and gray.shape[1:] == (h, w):
-        gray, gray_scale = np.ascontiguousarray(gray[:, gy0:gy1, gx0:gx1]), float(s)
+        gray, gray_scale = gray[:, gy0:gy1, gx0:gx1], float(s)
     depth = buffers.depth
     return replace(
         buffers,
         flow=np.ascontiguousarray(buffers.flow[:, gy0:gy1, gx0:gx1]),
-        depth=None if depth is None else np.ascontiguousarray(depth[:, gy0:gy1, gx0:gx1]),
+        depth=None if depth is None else depth[:, gy0:gy1, gx0:gx1],
         gray=gray,
         gray_pixel_scale=gray_scale,
         roi=roi,
