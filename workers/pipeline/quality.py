@@ -55,7 +55,13 @@ def clip_notes(plan: Plan, buffers: FrameBuffers, info: ClipInfo) -> list[Qualit
 
 def frame_notes(buffers: FrameBuffers) -> list[QualityNote]:
     """Frames with nothing to track: uniform (a lens cap, a dark room, a blown-out exposure)."""
-    grey = buffers.first_rgb.astype(np.float32).mean(axis=2)
+    rgb = buffers.first_rgb
+    # the mean of the three channels, summed a plane at a time (numpy's mean over an axis of three takes
+    # eight times as long, 6 ms of a live stream's final analysis; the same numbers)
+    grey = rgb[..., 0].astype(np.float32)
+    grey += rgb[..., 1]
+    grey += rgb[..., 2]
+    grey /= np.float32(3)
     level = float(grey.mean())
     clipped = float(np.mean((grey <= 2) | (grey >= 253)))
     change = float(np.max(buffers.frame_change)) if buffers.frame_change is not None else 0.0
