@@ -430,7 +430,9 @@ def _mode_depth(
     scales both alike), turned by the mode's phase factor."""
     if np.ndim(depth) == 0:
         return ModeDepth(np.full(len(pixels), float(depth), np.float32), *focal_px)
-    series = np.asarray(depth, np.float32).reshape(len(depth), -1)[:, pixels]  # type: ignore[arg-type]
+    depth = np.asarray(depth, np.float32)
+    rows, cols = np.unravel_index(pixels, depth.shape[1:])
+    series = depth[:, rows, cols]  # the pixels only (the depth may be a view of a larger window's)
     median = nanmedian_over_time(series)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
