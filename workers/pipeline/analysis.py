@@ -66,9 +66,7 @@ from workers.pipeline.quality import (
 )
 from workers.pipeline.regions import Regions, segment_candidates
 from workers.pipeline.roi import Roi
-from workers.pipeline.segmentation import (
-    at_rest,
-)
+from workers.pipeline.segmentation import at_rest
 from workers.pipeline.spectra import PixelSpectra, background_spectrum, pixel_spectra
 from workers.pipeline.stream import FrameBuffers
 from workers.pipeline.tracking import CoarseView

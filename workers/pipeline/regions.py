@@ -99,7 +99,7 @@ def segment_candidates(
         ]
         wanted = missing + [seg.peaks[i] for i in better]
         unwanted = [j for j, q in enumerate(second.peaks) if _index_in(wanted, q) is None]
-        seg = _merged(_without(seg, better), _without(second, unwanted), order=peaks)
+        seg = _merged(seg, second, order=peaks, drop=(better, unwanted))
     # Parts of one body ringing in several modes are one object (its modes are sought on it later).
     seg = join_bodies(seg, plain.power, frequencies_hz=plain.frequencies_hz)
     # The segmentation may hand back copies of the peaks (with folded harmonics): match by frequency.
@@ -154,30 +154,25 @@ def _index_in(peaks: list[Peak], peak: Peak) -> int | None:
     return next((i for i, q in enumerate(peaks) if abs(q.frequency_hz - peak.frequency_hz) <= 1e-9), None)
 
 
-def _without(seg: Segmentation, drop: list[int]) -> Segmentation:
-    """``seg`` without the regions of its peaks ``drop`` (indices), the rest relabelled in order."""
-    keep = [i for i in range(len(seg.peaks)) if i not in drop]
-    labels = np.zeros_like(seg.labels)
-    for new, i in enumerate(keep, start=1):
-        labels[seg.labels == i + 1] = new
-    return Segmentation(
-        labels=labels,
-        peaks=[seg.peaks[i] for i in keep],
-        band_power=seg.band_power[keep] if keep else np.zeros((0, *labels.shape), np.float32),
-        noise_power=np.asarray(seg.noise_power)[keep] if keep else np.zeros(0),
-    )
-
-
 def candidate_of(peak: Peak, found: list[Candidate]) -> Candidate:
     """The candidate whose peak ``peak`` is (the nearest in frequency)."""
     return min(found, key=lambda c: abs(c.peak.frequency_hz - peak.frequency_hz))
 
 
-def _merged(first: Segmentation, second: Segmentation, *, order: list[Peak]) -> Segmentation:
+def _merged(
+    first: Segmentation,
+    second: Segmentation,
+    *,
+    order: list[Peak],
+    drop: tuple[list[int], list[int]] = ([], []),
+) -> Segmentation:
     """Two segmentations of different peaks as one, labelled in ``order`` (the second's regions only
-    where the first has none)."""
-    sources = [(p, first, i) for i, p in enumerate(first.peaks)] + [
-        (p, second, i) for i, p in enumerate(second.peaks)
+    where the first has none), without the regions of the peaks ``drop`` names (indices into each)."""
+    sources = [
+        (p, seg, i)
+        for seg, dropped in zip((first, second), drop, strict=True)
+        for i, p in enumerate(seg.peaks)
+        if i not in dropped
     ]
 
     def rank(peak: Peak) -> int:

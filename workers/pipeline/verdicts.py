@@ -322,10 +322,10 @@ def _overtone(
         f0 = base.eigenfrequency_hz
         for order in range(1, rules.max_order + 1):
             same = [(f0, "")] if order == 1 else []
-            folded = images_of(
+            images = images_of(
                 f0, order, sample_rate_hz=sample_rate_hz, max_folded_order=rules.max_folded_order
             )
-            for image, how in same + folded:
+            for image, how in same + images:
                 if abs(f - image) > slack:
                     continue
                 direct = order == 1 and not how
