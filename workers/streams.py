@@ -654,7 +654,7 @@ class Session:
         return self._estimated_at is None or last - self._estimated_at >= ESTIMATE_EVERY_CAPTURE_S
 
     def _estimate(self, request: StreamCreate, *, record: bool) -> None:
-        from workers.pipeline.live import estimate_dict
+        from workers.pipeline.live_estimate import estimate_dict
 
         self._estimated_at = self._last_time
         est = self._live.estimate()
