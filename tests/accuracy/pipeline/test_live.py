@@ -89,12 +89,12 @@ def test_estimates_converge_on_the_truth_and_the_final_analysis_uses_the_live_fl
 def test_memory_is_bounded_by_the_window() -> None:
     scene = _scene(frames=120, release=70)
     live = _live(scene, window_frames=32, lead_frames=4)
-    arrays = (live._flow, live._gray, live._times)
-    shapes = [a.shape for a in arrays]
+    names = ("flow", "gray", "times")
+    shapes = [live.window.buffer_shapes()[name] for name in names]
     for frame in SceneReader(scene).frames():
         live.push(rgb=frame.rgb, depth_m=frame.depth_m, timestamp_s=frame.timestamp_s)
     live.wait(10)
-    assert [a.shape for a in (live._flow, live._gray, live._times)] == shapes
+    assert [live.window.buffer_shapes()[name] for name in names] == shapes
     assert live.frames_received == 120
     analysis = live.finish(excitations=[])
     first, last = analysis.frames_used
@@ -111,22 +111,22 @@ def test_a_lagging_flow_leaves_the_window_its_frames_after_the_motion(monkeypatc
     rest of it follows the motion (a lag of 8 pairs left it 8 frames short, as many more before it)."""
     import time
 
-    from workers.pipeline import live as live_module
+    from workers.pipeline import live_window as window_module
 
-    plain = live_module.flow_stream
+    plain = window_module.flow_stream
 
     def lagging(grays, **kw):
         for flow in plain(grays, **kw):
             time.sleep(0.01)  # slower than the frames are pushed: the flow runs the bounded lag behind
             yield flow
 
-    monkeypatch.setattr(live_module, "flow_stream", lagging)
+    monkeypatch.setattr(window_module, "flow_stream", lagging)
     scene = _scene(frames=120, release=70)
     live = _live(scene, window_frames=32, lead_frames=4)
     for frame in SceneReader(scene).frames():
         live.push(rgb=frame.rgb, depth_m=frame.depth_m, timestamp_s=frame.timestamp_s)
     live.wait(20)
-    motion = live._motion_at
+    motion = live.window.motion_at
     assert motion is not None
     assert 68 <= motion <= 76
     first, last = live.finish(excitations=[]).frames_used

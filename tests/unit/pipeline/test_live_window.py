@@ -38,18 +38,18 @@ def test_block_series_taken_as_frames_arrive_match_the_kept_frames(release: int)
         width=96, height=72, frames=70, fps=30.0, objects=(obj,), seed=2, flicker=0.05, flicker_hz=3.0
     )
     live, rgbs = _pushed(scene, window_frames=32, lead_frames=4)
-    n = live._flows
-    buffers = live._window_buffers(n)
+    n = live.window.flows
+    buffers = live.window.buffers(n)
     # The kept frames are the stream's frames base .. base + n: their grey frames on the grid give the
     # same series as the batch stream's (workers.pipeline.stream).
-    smalls = [prepare_gray(rgbs[live._base + i], live.grid) for i in range(n + 1)]
+    smalls = [prepare_gray(rgbs[live.window.base + i], live.grid) for i in range(n + 1)]
     assert buffers.brightness is not None
     assert buffers.frame_change is not None
     np.testing.assert_array_equal(buffers.brightness, np.stack([block_brightness(g) for g in smalls]))
     changes = np.stack([block_change(a, b) for a, b in itertools.pairwise(smalls)])
     np.testing.assert_array_equal(buffers.frame_change, changes)
     if release == 40:
-        assert live._base > 0, "the window should have slid before the motion"
+        assert live.window.base > 0, "the window should have slid before the motion"
     assert np.ptp(buffers.brightness) > 0  # the flicker shows
 
 
@@ -59,10 +59,10 @@ def test_the_camera_motion_is_judged_as_the_batch_stream_judges_it() -> None:
         width=96, height=72, frames=40, fps=30.0, objects=(obj,), seed=3, shake_px=1.5, shake_hz=2.0
     )
     live, rgbs = _pushed(scene, window_frames=64)
-    n = live._flows
-    raw = live._flow[:n].copy()
-    border = live._camera[:n].copy()
-    buffers = live._window_buffers(n)
+    n = live.window.flows
+    raw = live.window.flow_maps(n)
+    border = live.window.camera_motion_px(n)
+    buffers = live.window.buffers(n)
     ring = CameraRing(live.grid)
     ring.set_texture(prepare_gray(rgbs[0], live.grid))
     expected = remove_camera_motion(raw, border, ring)
@@ -85,9 +85,9 @@ def test_maps_pooled_as_they_arrive_are_the_window_flow_pooled(shake_px: float) 
     )
     live, _ = _pushed(scene, window_frames=32, lead_frames=4)
     if not shake_px:
-        assert live._base > 0, "the window should have slid"  # (a shaking camera moves from the start)
-    n = live._flows
-    buffers = live._window_buffers(n)
+        assert live.window.base > 0, "the window should have slid"  # (a shaking camera moves from the start)
+    n = live.window.flows
+    buffers = live.window.buffers(n)
     factor = look_factor(buffers.flow.shape[2])
     assert factor == 2
     assert buffers.camera_removed == (shake_px > 0)
