@@ -238,26 +238,9 @@ class LiveAnalysis:
     def push(
         self, *, rgb: NDArray[np.uint8], depth_m: NDArray[np.float32] | None = None, timestamp_s: float
     ) -> int:
-        """Add the next frame; its flow is computed in the background (:meth:`LiveWindow.push
-        <workers.pipeline.live_window.LiveWindow.push>`).
-
-        Parameters
-        ----------
-        rgb : ndarray of uint8, shape (H, W, 3)
-        depth_m : ndarray of float32, shape (H, W), optional
-            Depth aligned to ``rgb``, metres, NaN where invalid.
-        timestamp_s : float
-            Capture time, seconds (any origin); must increase from frame to frame.
-
-        Returns
-        -------
-        int
-            The frame's index in the stream, from 0.
-
-        Raises
-        ------
-        ClipError
-            A frame of the wrong shape, or a timestamp that does not increase; the frame is not kept.
+        """Add the next frame (colour, depth in metres aligned to it, capture time in seconds); its flow
+        is computed in the background. Parameters, the frame's index returned and the :class:`ClipError`
+        of a frame that is not kept: :meth:`LiveWindow.push <workers.pipeline.live_window.LiveWindow.push>`.
         """
         return self.window.push(rgb=rgb, depth_m=depth_m, timestamp_s=timestamp_s)
 
