@@ -294,8 +294,9 @@ class LiveService:
 
     def stop(self) -> None:
         """Tear the service down: every process group is killed at once. A graceful stop would take
-        1.5-2.5 s per service (Celery's warm shutdown and its pool) for nothing a test reads; the tests of shutdown itself signal the processes and check them (test_reliability's
-        SIGTERM test, test_faults' restarts)."""
+        1.5-2.5 s per service (Celery's warm shutdown and its pool) for nothing a test reads; the tests
+        of shutdown itself signal the processes and check them (test_reliability's SIGTERM test,
+        test_faults' restarts)."""
         self.client.close()
         for p in reversed(self.procs):
             p.stop(grace_s=0)
