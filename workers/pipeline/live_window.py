@@ -48,9 +48,6 @@ class SignalSnapshot:
     ----------
     samples : int
         Flow maps N in the window.
-    energy : ndarray of float64, shape (h, w)
-        Motion energy of each grid pixel over the N maps (sum of squared flow, the camera's motion
-        removed), grid pixels squared.
     times_s : ndarray of float64, shape (N + 1,)
         Capture times of the window's frames, seconds from the stream's first frame.
     region : ndarray of bool, shape (h, w)
@@ -63,7 +60,6 @@ class SignalSnapshot:
     """
 
     samples: int
-    energy: NDArray[np.float64]
     times_s: NDArray[np.float64]
     region: NDArray[np.bool_]
     columns_px: NDArray[np.floating[Any]]
@@ -422,7 +418,7 @@ class LiveWindow:
             Fewest flow maps worth a snapshot.
         region_of : callable
             Chooses the moving region from the motion energy (see :data:`RegionChooser`); called under
-            the lock, on a copy of the energy.
+            the lock, on the window's own energy (float64, (h, w)), which it must not change.
 
         Returns
         -------
@@ -433,15 +429,14 @@ class LiveWindow:
             n = self._flows
             if n < min_flows:
                 return None
-            energy = self._energy.copy()
             times = self._times[: n + 1].copy()
-            chosen = region_of(energy)
+            chosen = region_of(self._energy)
             if chosen is None:
                 return None
             mask, idx = chosen
             columns = pixel_columns(self._flow[:n], idx)
             camera = self._camera[:n].astype(np.float64)
-        return SignalSnapshot(n, energy, times, mask, columns, camera)
+        return SignalSnapshot(n, times, mask, columns, camera)
 
     def depth(self, n: int) -> NDArray[np.float32] | None:
         """Depth of the window's first ``n + 1`` frames on the grid, float32 (n + 1, h, w), metres, NaN
