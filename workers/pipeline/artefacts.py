@@ -28,6 +28,10 @@ from workers.pipeline.segmentation import band_mask
 KEYFRAME_Z = 8.0
 #: ... and (at half that) in this fraction of its blocks.
 KEYFRAME_BLOCKS = 0.6
+#: A region's own change (:meth:`WindowEvidence.region_keyframes`) is scaled by at least this fraction of
+#: its mean: a codec that re-uses still blocks makes most frames' change exactly zero, and a deviation of
+#: zero would make any few changes sharing a phase a pulse of any height.
+KEYFRAME_MIN_SCALE = 0.1
 #: Camera evidence: the border's motion at the peak stands this far above its own floor ...
 CAMERA_SNR = 10.0
 #: ... and the region moves (in power) less than this multiple of the border's.
@@ -244,6 +248,30 @@ class WindowEvidence:
         found = self._cache["pattern"]
         return found if isinstance(found, int) and found > 0 else None
 
+    def region_keyframes(
+        self, coverage: NDArray[np.float64], frequency_hz: float, sd_hz: float, sample_rate_hz: float
+    ) -> Finding | None:
+        """Why a peak is a codec's redraw of one region, or None: the region's own change (the blocks it
+        covers, ``coverage`` as :func:`block_coverage` gives it) pulses every K frames
+        (:func:`region_keyframe_period`) and the peak lies on that comb, as :meth:`keyframes` tests.
+
+        A codec at a low bit rate may redraw only part of the picture at its keyframes (a flat wall's
+        shading, say) and re-use every other block unchanged: the whole picture does not pulse, but the
+        region does, and the comb's teeth there are a localised "motion" at n fps / K. A moving object's
+        region changes in every frame, which is no pulse.
+        """
+        if self.frame_change is None or coverage.shape != self.frame_change.shape[1:]:
+            return None
+        period = region_keyframe_period(self.frame_change, coverage)
+        if period is None:
+            return None
+        comb = (
+            sample_rate_hz / period,
+            f"the object's region changes only every {period} frames",
+            {"keyframe_period_frames": float(period), "pattern_frames": float(period)},
+        )
+        return self._on_comb(frequency_hz, sd_hz, [comb])
+
     def keyframes(self, frequency_hz: float, sd_hz: float, sample_rate_hz: float) -> Finding | None:
         """Why a peak is a codec's pulse, or None: the whole picture changes every K frames (keyframes,
         :meth:`keyframe_period`) or its flow's noise follows a pattern of m frames (the types of frames a
@@ -277,6 +305,13 @@ class WindowEvidence:
                     {"pattern_frames": float(pattern)},
                 )
             )
+        return self._on_comb(frequency_hz, sd_hz, combs)
+
+    def _on_comb(
+        self, frequency_hz: float, sd_hz: float, combs: list[tuple[float, str, dict[str, float]]]
+    ) -> Finding | None:
+        """The first comb (base frequency, why, figures) one of whose teeth lies within
+        :data:`KEYFRAME_SD` standard uncertainties ``sd_hz`` of ``frequency_hz``, as a finding."""
         tolerance = KEYFRAME_SD * max(sd_hz, 0.0)
         for base, why, figures in combs:
             order = max(1, round(frequency_hz / base))
@@ -541,6 +576,36 @@ def keyframe_period(frame_change: NDArray[np.floating] | None) -> int | None:
     return k if everywhere >= KEYFRAME_BLOCKS else None
 
 
+def region_keyframe_period(frame_change: NDArray[np.floating], coverage: NDArray[np.float64]) -> int | None:
+    """The period K (frames) of pulses in the change of one region of the picture, or None.
+
+    The region's change is the ``coverage``-weighted mean of its blocks' change in each frame; its pulses
+    are found as :func:`keyframe_period` finds the whole picture's, with the deviation scaled by at least
+    :data:`KEYFRAME_MIN_SCALE` of the mean change (a codec re-using still blocks makes most frames'
+    change exactly zero).
+
+    Parameters
+    ----------
+    frame_change : ndarray, shape (N, B, B)
+        Mean absolute grey-level change of each block between consecutive frames.
+    coverage : ndarray of float64, shape (B, B)
+        Fraction of each block the region covers (:func:`block_coverage`).
+    """
+    total = float(coverage.sum())
+    if len(frame_change) < 24 or total <= 0:
+        return None
+    series = np.asarray(frame_change, np.float64).reshape(len(frame_change), -1) @ coverage.ravel() / total
+    median, mad = _robust_centre(series)
+    centre = (median, max(mad, KEYFRAME_MIN_SCALE * float(series.mean())))
+    scores = {
+        k: z for k in range(2, len(series) // 3 + 1) if (z := _pulse_score(series, k, centre=centre)) > 0
+    }
+    # Every multiple of the period folds the pulses too, and one of them, holding fewer pulses, may score
+    # higher by chance (a rate control's keyframes differ in size): the period is the shortest of which
+    # nearly every period that scores is a multiple.
+    return next((k for k in sorted(scores) if sum(j % k == 0 for j in scores) >= 0.8 * len(scores)), None)
+
+
 def flow_level(
     flow: NDArray[np.float32], textured: NDArray[np.bool_], *, pixels: int = 4096
 ) -> NDArray[np.float32]:
@@ -732,6 +797,14 @@ def artefact_verdict(
         # Flicker's own evidence is the brightness outside the region (its apparent motion follows the
         # texture, so it may look localised): it needs no test of where the motion is.
         found = evidence.flicker(frequency_hz, width_bins, suspect.coverage)
+    if found is None and suspect.coverage is not None:
+        # A codec redrawing only the region at its keyframes makes a localised line on its comb.
+        found = evidence.region_keyframes(
+            suspect.coverage,
+            frequency_hz if suspect.peak_hz is None else suspect.peak_hz,
+            sd_hz if suspect.peak_hz is None else suspect.peak_sd_hz,
+            sample_rate_hz,
+        )
     if found is None and suspect.localised >= LOCALISED:
         return None
     if found is None and suspect.peak_hz is not None:
@@ -764,6 +837,7 @@ __all__ = [
     "CAMERA_RATIO",
     "CAMERA_SNR",
     "KEYFRAME_BLOCKS",
+    "KEYFRAME_MIN_SCALE",
     "KEYFRAME_SD",
     "KEYFRAME_Z",
     "LOCALISED",
@@ -778,5 +852,6 @@ __all__ = [
     "keyframe_maps",
     "keyframe_period",
     "light_images",
+    "region_keyframe_period",
     "repair_keyframe_maps",
 ]

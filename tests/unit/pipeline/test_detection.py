@@ -6,11 +6,18 @@ test_significance.py.)"""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from workers.pipeline.artefacts import WindowEvidence, light_images
+from workers.pipeline.artefacts import (
+    Suspect,
+    WindowEvidence,
+    artefact_verdict,
+    light_images,
+    region_keyframe_period,
+)
 from workers.pipeline.camera import CameraRing
 from workers.pipeline.model import ObjectMeasurement
 from workers.pipeline.ringdown import Ringdown, fit_ringdown, regime_of
@@ -331,6 +338,54 @@ def test_keyframe_pulses_are_whole_picture_changes_at_a_period():
     local = rng.uniform(0.9, 1.1, (n, 8, 8)).astype(np.float32)
     local[9::10, :2, :2] += 5.0
     assert _evidence(frame_change=local).keyframe_period() is None
+
+
+def _redrawn_region(n: int, seed: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Block change of a codec at a low bit rate in front of a flat wall: every block re-used unchanged
+    (change exactly 0) but for rare small updates, and the lower right blocks redrawn at each keyframe
+    (every 12 frames, by different amounts); and the region's coverage."""
+    rng = np.random.default_rng(seed)
+    change = np.where(rng.random((n, 8, 8)) < 0.03, rng.uniform(0.01, 0.06, (n, 8, 8)), 0.0)
+    coverage = np.zeros((8, 8))
+    coverage[4:, 3:] = 1.0
+    change[11::12, 4:, 3:] += rng.uniform(0.05, 0.8, (len(change[11::12]), 1, 1))
+    return change.astype(np.float32), coverage
+
+
+def test_a_codec_redrawing_one_region_at_its_keyframes_makes_a_localised_comb():
+    """Issue 25: a stray object at 100 Hz (240 fps, MPEG-4 with a keyframe every 12 frames, 5 x 20 Hz) was
+    the codec redrawing the lower right of a flat wall at its keyframes: the whole picture does not pulse,
+    the region does, and its line is localised there."""
+    change, coverage = _redrawn_region(N)
+    evidence = _evidence(frame_change=change)
+    assert evidence.keyframe_period() is None  # most blocks never change: not the whole picture
+    assert region_keyframe_period(change, coverage) == 12  # not a multiple that scores higher by chance
+    tooth = 5 * FPS / 12
+    found = evidence.region_keyframes(coverage, tooth, 0.02, FPS)
+    assert found is not None
+    assert found.evidence == "codec_keyframes"
+    assert found.figures["order"] == 5
+    assert evidence.region_keyframes(coverage, tooth + 0.3, 0.02, FPS) is None  # between the teeth
+    suspect = Suspect(
+        frequency_hz=tooth, sd_hz=0.02, width_bins=1.0, localised=0.9, region_power=1.0, coverage=coverage
+    )
+    rejected = artefact_verdict(evidence, suspect, sample_rate_hz=FPS)
+    assert rejected is not None
+    assert rejected.evidence == "codec_keyframes"
+    # Elsewhere nothing pulses: a suspect there is judged as before (localised: an object).
+    other = np.zeros((8, 8))
+    other[:3, :3] = 1.0
+    assert artefact_verdict(evidence, replace(suspect, coverage=other), sample_rate_hz=FPS) is None
+
+
+def test_an_object_moving_at_a_tooth_of_the_comb_changes_in_every_frame_and_is_no_redraw():
+    change, coverage = _redrawn_region(N)
+    t = np.arange(N)
+    # A vibration at fps / 12 itself: its region changes in every frame, most in some phases.
+    change[:, 4:, 3:] = (0.4 + 0.3 * np.abs(np.sin(2 * np.pi * t / 12)))[:, None, None]
+    change[:, 4:, 3:] += np.random.default_rng(5).uniform(0, 0.05, (N, 4, 5))
+    assert region_keyframe_period(change, coverage) is None
+    assert _evidence(frame_change=change).region_keyframes(coverage, FPS / 12, 0.02, FPS) is None
 
 
 def test_the_camera_evidence_needs_the_region_to_move_no_more_than_the_border():
