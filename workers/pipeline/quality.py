@@ -7,7 +7,9 @@ from __future__ import annotations
 import itertools
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from workers.pipeline.model import ObjectMeasurement, QualityNote
 from workers.pipeline.verdicts import SECOND_MOTION_SHARE
@@ -53,6 +55,22 @@ def clip_notes(plan: Plan, buffers: FrameBuffers, info: ClipInfo) -> list[Qualit
     return notes
 
 
+#: Frames are uniform when their grey level varies less than this (standard deviation, grey levels) over
+#: the picture and within every block of :data:`BLANK_BLOCK_PX` pixels: a lens cap or a dark room shows
+#: sensor noise only, while one thin edge (a bar 7 grey levels darker than a flat wall) is something to track.
+BLANK_STD = 2.0
+BLANK_BLOCK_PX = 16
+
+
+def _block_std_max(grey: NDArray[np.float32]) -> float:
+    """The largest standard deviation of ``grey`` (H, W) within blocks of :data:`BLANK_BLOCK_PX` pixels."""
+    h, w = grey.shape
+    size = (max(1, w // BLANK_BLOCK_PX), max(1, h // BLANK_BLOCK_PX))
+    mean = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
+    mean_sq = cv2.resize(grey * grey, size, interpolation=cv2.INTER_AREA)
+    return float(np.sqrt(max(float(np.max(mean_sq - mean * mean)), 0.0)))
+
+
 def frame_notes(buffers: FrameBuffers) -> list[QualityNote]:
     """Frames with nothing to track: uniform (a lens cap, a dark room, a blown-out exposure)."""
     rgb = buffers.first_rgb
@@ -65,7 +83,7 @@ def frame_notes(buffers: FrameBuffers) -> list[QualityNote]:
     level = float(grey.mean())
     clipped = float(np.mean((grey <= 2) | (grey >= 253)))
     change = float(np.max(buffers.frame_change)) if buffers.frame_change is not None else 0.0
-    if float(grey.std()) < 2.0 and change < 1.0:
+    if float(grey.std()) < BLANK_STD and change < 1.0 and _block_std_max(grey) < BLANK_STD:
         what = "black" if level < 16 else "white" if level > 240 else "uniform"
         return [
             QualityNote(

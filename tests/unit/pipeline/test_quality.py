@@ -157,6 +157,21 @@ def test_a_uniform_first_frame_that_later_changes_is_not_blank():
     assert frame_notes(_buffers(rgb=rgb, change=change)) == []
 
 
+def test_a_thin_bar_on_a_flat_wall_is_something_to_track_not_a_blank_picture():
+    """Issue 25: a bar 7 grey levels darker than a flat wall, 7 px of a 640 px picture, through H.264
+    (the picture's grey level varies by 1.35 over the whole frame) was called uniform; sensor noise of the
+    same size alone still is."""
+    rng = np.random.default_rng(2)
+    wall = 113 + rng.normal(0, 1.3, (480, 640))
+    still = np.zeros((255, 8, 8), np.float32)
+    noise_only = np.repeat(np.clip(wall, 0, 255).astype(np.uint8)[..., None], 3, axis=2)
+    assert _codes(frame_notes(_buffers(rgb=noise_only, change=still))) == ["blank_frames"]
+    wall[108:372, 349:356] -= 7.0
+    assert float(wall.std()) < 2.0  # the whole picture alone would look uniform
+    bar = np.repeat(np.clip(wall, 0, 255).astype(np.uint8)[..., None], 3, axis=2)
+    assert frame_notes(_buffers(rgb=bar, change=still)) == []
+
+
 def test_a_mostly_clipped_picture_is_saturated_and_a_textured_one_is_fine():
     rng = np.random.default_rng(1)
     grey = np.where(rng.random((48, 64)) < 0.5, 0, 255).astype(np.uint8)
