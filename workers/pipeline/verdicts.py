@@ -42,6 +42,9 @@ ARTEFACT_EVIDENCE = ("camera_motion", "illumination_flicker", "codec_keyframes")
 #: A line is a second motion of a stronger object when that object's mask holds at least this share of
 #: where the picture moves at it, and more of it than the line's own region does.
 HELD_SHARE = 0.3
+#: An object's mask lies where its line was found when at least this share of it does
+#: (:meth:`Footing.own_pixels`).
+FOUND_SHARE = 0.5
 #: An object's own statistic is the scan's over the blocks within this many grid pixels of its region
 #: (the fine grid's mask and the scan's grid need not line up to the pixel; an edge's flow lies beside it).
 OWN_MARGIN_PX = 2
@@ -87,6 +90,18 @@ class Footing:
 
     found: NDArray[np.bool_]
     held: NDArray[np.float32]
+
+    def own_pixels(self) -> NDArray[np.bool_]:
+        """The object's own pixels for its significance: where its mask lies, and where its line was found
+        too when the mask lies there (at least :data:`FOUND_SHARE` of it). A thin bar's mask on the part of
+        its edge that moves the most is measured where the line was found; its line stands out over the
+        whole edge, not over the mask's few grid pixels alone (a 0.3 px bar through H.264: p 1.9e-4 over
+        the edge, 0.03 over the mask)."""
+        mask = self.held > 0
+        total = float(self.held.sum())
+        if total > 0 and float(self.held[self.found].sum()) >= FOUND_SHARE * total:
+            return mask | self.found
+        return mask
 
     def held_where_found(self, other: Footing | None = None) -> float:
         """The share of this object's found region that its mask (or ``other``'s) holds."""
@@ -283,7 +298,7 @@ def judge_objects(
     kept_footings: list[tuple[ObjectMeasurement, Footing]] = []
     for i, obj in enumerate(objects):
         footing = None if footings is None else footings[i]
-        verdict = significance_verdict(obj, scan, region=None if footing is None else footing.held > 0)
+        verdict = significance_verdict(obj, scan, region=None if footing is None else footing.own_pixels())
         if footing is not None:
             verdict = held_verdict(obj, footing, kept_footings) or verdict
         verdict = oscillation_verdict(obj, band_hz=band_hz) or verdict

@@ -279,3 +279,42 @@ def test_a_broad_stretch_of_motion_is_no_line_however_strong():
     assert scan.calibration.p_clip(scan.z[inside].max()) <= MAX_FALSE_ALARM  # it stands out ...
     broad = [scan.frequencies_hz[j] for j in significant_bins(scan) if scan.contrast[j] < LINE_CONTRAST]
     assert not [f for f in broad if 6.0 < f < 14.0], broad  # ... as no broad line
+
+
+def test_a_mask_on_part_of_where_the_line_was_found_is_judged_over_where_it_was_found():
+    """Issue 25: a thin bar's mask held the part of its edge that moves the most; its line stood out over
+    the whole edge (where the scan found it) but not over the mask's few grid pixels, and the bar was
+    rejected as not significant on its own pixels. A mask lying where its line was found is judged over
+    that region; a mask elsewhere is still judged over itself alone."""
+    from workers.pipeline.model import ObjectMeasurement
+    from workers.pipeline.verdicts import Footing, significance_verdict
+
+    edge = (slice(8, 40), slice(30, 31))
+    scan = _scan(_vibrate(_noise(22), 9.0, 0.01, edge), _picture(22))
+    assert scan.false_alarm(9.0) <= MAX_FALSE_ALARM  # p 2e-4 over the picture (0.11 over the mask alone)
+    found = np.zeros((H, W), bool)
+    found[edge] = True
+    part = np.zeros((H, W), np.float32)
+    part[20:22, 30] = 1.0  # two of the edge's 32 grid pixels
+    elsewhere = np.zeros((H, W), np.float32)
+    elsewhere[20:22, 50] = 1.0
+
+    def bar() -> ObjectMeasurement:
+        return ObjectMeasurement(
+            id=1, eigenfrequency_hz=9.0, eigenfrequency_uncertainty_hz=0.05, natural_frequency_hz=9.0,
+            damping_ratio=0.0, damping_ratio_uncertainty=0.001, amplitude_px=0.01, amplitude_m=None,
+            amplitude_uncertainty_m=None, depth_m=None, motion_direction=None, stiffness_n_per_m=None,
+            stiffness_uncertainty_n_per_m=None, mass_kg=None, mass_uncertainty_kg=None, pixel_count=8,
+            bbox_px=(30, 20, 1, 2), harmonics_hz=[], release_time_s=0.0, snr_db=10.0, detection_db=20.0,
+            concentration=0.9,
+        )  # fmt: skip
+
+    assert significance_verdict(bar(), scan, region=part > 0) is not None  # the mask alone: too few pixels
+    on_edge = Footing(found=found, held=part)
+    assert on_edge.own_pixels().sum() == found.sum()
+    assert significance_verdict(bar(), scan, region=on_edge.own_pixels()) is None
+    off_edge = Footing(found=found, held=elsewhere)
+    assert np.array_equal(off_edge.own_pixels(), elsewhere > 0)
+    rejected = significance_verdict(bar(), scan, region=off_edge.own_pixels())
+    assert rejected is not None
+    assert rejected.evidence == "not_significant"
