@@ -557,8 +557,12 @@ LINE_BINS = 2.0
 #: that converges on a harmonic relation lands within a fraction of a bin of it).
 RELATION_BINS = 1.0
 MAX_RELATION = 5
-#: A fit off its line is made again from these many periods of the line later (the first on it is kept).
+#: A fit off its line is made again from these many periods of the line later (the first on it is kept) ...
 LATER_STARTS = (1.0, 2.0, 4.0)
+#: ... when the line is resolved: the fit's samples span this many of its periods. (A few periods, a live
+#: stream stopped early, make the scan's line broad and its peak a poor guess, 2.3 Hz for a 4.5 Hz ring-down
+#: over 40 frames at 30 fps; the first fit is the better estimate there.)
+RESOLVED_PERIODS = 10.0
 
 
 @dataclass(frozen=True)
@@ -606,16 +610,17 @@ class _Fitter:
         A fit off the object's line (neither at it within :data:`LINE_BINS` bins nor a harmonic relation
         of it) was taken by something else at the start: a codec's start-up, whose rate control draws a
         thin bar only after a few frames, makes a jump there that the fit follows (17 Hz fitted to a bar
-        steady at 41 Hz through H.264). The fit is then made again from :data:`LATER_STARTS` periods of
-        the line later, and the first one on the line is kept; none on it, the first fit stands."""
+        steady at 41 Hz through H.264). When the line is resolved (:data:`RESOLVED_PERIODS`), the fit is
+        then made again from :data:`LATER_STARTS` periods of the line later, and the first one on the line
+        is kept; none on it, the first fit stands."""
         start = detect_release(signal)
         if self.hints.free_from_s is not None:
             free = int(np.searchsorted(self.times_s, self.hints.free_from_s))
             start = max(start, min(free, len(signal) - MIN_FIT_SAMPLES))
         fit = self._fit(signal, start)
-        if self._on_line(fit.frequency_hz, len(signal)):
-            return start, fit
         period = self.sample_rate_hz / self.hints.frequency_guess_hz
+        if (len(signal) - start) < RESOLVED_PERIODS * period or self._on_line(fit.frequency_hz, len(signal)):
+            return start, fit
         for periods in LATER_STARTS:
             later = start + round(periods * period)
             if later > len(signal) - MIN_FIT_SAMPLES:

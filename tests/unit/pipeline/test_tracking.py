@@ -40,3 +40,27 @@ def test_a_ring_down_on_its_line_is_fitted_from_its_release():
     onset, fit = _fitter(12.1)(velocity)
     assert onset == detect_release(velocity)
     assert fit.frequency_hz == pytest.approx(12.0, abs=0.05)
+
+
+def test_a_short_window_keeps_its_first_fit_however_far_the_scans_guess(monkeypatch):
+    """A live stream stopped early: a 4.5 Hz ring-down released at frame 15, 80 frames at 30 fps. Over so
+    few periods the scan's line is broad and its peak a poor guess (2.3 Hz was seen; 2.9 Hz here): the
+    fit from the release is the estimate, and no fit is made again to agree with the guess."""
+    import workers.pipeline.tracking as tracking
+
+    rate, n = 30.0, 80
+    t = np.arange(n)
+    ring = 0.8 * np.exp(-0.03 * 2 * np.pi * 4.5 / rate * (t - 15)) * np.cos(2 * np.pi * 4.5 / rate * (t - 15))
+    velocity = np.where(t >= 15, ring, 0.0) + 0.01 * np.random.default_rng(2).standard_normal(n)
+    fits, fit_ringdown = [], tracking.fit_ringdown
+
+    def counted(*args, **kwargs):
+        fits.append(kwargs["start_index"])
+        return fit_ringdown(*args, **kwargs)
+
+    monkeypatch.setattr(tracking, "fit_ringdown", counted)
+    fitter = _Fitter(sample_rate_hz=rate, hints=FitHints(2.9), times_s=np.arange(n + 1) / rate)
+    onset, fit = fitter(velocity)
+    assert fits == [detect_release(velocity)]
+    assert onset == fits[0]
+    assert fit.frequency_hz == pytest.approx(4.5, abs=0.05)
