@@ -32,6 +32,8 @@ KEYFRAME_BLOCKS = 0.6
 #: its mean: a codec that re-uses still blocks makes most frames' change exactly zero, and a deviation of
 #: zero would make any few changes sharing a phase a pulse of any height.
 KEYFRAME_MIN_SCALE = 0.1
+#: Fewest frame-to-frame changes in which pulses are sought (a period up to a third of them).
+MIN_PULSE_FRAMES = 24
 #: Camera evidence: the border's motion at the peak stands this far above its own floor ...
 CAMERA_SNR = 10.0
 #: ... and the region moves (in power) less than this multiple of the border's.
@@ -557,13 +559,11 @@ def keyframe_period(frame_change: NDArray[np.floating] | None) -> int | None:
     frame_change : ndarray, shape (N, B, B), or None
         Mean absolute grey-level change of each block between consecutive frames.
     """
-    if frame_change is None or len(frame_change) < 24:
+    if frame_change is None or len(frame_change) < MIN_PULSE_FRAMES:
         return None
     series = np.asarray(frame_change, np.float64).reshape(len(frame_change), -1)
     whole = series.mean(axis=1)
-    centre = _robust_centre(whole)  # the same for every period tried
-    periods = range(2, len(series) // 3 + 1)
-    scores = {k: z for k in periods if (z := _pulse_score(whole, k, centre=centre)) > 0}
+    scores = _pulse_scores(whole, _robust_centre(whole))
     if not scores:
         return None
     # Every multiple of the period folds the pulses as well: the period is the shortest that does nearly
@@ -592,14 +592,11 @@ def region_keyframe_period(frame_change: NDArray[np.floating], coverage: NDArray
         Fraction of each block the region covers (:func:`block_coverage`).
     """
     total = float(coverage.sum())
-    if len(frame_change) < 24 or total <= 0:
+    if len(frame_change) < MIN_PULSE_FRAMES or total <= 0:
         return None
     series = np.asarray(frame_change, np.float64).reshape(len(frame_change), -1) @ coverage.ravel() / total
     median, mad = _robust_centre(series)
-    centre = (median, max(mad, KEYFRAME_MIN_SCALE * float(series.mean())))
-    scores = {
-        k: z for k in range(2, len(series) // 3 + 1) if (z := _pulse_score(series, k, centre=centre)) > 0
-    }
+    scores = _pulse_scores(series, (median, max(mad, KEYFRAME_MIN_SCALE * float(series.mean()))))
     # Every multiple of the period folds the pulses too, and one of them, holding fewer pulses, may score
     # higher by chance (a rate control's keyframes differ in size): the period is the shortest of which
     # nearly every period that scores is a multiple.
@@ -701,6 +698,13 @@ def _robust_centre(change: NDArray[np.float64]) -> tuple[float, float]:
     """The median of ``change`` and its median absolute deviation scaled to a standard deviation."""
     median = float(np.median(change))
     return median, 1.4826 * float(np.median(np.abs(change - median))) + 1e-9
+
+
+def _pulse_scores(change: NDArray[np.float64], centre: tuple[float, float]) -> dict[int, float]:
+    """Each period from 2 to a third of ``change``'s length whose pulses stand out, with its score
+    (:func:`_pulse_score`; ``centre`` is the same for every period tried)."""
+    periods = range(2, len(change) // 3 + 1)
+    return {k: z for k in periods if (z := _pulse_score(change, k, centre=centre)) > 0}
 
 
 def _pulse_score(
@@ -841,6 +845,7 @@ __all__ = [
     "KEYFRAME_SD",
     "KEYFRAME_Z",
     "LOCALISED",
+    "MIN_PULSE_FRAMES",
     "Finding",
     "Suspect",
     "WindowEvidence",

@@ -647,8 +647,10 @@ class _Fitter:
         bin_hz = self.sample_rate_hz / max(samples, 1)
         if abs(frequency_hz - guess) <= LINE_BINS * bin_hz:
             return True
-        relations = [n for n in range(2, MAX_RELATION + 1)] + [1 / n for n in range(2, MAX_RELATION + 1)]
-        return any(abs(frequency_hz - guess * r) <= RELATION_BINS * bin_hz for r in relations)
+        orders = range(2, MAX_RELATION + 1)
+        return any(
+            abs(frequency_hz - guess * r) <= RELATION_BINS * bin_hz for n in orders for r in (n, 1 / n)
+        )
 
 
 def _clearest_motion(
