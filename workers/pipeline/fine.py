@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.artefacts import keyframe_maps, repair_keyframe_maps
 from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader
+from workers.pipeline.codec import keyframe_maps, repair_keyframe_maps
 from workers.pipeline.errors import AnalysisError
 from workers.pipeline.flow import FlowConfig, flow_stream
 from workers.pipeline.look import Look

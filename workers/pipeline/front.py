@@ -18,8 +18,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.artefacts import WindowEvidence, flow_level
+from workers.pipeline.artefacts import WindowEvidence
 from workers.pipeline.camera import CameraRing
+from workers.pipeline.codec import flow_level
 from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.detection import Candidates, find_candidates
 from workers.pipeline.errors import AnalysisError
@@ -242,7 +243,7 @@ def still_flow_level(
 ) -> NDArray[np.float32] | None:
     """The level of the flow's noise in each map over the picture's still, textured parts (away from every
     candidate's region): where a codec's cycle of frame types shows, and an object's own motion does not
-    (:func:`workers.pipeline.artefacts.frame_pattern_period`). None when too little of the picture is
+    (:func:`workers.pipeline.codec.frame_pattern_period`). None when too little of the picture is
     still and textured (a surface filling it)."""
     moving = np.zeros(confidence.shape, np.uint8)
     for region in candidates.regions:

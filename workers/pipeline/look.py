@@ -39,9 +39,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from workers.pipeline.artefacts import keyframe_maps, repair_keyframe_maps
 from workers.pipeline.camera import CameraRing, remove_camera_motion
 from workers.pipeline.clipio.types import MIN_FRAMES, ClipReader
+from workers.pipeline.codec import keyframe_maps, repair_keyframe_maps
 from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.errors import AnalysisError
 from workers.pipeline.fft import warm_up as spectrum_warm_up
@@ -180,7 +180,7 @@ class Look:
     frame_change : ndarray of float32, shape (N, B, B)
         Mean absolute change of each block between consecutive frames.
     keyframe_maps : ndarray of intp, shape (M,)
-        The maps that span a codec's keyframe (:func:`~workers.pipeline.artefacts.keyframe_maps`), repaired
+        The maps that span a codec's keyframe (:func:`~workers.pipeline.codec.keyframe_maps`), repaired
         in ``flow`` (and to be repaired in any other flow of the window).
     border_px : ndarray of float32, shape (N, 2)
         Median motion of the picture's border in each map, grid pixels (before any removal).

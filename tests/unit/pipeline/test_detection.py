@@ -11,14 +11,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from workers.pipeline.artefacts import (
-    Suspect,
-    WindowEvidence,
-    artefact_verdict,
-    light_images,
-    region_keyframe_period,
-)
+from workers.pipeline.artefacts import Suspect, WindowEvidence, artefact_verdict, light_images
 from workers.pipeline.camera import CameraRing
+from workers.pipeline.codec import region_keyframe_period
 from workers.pipeline.model import ObjectMeasurement
 from workers.pipeline.ringdown import Ringdown, fit_ringdown, regime_of
 from workers.pipeline.tracking import follow_region, second_motion
