@@ -27,6 +27,7 @@ from workers.pipeline.metric import DepthContext, ImageAmplitude, MetricAmplitud
 from workers.pipeline.model import BAND_NYQUIST_FRACTION, Excitation, ObjectMeasurement
 from workers.pipeline.modes import GridDepth, ObjectModeShapes, object_modes
 from workers.pipeline.peaks import Peak
+from workers.pipeline.release_fit import FitHints
 from workers.pipeline.ringdown import (
     Ringdown,
     RingdownFit,
@@ -36,7 +37,7 @@ from workers.pipeline.ringdown import (
     sliding_ringdown,
 )
 from workers.pipeline.stream import FrameBuffers
-from workers.pipeline.tracking import CoarseView, FitHints, Track, second_motion, track_object
+from workers.pipeline.tracking import CoarseView, Track, second_motion, track_object
 
 
 def bounding_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int]:

@@ -1,4 +1,4 @@
-"""Unit tests of :mod:`workers.pipeline.tracking`'s ring-down fit from the release (``_Fitter``)."""
+"""Unit tests of :mod:`workers.pipeline.release_fit`: the ring-down fitted from the release."""
 
 from __future__ import annotations
 
@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 from workers.pipeline.mechanics import detect_release
-from workers.pipeline.tracking import FitHints, _Fitter
+from workers.pipeline.release_fit import FitHints, ReleaseFitter
 
 RATE = 240.0
 N = 255
 
 
-def _fitter(guess_hz: float) -> _Fitter:
-    return _Fitter(sample_rate_hz=RATE, hints=FitHints(guess_hz), times_s=np.arange(N + 1) / RATE)
+def _fitter(guess_hz: float) -> ReleaseFitter:
+    return ReleaseFitter(sample_rate_hz=RATE, hints=FitHints(guess_hz), times_s=np.arange(N + 1) / RATE)
 
 
 def test_a_codec_start_up_jump_does_not_take_the_fit_off_the_objects_line():
@@ -46,20 +46,20 @@ def test_a_short_window_keeps_its_first_fit_however_far_the_scans_guess(monkeypa
     """A live stream stopped early: a 4.5 Hz ring-down released at frame 15, 80 frames at 30 fps. Over so
     few periods the scan's line is broad and its peak a poor guess (2.3 Hz was seen; 2.9 Hz here): the
     fit from the release is the estimate, and no fit is made again to agree with the guess."""
-    import workers.pipeline.tracking as tracking
+    import workers.pipeline.release_fit as release_fit
 
     rate, n = 30.0, 80
     t = np.arange(n)
     ring = 0.8 * np.exp(-0.03 * 2 * np.pi * 4.5 / rate * (t - 15)) * np.cos(2 * np.pi * 4.5 / rate * (t - 15))
     velocity = np.where(t >= 15, ring, 0.0) + 0.01 * np.random.default_rng(2).standard_normal(n)
-    fits, fit_ringdown = [], tracking.fit_ringdown
+    fits, fit_ringdown = [], release_fit.fit_ringdown
 
     def counted(*args, **kwargs):
         fits.append(kwargs["start_index"])
         return fit_ringdown(*args, **kwargs)
 
-    monkeypatch.setattr(tracking, "fit_ringdown", counted)
-    fitter = _Fitter(sample_rate_hz=rate, hints=FitHints(2.9), times_s=np.arange(n + 1) / rate)
+    monkeypatch.setattr(release_fit, "fit_ringdown", counted)
+    fitter = ReleaseFitter(sample_rate_hz=rate, hints=FitHints(2.9), times_s=np.arange(n + 1) / rate)
     onset, fit = fitter(velocity)
     assert fits == [detect_release(velocity)]
     assert onset == fits[0]
