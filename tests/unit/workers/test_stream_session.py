@@ -1,0 +1,116 @@
+"""A stream's session on a worker (workers.streams.Session), run on the local transport with frames
+already queued, as a sender faster than the worker leaves them: what it sends back, in order."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Any
+
+import cv2
+import pytest
+from eigenscope_client.streams import frame_message
+
+from backend.settings import Settings
+from backend.storage import Storage
+from backend.store import NewClip, NewStream, Store, StreamRecord
+from backend.stream_transport import LocalTransport
+from workers.pipeline.synth import Scene, SceneObject, SceneReader
+
+WIDTH, HEIGHT, FRAMES = 192, 144, 72
+
+
+def _stream(store: Store) -> StreamRecord:
+    stream, _job = store.create_stream(
+        NewStream(
+            stream_id="s1",
+            owner="",
+            token_digest="0" * 64,
+            request={"width": WIDTH, "height": HEIGHT, "parameters": {"fps": 30.0}},
+            expires_at=None,
+            clip=NewClip(
+                clip_id="cs1", filename="stream.zip", path="clips/cs1/clip.zip", info={}, size_bytes=0
+            ),
+            excitation=None,
+            parameters={},
+        )
+    )
+    return stream
+
+
+def _queue_frames(transport: LocalTransport, stream_id: str, *, end: bool) -> None:
+    """A connection's relay attaching, a ring-down's colour frames as JPEG, then (``end``) the client's
+    ``end``, all queued at once."""
+    obj = SceneObject(
+        center_px=(WIDTH / 2, HEIGHT / 2),
+        size_px=(50.0, 40.0),
+        frequency_hz=4.5,
+        force_n=6.0,
+        release_frame=4,
+    )
+    scene = Scene(width=WIDTH, height=HEIGHT, frames=FRAMES, fps=30.0, objects=(obj,), seed=3)
+
+    async def push() -> None:
+        await transport.push(stream_id, control={"type": "_attach", "relay": "r1"})  # as the API's relay does
+        for f in SceneReader(scene, depth=False).frames():
+            bgr = cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR)
+            jpeg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])[1]
+            message = frame_message(
+                jpeg.tobytes(), frame=f.index, kind="color", timestamp_s=f.timestamp_s, encoding="jpeg"
+            )
+            await transport.push(stream_id, frame=message)
+        if end:
+            await transport.push(stream_id, control={"type": "end"})
+
+    asyncio.run(push())
+
+
+def _sent(transport: LocalTransport, stream_id: str) -> list[dict[str, Any]]:
+    messages, _cursor = asyncio.run(transport.receive(stream_id, "0", 0.1))
+    return messages
+
+
+@pytest.fixture
+def transport(tmp_path: Path) -> LocalTransport:
+    return LocalTransport(tmp_path / "streams")
+
+
+def test_an_end_already_queued_gets_the_result_without_estimates_before_it(
+    store: Store, settings: Settings, transport: LocalTransport
+) -> None:
+    """The client has ended the stream: every frame it sent is analysed, and no estimate delays the result
+    (an estimate costs tens of milliseconds, and the last frame and ``end`` come moments apart)."""
+    from workers.streams import Session
+
+    stream = _stream(store)
+    asyncio.run(transport.dispatch(stream.id))
+    assert transport.claim(0.1) == stream.id
+    _queue_frames(transport, stream.id, end=True)
+    storage = Storage(settings.data_path)
+    storage.ensure()
+    Session(stream.id, settings, store, storage, transport).run()
+    kinds = [m["type"] for m in _sent(transport, stream.id)]
+    assert kinds.count("accepted") == FRAMES, kinds
+    assert "estimate" not in kinds, [(i, k) for i, k in enumerate(kinds) if k != "accepted"]
+    assert kinds[-1] == "result", kinds
+
+
+def test_frames_queued_faster_than_the_worker_still_get_estimates_until_the_stream_ends(
+    store: Store, settings: Settings, transport: LocalTransport
+) -> None:
+    """Without an ``end`` queued, a backlog gets its estimates at points of the capture, as a camera's
+    frames do (the stream then ends when the client falls silent)."""
+    from workers.streams import Session
+
+    quiet = settings.model_copy(update={"stream_client_timeout_s": 0.5})
+    stream = _stream(store)
+    asyncio.run(transport.dispatch(stream.id))
+    assert transport.claim(0.1) == stream.id
+    _queue_frames(transport, stream.id, end=False)
+    storage = Storage(quiet.data_path)
+    storage.ensure()
+    Session(stream.id, quiet, store, storage, transport).run()
+    kinds = [m["type"] for m in _sent(transport, stream.id)]
+    assert kinds.count("accepted") == FRAMES, kinds
+    assert kinds.count("estimate") >= 2, [(i, k) for i, k in enumerate(kinds) if k != "accepted"]
+    assert kinds[-1] == "result", kinds
