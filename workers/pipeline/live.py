@@ -52,6 +52,10 @@ from workers.pipeline.window import Plan, band_edges
 
 #: Pixels sampled from the moving region for the live signal.
 _SIGNAL_PIXELS = 4000
+#: Grid pixels kept around the moving region's box when an estimate reads the window's depth: more than
+#: the depth track's erosion reaches (:func:`~workers.pipeline.metric.depth_track`), so the crop changes
+#: nothing it measures.
+DEPTH_MARGIN_PX = 3
 #: Pixels whose motion energy is at least this fraction of the strongest (99.5th percentile) form the region.
 _REGION_LEVEL = 0.5
 
@@ -130,6 +134,19 @@ class _Signal:
     region: NDArray[np.bool_]
     samples: int
     axis_px: tuple[float, float]
+
+
+def _around(mask: NDArray[np.bool_], *, margin: int) -> tuple[slice, slice]:
+    """The rows and columns of ``mask``'s bounding box grown by ``margin`` (clipped to the mask's shape);
+    the whole of it when nothing is set."""
+    ys, xs = np.nonzero(mask)
+    if ys.size == 0:
+        return slice(None), slice(None)
+    h, w = mask.shape
+    return (
+        slice(max(int(ys.min()) - margin, 0), min(int(ys.max()) + margin + 1, h)),
+        slice(max(int(xs.min()) - margin, 0), min(int(xs.max()) + margin + 1, w)),
+    )
 
 
 def _moving_region(energy: NDArray[np.float64]) -> tuple[NDArray[np.bool_], NDArray[np.intp]] | None:
@@ -377,13 +394,14 @@ class LiveAnalysis:
         region (grid ``mask``) or the configured distance."""
         import cv2
 
-        depth = self.window.depth(n)
+        rows, cols = _around(mask, margin=DEPTH_MARGIN_PX)
+        depth = self.window.depth(n, rows=rows, cols=cols)
         full_mask = (
             cv2.resize(mask.astype(np.uint8), (self.width, self.height), interpolation=cv2.INTER_NEAREST) > 0
         )
         where = DepthContext(
             depth=depth,
-            region=mask,
+            region=mask[rows, cols],
             shifts_grid_px=None,
             times_from_onset_s=times[: n + 1] - times[onset],
             onset=onset,

@@ -438,11 +438,15 @@ class LiveWindow:
             camera = self._camera[:n].astype(np.float64)
         return SignalSnapshot(n, times, mask, columns, camera)
 
-    def depth(self, n: int) -> NDArray[np.float32] | None:
+    def depth(
+        self, n: int, *, rows: slice = slice(None), cols: slice = slice(None)
+    ) -> NDArray[np.float32] | None:
         """Depth of the window's first ``n + 1`` frames on the grid, float32 (n + 1, h, w), metres, NaN
-        invalid, a copy taken under the lock; None when no frame carried depth."""
+        invalid, a copy taken under the lock; None when no frame carried depth. Given ``rows`` and
+        ``cols``, only that part of the grid is copied (an estimate needs its region's, a twentieth of the
+        window's depth)."""
         with self._lock:
-            return None if self._depth is None else self._depth[: n + 1].copy()
+            return None if self._depth is None else self._depth[: n + 1, rows, cols].copy()
 
     def flow_maps(self, n: int) -> NDArray[np.float32]:
         """The window's first ``n`` flow maps as computed (the camera's motion in them), float32

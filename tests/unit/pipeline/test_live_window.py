@@ -99,3 +99,24 @@ def test_maps_pooled_as_they_arrive_are_the_window_flow_pooled(shake_px: float) 
     pooled, used = _on_look_grid(buffers)
     assert used == factor
     assert pooled is buffers.pooled_flow
+
+
+@pytest.mark.parametrize("where", ["inside", "at-the-border"])
+def test_an_estimates_depth_read_around_its_region_gives_the_whole_grids_depth_track(where: str) -> None:
+    """An estimate copies only the window's depth around its moving region (grown by DEPTH_MARGIN_PX);
+    the object's depth track over that crop is the one over the whole grid, the region's eroded core
+    included (with no margin, the erosion sees the crop's edge as the object's and the track differs)."""
+    import workers.pipeline.live as live_module
+    from workers.pipeline.metric import depth_track
+
+    rng = np.random.default_rng(4)
+    depth = (1.0 + 0.3 * rng.random((7, 40, 50))).astype(np.float32)
+    region = np.zeros((40, 50), bool)
+    top, left = (10, 14) if where == "inside" else (0, 0)
+    region[top : top + 12, left : left + 15] = True
+    region[top + 5 : top + 12, left + 15 : left + 22] = True  # not a rectangle
+    whole = depth_track(depth, region)
+    for margin, same in ((live_module.DEPTH_MARGIN_PX, True), (0, False)):
+        rows, cols = live_module._around(region, margin=margin)
+        cropped = depth_track(depth[:, rows, cols], region[rows, cols])
+        assert np.array_equal(cropped, whole) == same, (margin, cropped - whole)
