@@ -71,18 +71,40 @@ def depth_track(
     ys, xs = np.nonzero(core)
     t_count, h, w = depth.shape
     out = np.full(t_count, np.nan)
-    for k in range(t_count):
-        if shifts_px is not None:
-            dx, dy = np.rint(shifts_px[k]).astype(int)
-            yy, xx = ys + dy, xs + dx
-            ok = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
-            values = depth[k, yy[ok], xx[ok]]
+    if ys.size == 0:
+        return out
+    step = max(1, TRACK_BLOCK_VALUES // ys.size)
+    for first in range(0, t_count, step):
+        frames = np.arange(first, min(first + step, t_count))
+        if shifts_px is None:
+            values = depth[frames[:, None], ys, xs]
         else:
-            values = depth[k, ys, xs]
-        values = values[np.isfinite(values)]
-        if values.size:
-            out[k] = float(np.median(values))
+            d = np.rint(shifts_px[frames]).astype(np.intp)
+            yy, xx = ys + d[:, 1:2], xs + d[:, 0:1]
+            ok = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+            inside = depth[frames[:, None], np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)]
+            values = np.where(ok, inside, np.nan)
+        out[frames] = _finite_medians(values)
     return out
+
+
+#: Depth readings a block of :func:`depth_track`'s frames holds at most (its memory stays flat in the
+#: clip's length).
+TRACK_BLOCK_VALUES = 1 << 20
+
+
+def _finite_medians(values: NDArray[np.float32]) -> NDArray[np.float64]:
+    """Each row's median over its finite values (as ``np.median`` of them gives it, in the rows' dtype),
+    NaN for a row without one: one sort of the block (of at least one column), the non-finite values
+    last."""
+    finite = np.isfinite(values)
+    ordered = np.sort(np.where(finite, values, np.nan), axis=1)
+    count = finite.sum(axis=1)
+    rows = np.arange(len(values))
+    low = ordered[rows, np.maximum(count - 1, 0) // 2]
+    high = ordered[rows, np.minimum(count // 2, values.shape[1] - 1)]
+    middle = (low + high) / np.asarray(2, values.dtype)
+    return np.where(count > 0, middle, np.nan).astype(np.float64)
 
 
 def fit_component(

@@ -229,6 +229,43 @@ def test_the_depth_track_follows_the_object_with_its_shifts():
     assert unfollowed[2] == pytest.approx(2.0)
 
 
+@pytest.mark.parametrize("shifted", [False, True], ids=["still", "followed"])
+def test_the_depth_track_is_each_frames_median_of_its_finite_readings_exactly(shifted: bool):
+    """Against the plain per-frame definition (np.median of the finite readings under the eroded core,
+    moved by the frame's shift), bit for bit: frames with unread pixels, an infinite reading, a frame
+    without any, shifts reaching past the grid's edge, and more frames than one block of the track."""
+    import cv2
+
+    import workers.pipeline.metric as metric
+
+    rng = np.random.default_rng(7)
+    frames, shape = 40, (36, 48)
+    depth = (0.5 + 2 * rng.random((frames, *shape))).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = np.nan
+    depth[3] = np.nan
+    depth[5, 12, 20] = np.inf
+    region = _mask(shape, (8, 26, 10, 30))
+    shifts = rng.normal(0.0, 9.0, (frames, 2)) if shifted else None
+    core = cv2.erode(region.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    ys, xs = np.nonzero(core)
+    expected = np.full(frames, np.nan)
+    for k in range(frames):
+        dx, dy = np.rint(shifts[k]).astype(int) if shifts is not None else (0, 0)
+        ok = (ys + dy >= 0) & (ys + dy < shape[0]) & (xs + dx >= 0) & (xs + dx < shape[1])
+        values = depth[k, ys[ok] + dy, xs[ok] + dx]
+        values = values[np.isfinite(values)]
+        if values.size:
+            expected[k] = float(np.median(values))
+    small_blocks = metric.TRACK_BLOCK_VALUES
+    try:
+        metric.TRACK_BLOCK_VALUES = 7 * ys.size  # blocks of 7 frames
+        track = depth_track(depth, region, shifts_px=shifts)
+    finally:
+        metric.TRACK_BLOCK_VALUES = small_blocks
+    assert np.array_equal(track, expected, equal_nan=True), track - expected
+    assert np.isnan(track[3])
+
+
 def test_the_objects_depth_ignores_its_mask_edge():
     """A 12 x 12 mask whose 2-pixel rim (80 of its 144 pixels) sees the background at 3 m: the median of the
     mask would be 3 m; its interior gives the object's 1.2 m."""
