@@ -380,7 +380,7 @@ class Session:
                 self._handle(item, request)
                 if self._end_reason is not None:
                     break
-                if self._capture_estimate_due() and not self._end_queued():
+                if self._capture_estimate_due():
                     # A sender faster than the worker (a recorded stream, a backlog) still gets its
                     # estimates at the same points of the capture as a camera's.
                     next_estimate = time.monotonic() + s.stream_estimate_interval_s
@@ -389,7 +389,9 @@ class Session:
                 self.send({"type": "_progress", "messages": self.messages})
             now = time.monotonic()
             live = self._live
-            # Once the client has ended the stream, the result is what it waits for: no more estimates.
+            # Once the client has ended the stream, the result is what it waits for: no more estimates of
+            # the wall clock, also when its end is still queued behind frames (those at points of the
+            # capture are kept, so that a recorded stream gets the same estimates however fast it is sent).
             if (
                 self._end_reason is None
                 and live is not None
@@ -659,9 +661,10 @@ class Session:
     # Estimates ---------------------------------------------------------------------------------
     def _end_queued(self) -> bool:
         """Whether the client has already ended the stream in input not yet handled (what there is to read
-        now is read ahead, in order, into the loop's inbox). An estimate made then would only delay the
-        result, which is what the client waits for: the last frame and ``end`` come moments apart, and an
-        estimate costs tens of milliseconds (40-80 ms on a worker keeping up with 640 x 480 at 30 fps)."""
+        now is read ahead, in order, into the loop's inbox). An estimate of the wall clock made then would
+        only delay the result, which is what the client waits for: a camera's last frame and ``end`` come
+        moments apart, and an estimate costs tens of milliseconds (40-80 ms on a worker keeping up with
+        640 x 480 at 30 fps)."""
         self._inbox.extend(self.transport.read(self.stream_id, 0.0))
         return any(i.kind == "control" and (i.control or {}).get("type") == "end" for i in self._inbox)
 

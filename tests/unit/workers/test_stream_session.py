@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 import pytest
 from eigenscope_client.streams import frame_message
 
@@ -75,24 +76,30 @@ def transport(tmp_path: Path) -> LocalTransport:
     return LocalTransport(tmp_path / "streams")
 
 
-def test_an_end_already_queued_gets_the_result_without_estimates_before_it(
+def test_an_end_queued_behind_frames_leaves_only_the_estimates_at_points_of_the_capture(
     store: Store, settings: Settings, transport: LocalTransport
 ) -> None:
-    """The client has ended the stream: every frame it sent is analysed, and no estimate delays the result
-    (an estimate costs tens of milliseconds, and the last frame and ``end`` come moments apart)."""
-    from workers.streams import Session
+    """The client has ended the stream: every frame it sent is analysed, each gets the estimates due at
+    points of its capture (every ESTIMATE_EVERY_CAPTURE_S: a recorded stream gets the same ones however
+    fast it is sent), and none of the wall clock delays the result (due after every batch here, the end of
+    the first would otherwise bring one, a few frames after the last point of the capture)."""
+    from workers.streams import ESTIMATE_EVERY_CAPTURE_S, Session
 
+    eager = settings.model_copy(update={"stream_estimate_interval_s": 0.001})
     stream = _stream(store)
     asyncio.run(transport.dispatch(stream.id))
     assert transport.claim(0.1) == stream.id
     _queue_frames(transport, stream.id, end=True)
-    storage = Storage(settings.data_path)
+    storage = Storage(eager.data_path)
     storage.ensure()
-    Session(stream.id, settings, store, storage, transport).run()
-    kinds = [m["type"] for m in _sent(transport, stream.id)]
+    Session(stream.id, eager, store, storage, transport).run()
+    sent = _sent(transport, stream.id)
+    kinds = [m["type"] for m in sent]
     assert kinds.count("accepted") == FRAMES, kinds
-    assert "estimate" not in kinds, [(i, k) for i, k in enumerate(kinds) if k != "accepted"]
     assert kinds[-1] == "result", kinds
+    at = [m["estimate"]["frames_received"] for m in sent if m["type"] == "estimate"]
+    assert len(at) >= 2, at
+    assert min(np.diff(at)) >= round(ESTIMATE_EVERY_CAPTURE_S * 30.0), at
 
 
 def test_frames_queued_faster_than_the_worker_still_get_estimates_until_the_stream_ends(
