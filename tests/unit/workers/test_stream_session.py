@@ -66,8 +66,24 @@ def _queue_frames(transport: LocalTransport, stream_id: str, *, end: bool) -> No
     asyncio.run(push())
 
 
-def _sent(transport: LocalTransport, stream_id: str) -> list[dict[str, Any]]:
-    messages, _cursor = asyncio.run(transport.receive(stream_id, "0", 0.1))
+def _session(
+    store: Store, settings: Settings, transport: LocalTransport, *, end: bool
+) -> list[dict[str, Any]]:
+    """A stream's frames (and ``end``) queued before a worker takes it up and runs its session to its
+    end; every message the session sent."""
+    from workers.streams import Session
+
+    stream = _stream(store)
+    asyncio.run(transport.dispatch(stream.id))
+    assert transport.claim(0.1) == stream.id
+    _queue_frames(transport, stream.id, end=end)
+    storage = Storage(settings.data_path)
+    storage.ensure()
+    Session(stream.id, settings, store, storage, transport).run()
+    messages, _cursor = asyncio.run(transport.receive(stream.id, "0", 0.1))
+    kinds = [m["type"] for m in messages]
+    assert kinds.count("accepted") == FRAMES, kinds
+    assert kinds[-1] == "result", kinds
     return messages
 
 
@@ -83,20 +99,10 @@ def test_an_end_queued_behind_frames_leaves_only_the_estimates_at_points_of_the_
     points of its capture (every ESTIMATE_EVERY_CAPTURE_S: a recorded stream gets the same ones however
     fast it is sent), and none of the wall clock delays the result (due after every batch here, the end of
     the first would otherwise bring one, a few frames after the last point of the capture)."""
-    from workers.streams import ESTIMATE_EVERY_CAPTURE_S, Session
+    from workers.streams import ESTIMATE_EVERY_CAPTURE_S
 
     eager = settings.model_copy(update={"stream_estimate_interval_s": 0.001})
-    stream = _stream(store)
-    asyncio.run(transport.dispatch(stream.id))
-    assert transport.claim(0.1) == stream.id
-    _queue_frames(transport, stream.id, end=True)
-    storage = Storage(eager.data_path)
-    storage.ensure()
-    Session(stream.id, eager, store, storage, transport).run()
-    sent = _sent(transport, stream.id)
-    kinds = [m["type"] for m in sent]
-    assert kinds.count("accepted") == FRAMES, kinds
-    assert kinds[-1] == "result", kinds
+    sent = _session(store, eager, transport, end=True)
     at = [m["estimate"]["frames_received"] for m in sent if m["type"] == "estimate"]
     assert len(at) >= 2, at
     assert min(np.diff(at)) >= round(ESTIMATE_EVERY_CAPTURE_S * 30.0), at
@@ -107,17 +113,6 @@ def test_frames_queued_faster_than_the_worker_still_get_estimates_until_the_stre
 ) -> None:
     """Without an ``end`` queued, a backlog gets its estimates at points of the capture, as a camera's
     frames do (the stream then ends when the client falls silent)."""
-    from workers.streams import Session
-
     quiet = settings.model_copy(update={"stream_client_timeout_s": 0.5})
-    stream = _stream(store)
-    asyncio.run(transport.dispatch(stream.id))
-    assert transport.claim(0.1) == stream.id
-    _queue_frames(transport, stream.id, end=False)
-    storage = Storage(quiet.data_path)
-    storage.ensure()
-    Session(stream.id, quiet, store, storage, transport).run()
-    kinds = [m["type"] for m in _sent(transport, stream.id)]
-    assert kinds.count("accepted") == FRAMES, kinds
+    kinds = [m["type"] for m in _session(store, quiet, transport, end=False)]
     assert kinds.count("estimate") >= 2, [(i, k) for i, k in enumerate(kinds) if k != "accepted"]
-    assert kinds[-1] == "result", kinds
