@@ -221,8 +221,8 @@ class Session:
     _converged_sent: bool = False
     _estimated_at: float | None = None  # capture time (the last frame's timestamp) of the last estimate
     _end_reason: str | None = None
-    #: Input read and not yet handled, in order (read ahead to see whether the client has ended the stream).
-    _inbox: deque[Item] = field(default_factory=deque)
+    #: Input read ahead, in order, to see whether the client has ended the stream; handled next.
+    _inbox: list[Item] = field(default_factory=list)
     _timings: dict[str, float] = field(default_factory=dict)
     _claimed_at: float = 0.0
     _counted: bool = False  # the job has been counted in the worker metrics (once)
@@ -371,12 +371,9 @@ class Session:
                         "open a new stream",
                     )
                 )
-            if not self._inbox:
-                self._inbox.extend(self.transport.read(self.stream_id, 0.05))
-            batch = len(self._inbox)  # what is read ahead during the batch waits for the next one
+            items = self._next_input(0.05)
             now = time.monotonic()
-            for _ in range(batch):
-                item = self._inbox.popleft()
+            for item in items:
                 self._handle(item, request)
                 if self._end_reason is not None:
                     break
@@ -385,7 +382,7 @@ class Session:
                     # estimates at the same points of the capture as a camera's.
                     next_estimate = time.monotonic() + s.stream_estimate_interval_s
                     self._estimate(request, record=False)
-            if batch:
+            if items:
                 self.send({"type": "_progress", "messages": self.messages})
             now = time.monotonic()
             live = self._live
@@ -657,6 +654,13 @@ class Session:
         )
         assert self.record is not None
         self._clip = ClipWriter(self.storage.root / "tmp" / f"stream-{self.stream_id}" / "clip.zip")
+
+    def _next_input(self, timeout_s: float) -> list[Item]:
+        """The input read ahead by :meth:`_end_queued`, else what the transport has within ``timeout_s``."""
+        if not self._inbox:
+            return self.transport.read(self.stream_id, timeout_s)
+        items, self._inbox = self._inbox, []
+        return items
 
     # Estimates ---------------------------------------------------------------------------------
     def _end_queued(self) -> bool:

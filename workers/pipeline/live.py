@@ -37,7 +37,7 @@ from workers.pipeline.errors import AnalysisError, ParameterError
 from workers.pipeline.flow import FlowConfig
 from workers.pipeline.live_estimate import LIVE_FREQUENCY_REL_FLOOR, LiveEstimate, few_samples_factor
 from workers.pipeline.live_window import LiveWindow
-from workers.pipeline.measure import object_mechanics
+from workers.pipeline.measure import bounding_box, object_mechanics
 from workers.pipeline.mechanics import detect_release, release_amplitude, release_instant
 from workers.pipeline.metric import DepthContext, ImageAmplitude, MetricAmplitude, metric_amplitude
 from workers.pipeline.model import Analysis, AnalysisConfig, Excitation, QualityNote, Stopwatch
@@ -137,16 +137,12 @@ class _Signal:
 
 
 def _around(mask: NDArray[np.bool_], *, margin: int) -> tuple[slice, slice]:
-    """The rows and columns of ``mask``'s bounding box grown by ``margin`` (clipped to the mask's shape);
-    the whole of it when nothing is set."""
-    ys, xs = np.nonzero(mask)
-    if ys.size == 0:
+    """The rows and columns of ``mask``'s bounding box grown by ``margin`` (a slice past the mask's edge
+    stops there); the whole of it when nothing is set."""
+    x, y, width, height = bounding_box(mask)
+    if width == 0:
         return slice(None), slice(None)
-    h, w = mask.shape
-    return (
-        slice(max(int(ys.min()) - margin, 0), min(int(ys.max()) + margin + 1, h)),
-        slice(max(int(xs.min()) - margin, 0), min(int(xs.max()) + margin + 1, w)),
-    )
+    return slice(max(y - margin, 0), y + height + margin), slice(max(x - margin, 0), x + width + margin)
 
 
 def _moving_region(energy: NDArray[np.float64]) -> tuple[NDArray[np.bool_], NDArray[np.intp]] | None:

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.clipio.types import Intrinsics
+from workers.pipeline.peaks import nanmedian_over_time
 from workers.pipeline.ringdown import RingdownFit
 
 #: Relative standard uncertainty of flow-measured amplitudes (dense flow is biased low near edges).
@@ -84,27 +85,14 @@ def depth_track(
             ok = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
             inside = depth[frames[:, None], np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)]
             values = np.where(ok, inside, np.nan)
-        out[frames] = _finite_medians(values)
+        # each frame's median of its finite readings (the frames along the second axis)
+        out[frames] = nanmedian_over_time(np.where(np.isfinite(values), values, np.nan).T)
     return out
 
 
 #: Depth readings a block of :func:`depth_track`'s frames holds at most (its memory stays flat in the
 #: clip's length).
 TRACK_BLOCK_VALUES = 1 << 20
-
-
-def _finite_medians(values: NDArray[np.float32]) -> NDArray[np.float64]:
-    """Each row's median over its finite values (as ``np.median`` of them gives it, in the rows' dtype),
-    NaN for a row without one: one sort of the block (of at least one column), the non-finite values
-    last."""
-    finite = np.isfinite(values)
-    ordered = np.sort(np.where(finite, values, np.nan), axis=1)
-    count = finite.sum(axis=1)
-    rows = np.arange(len(values))
-    low = ordered[rows, np.maximum(count - 1, 0) // 2]
-    high = ordered[rows, np.minimum(count // 2, values.shape[1] - 1)]
-    middle = (low + high) / np.asarray(2, values.dtype)
-    return np.where(count > 0, middle, np.nan).astype(np.float64)
 
 
 def fit_component(
