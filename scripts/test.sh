@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The whole test suite: lint, format check, types, then every tier of tests in one run on pytest-xdist
-# workers (the fuzz tier after them, in a pytest of its own). Prints the 15 slowest tests, each tier's
+# workers (the fuzz tier beside them, in a pytest of its own). Prints the 15 slowest tests, each tier's
 # tests and serial time, and the wall time at the end (with --tier, the tiers run one after another and
 # each gets its own wall time).
 #
@@ -51,23 +51,38 @@ if [ ${#tiers[@]} -eq 0 ]; then
     lint=0
     echo "== ruff"; { ruff check . && ruff format --check .; } || lint=1
     echo "== mypy"; mypy api_schemas backend workers service eigenscope client/src/eigenscope_client || lint=1
-    # Every tier in one pytest run: the workers share out all the tests, so neither waits at the end of
-    # a tier for the other's last long test (the report still gives each tier's tests and serial time).
-    echo "== pytest: every tier (${ALL_TIERS[*]})"
+    # The fuzz tier runs in a pytest of its own, started first and beside the others: the fuzzer's memory
+    # limit is checked against its peak resident set, which Linux carries over from the process that
+    # starts it (fork and exec keep the high-water mark), so under a test worker grown by whole analyses
+    # it would start above its limit. It fuzzes for a set time on one core; run after the other tiers it
+    # added its whole minute and more to the wall time, with the other core idle, while the service
+    # tiers leave time on both cores (waiting on processes they start). Its output is shown after theirs.
+    echo "== pytest: the fuzz tier (a process of its own, beside the others; its output follows theirs)"
+    fuzz_started=$(date +%s.%N)
+    (
+        fuzz_rc=0
+        pytest -m fuzz --basetemp="$reports/fuzz-tmp" --junitxml="$reports/fuzz.xml" "${args[@]}" \
+            > "$reports/fuzz.log" 2>&1 || fuzz_rc=$?
+        echo "fuzz $fuzz_started $(date +%s.%N) $fuzz_rc" > "$reports/fuzz.wall"
+    ) &
+    fuzz_pid=$!
+    # Every other tier in one pytest run: the workers share out all the tests, so neither waits at the
+    # end of a tier for the other's last long test (the report still gives each tier's tests and serial
+    # time).
+    echo "== pytest: every other tier (${ALL_TIERS[*]/fuzz})"
     started=$(date +%s.%N)
     rc=0
     pytest "${xdist[@]}" -m "not fuzz" --junitxml="$reports/all.xml" "${args[@]}" || rc=$?
     ended=$(date +%s.%N)
     echo "all $started $ended $rc" >> "$reports/walls"
-    # The fuzzer's memory limit is checked against its peak resident set, which Linux carries over from
-    # the process that starts it (fork and exec keep the high-water mark): under a test worker grown by
-    # whole analyses it would start above its limit. Its tier runs in a pytest of its own.
-    echo "== pytest: the fuzz tier (a process of its own)"
-    started=$(date +%s.%N)
-    fuzz_rc=0
-    pytest -m fuzz --junitxml="$reports/fuzz.xml" "${args[@]}" || fuzz_rc=$?
-    ended=$(date +%s.%N)
-    echo "fuzz $started $ended $fuzz_rc" >> "$reports/walls"
+    wait "$fuzz_pid" || true
+    echo "== pytest: the fuzz tier's output"
+    cat "$reports/fuzz.log"
+    fuzz_rc=1
+    if [ -f "$reports/fuzz.wall" ]; then
+        cat "$reports/fuzz.wall" >> "$reports/walls"
+        fuzz_rc=$(cut -d' ' -f4 "$reports/fuzz.wall")
+    fi
     [ "$rc" = 0 ] && rc=$fuzz_rc
     python scripts/test_report.py "$reports" --slowest 15
     if [ "$rc" = 0 ] && [ "$lint" != 0 ]; then

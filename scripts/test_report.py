@@ -7,7 +7,9 @@ tier in one run) and ``walls``: one line per run, ``tier-or-all started ended ex
 the epoch). A test's tier is its ``tier`` property (``tests/conftest.py`` records it), else its report's
 name. A test's time is its setup, call and teardown (a module's services are started in its first test's
 setup). "Serial" is the sum of the tier's test times: what it would take one worker; the wall time is
-what the run took on the workers it had (one figure for all tiers when they ran together).
+what the run took on the workers it had (one figure for all tiers when they ran together). The total wall
+time is from the first run's start to the last one's end: runs that overlapped (the fuzz tier beside the
+others) count once.
 """
 
 from __future__ import annotations
@@ -47,13 +49,11 @@ def main(argv: list[str] | None = None) -> int:
 
     print("\n== wall time per tier")
     print(f"{'tier':<12} {'tests':>6} {'wall s':>9} {'serial s':>9}  result")
-    total = 0.0
     walls = args.reports / "walls"
     runs = [line.split() for line in walls.read_text().splitlines()] if walls.is_file() else []
     together = [r for r in runs if r[0] == "all"]
     for tier, started, ended, status in [r for r in runs if r[0] != "all"]:
         wall = float(ended) - float(started)
-        total += wall
         result = "passed" if status == "0" else f"exit {status}"
         print(f"{tier:<12} {counts.get(tier, 0):>6} {wall:>9.1f} {serial.get(tier, 0.0):>9.1f}  {result}")
     for _, started, ended, status in together:
@@ -63,8 +63,8 @@ def main(argv: list[str] | None = None) -> int:
         for tier in sorted(shared, key=lambda t: (_ORDER.index(t) if t in _ORDER else len(_ORDER), t)):
             print(f"{tier:<12} {counts[tier]:>6} {'-':>9} {serial[tier]:>9.1f}  (in one run)")
         wall = float(ended) - float(started)
-        total += wall
         print(f"{'(one run)':<12} {sum(counts[t] for t in shared):>6} {wall:>9.1f} {'':>9}  {result}")
+    total = max(float(r[2]) for r in runs) - min(float(r[1]) for r in runs) if runs else 0.0
     print(f"{'all':<12} {sum(counts.values()):>6} {total:>9.1f} {sum(serial.values()):>9.1f}")
     return 0
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.accuracy.pipeline.test_groundtruth import CASES, scene_for
+from tests.accuracy.pipeline.test_groundtruth import CASE_PARAMS, CASES, scene_for
 from tests.scenes import ACCURACY_ROWS
 from workers.pipeline.analysis import Analysis, AnalysisConfig, analyze
 from workers.pipeline.clipio import open_clip
@@ -232,7 +232,7 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("codec", [H264_PHONE, MPEG4_ACTION_CAMERA], ids=["h264", "mpeg4"])
-@pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize("case", CASE_PARAMS)
 def test_codec_parity_with_the_lossless_scene(
     clips: Path, case, codec: tuple[str, int, int], run_scene
 ) -> None:

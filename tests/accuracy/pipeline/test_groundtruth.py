@@ -26,6 +26,11 @@ CASES = [
     ("4Hz-160x120", 4.0, 0.5, 1.0, 64, 0, "step_release", 5.0, (160, 120)),
 ]
 
+#: CASES as parameters, each case's tests (here and the codec parity tests of test_compressed_footage) in one
+#: pytest-xdist group: they share the scene's rendering and lossless analysis (tests/scenes.py keeps them
+#: per worker), which two workers would each render and analyse.
+CASE_PARAMS = [pytest.param(c, id=c[0], marks=pytest.mark.xdist_group(f"groundtruth-{c[0]}")) for c in CASES]
+
 
 def scene_for(case, seed: int) -> Scene:
     _, f, m, depth, frames, release, kind, value, (w, h) = case
@@ -45,7 +50,7 @@ def scene_for(case, seed: int) -> Scene:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize("case", CASE_PARAMS)
 def test_default_method_meets_the_floors(case, run_scene):
     scene = scene_for(case, seed=CASES.index(case))
     run = run_scene(scene)
