@@ -2,7 +2,7 @@
 against a dense one-step Lucas-Kanade with a brightness offset per window, 13x cheaper a pair: a measuring
 tool for issue 26's next step, not a test (it never fails, and the pipeline does not use the second flow).
 
-    python bench/look_flow.py [--bars 8] [--rng 7] [--first-seed 100] [--no-real] [--null]
+    python bench/look_flow.py [--bars 8] [--rng 7] [--first-seed 100] [--no-real] [--null] [--window 5]
 
 For each clip, both flows in turn (the look's flow swapped in this process): the objects found (frequency,
 false-alarm probability per clip, pixels) and the analysis' time. Clips: random thin-bar draws as
@@ -103,7 +103,9 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=100)
     parser.add_argument("--no-real", action="store_true")
     parser.add_argument("--null", action="store_true", help="bench/null_corpus.py with each flow")
+    parser.add_argument("--window", type=int, default=5, help="Lucas-Kanade's window side, grid pixels")
     args = parser.parse_args()
+    LucasKanade.WINDOW = (args.window, args.window)
     folder = Path(tempfile.mkdtemp(prefix="look-flow-"))
     rng = np.random.default_rng(args.rng)
     for i in range(args.bars):
