@@ -6,8 +6,8 @@ tool for issue 26's next step, not a test (it never fails, and the pipeline does
 
 For each clip, both flows in turn (the look's flow swapped in this process): the objects found (frequency,
 false-alarm probability per clip, pixels) and the analysis' time. Clips: random thin-bar draws as
-``bench/thin_bars.py`` makes them, the 640 x 480 x 256 scene of ``bench/pipeline.py`` and the shared 32 Hz
-and 128 Hz forks; with ``--null``, ``bench/null_corpus.py`` run once with each flow.
+``bench/thin_bars.py`` makes them (its :func:`draw`), the 640 x 480 x 256 scene of ``bench/pipeline.py``
+and the shared 32 Hz and 128 Hz forks; with ``--null``, ``bench/null_corpus.py`` run once with each flow.
 
 Lucas-Kanade here: the mean of the two grey frames' Sobel gradients, their change, and over each 5 x 5
 window the sums of the gradients' products and of gradient times change, with the window's means taken out
@@ -37,12 +37,12 @@ import eigenscope  # noqa: E402,F401  (thread settings before numpy's and OpenCV
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bench.thin_bars import draw  # noqa: E402
 from workers.pipeline import look  # noqa: E402
 from workers.pipeline.analysis import analyze  # noqa: E402
 from workers.pipeline.clipio import ClipOverrides, open_clip  # noqa: E402
 from workers.pipeline.synth_corpus import encode, thin_bar  # noqa: E402
 
-CODECS = (("mpeg4", 1_200_000, 12), ("libx264", 1_500_000, 15), ("mpeg4", 2_000_000, 30))
 DIS = look._coarse_dis
 FORKS = ROOT.parent / "shared" / "data" / "real" / "tuning-forks"
 
@@ -109,11 +109,8 @@ def main() -> None:
     folder = Path(tempfile.mkdtemp(prefix="look-flow-"))
     rng = np.random.default_rng(args.rng)
     for i in range(args.bars):
-        fps = (240.0, 30.0)[i % 2]
-        f = float(rng.uniform(8, 100) if fps == 240 else rng.uniform(1.5, 12))
-        amplitude = float(rng.uniform(0.2, 1.2))
-        codec, rate, gop = CODECS[i % 3]
-        scene = thin_bar(fps=fps, frequency_hz=f, amplitude_px=amplitude, seed=args.first_seed + i)
+        fps, f, amplitude, codec, rate, gop, seed = draw(rng, i, first_seed=args.first_seed)
+        scene = thin_bar(fps=fps, frequency_hz=f, amplitude_px=amplitude, seed=seed)
         path = encode(scene, folder / f"bar-{i}.mp4", codec=codec, bit_rate=rate, keyframe_every=gop)
         print(f"bar {fps:.0f} fps {f:.3f} Hz {amplitude:.2f} px {codec}: {measure(path)}", flush=True)
     if not args.no_real:

@@ -41,6 +41,18 @@ def contrast(seed: int) -> float:
     return float(gray[150:330, 350:354].mean() - gray[150:330, 330:340].mean())
 
 
+def draw(
+    rng: np.random.Generator, i: int, *, first_seed: int
+) -> tuple[float, float, float, str, int, int, int]:
+    """Draw ``i`` of a run: (fps, frequency_hz, amplitude_px, codec, bit_rate, keyframe_every, scene seed),
+    the rate and codec in turn, the frequency and amplitude from ``rng``."""
+    fps = (240.0, 30.0)[i % 2]
+    f = float(rng.uniform(8, 100) if fps == 240 else rng.uniform(1.5, 12))
+    amplitude = float(rng.uniform(0.2, 1.2))
+    codec, rate, gop = CODECS[i % 3]
+    return fps, f, amplitude, codec, rate, gop, first_seed + i
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -53,11 +65,7 @@ def main() -> None:
     folder = Path(tempfile.mkdtemp(prefix="bars-"))
     found_count = 0
     for i in range(args.draws):
-        fps = (240.0, 30.0)[i % 2]
-        f = float(rng.uniform(8, 100) if fps == 240 else rng.uniform(1.5, 12))
-        amplitude = float(rng.uniform(0.2, 1.2))
-        codec, rate, gop = CODECS[i % 3]
-        seed = args.first_seed + i
+        fps, f, amplitude, codec, rate, gop, seed = draw(rng, i, first_seed=args.first_seed)
         scene = thin_bar(fps=fps, frequency_hz=f, amplitude_px=amplitude, seed=seed)
         path = encode(scene, folder / f"{i}.mp4", codec=codec, bit_rate=rate, keyframe_every=gop)
         with open_clip(path) as reader:

@@ -230,7 +230,7 @@ def test_the_depth_track_follows_the_object_with_its_shifts():
 
 
 @pytest.mark.parametrize("shifted", [False, True], ids=["still", "followed"])
-def test_the_depth_track_is_each_frames_median_of_its_finite_readings_exactly(shifted: bool):
+def test_the_depth_track_is_each_frames_median_of_its_finite_readings_exactly(shifted: bool, monkeypatch):
     """Against the plain per-frame definition (np.median of the finite readings under the eroded core,
     moved by the frame's shift), bit for bit: frames with unread pixels, an infinite reading, a frame
     without any, shifts reaching past the grid's edge, and more frames than one block of the track."""
@@ -256,12 +256,8 @@ def test_the_depth_track_is_each_frames_median_of_its_finite_readings_exactly(sh
         values = values[np.isfinite(values)]
         if values.size:
             expected[k] = float(np.median(values))
-    small_blocks = metric.TRACK_BLOCK_VALUES
-    try:
-        metric.TRACK_BLOCK_VALUES = 7 * ys.size  # blocks of 7 frames
-        track = depth_track(depth, region, shifts_px=shifts)
-    finally:
-        metric.TRACK_BLOCK_VALUES = small_blocks
+    monkeypatch.setattr(metric, "TRACK_BLOCK_VALUES", 7 * ys.size)  # blocks of 7 frames
+    track = depth_track(depth, region, shifts_px=shifts)
     assert np.array_equal(track, expected, equal_nan=True), track - expected
     assert np.isnan(track[3])
 
