@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -142,6 +144,21 @@ def measure_object(
         confidence=window.confidence,
         coarse=region.coarse,
     )
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="modes") as pool:
+        # the modes need the motion's onset only: sought beside the rest (their transforms and products
+        # release the interpreter)
+        modes = pool.submit(_modes, track, region, window)
+        return _measured(region, window, track, excitation, modes.result)
+
+
+def _measured(
+    region: Region,
+    window: WindowContext,
+    track: Track,
+    excitation: Excitation | None,
+    modes: Callable[[], ObjectModeShapes | None],
+) -> ObjectMeasurement:
+    """The object's measurement from its track (:func:`measure_object`); ``modes`` gives its modes."""
     fit = track.fit
     release = _release(track, window, excitation)
     metric = _metric(track, release, region, window)
@@ -192,7 +209,7 @@ def measure_object(
         model_displacement_px=model,
         axis_px=track.axis_px,
         regime=regime,
-        modes=_modes(track, region, window),
+        modes=modes(),
         excitation=used,
     )
 

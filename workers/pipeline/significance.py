@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -468,14 +468,16 @@ def _pooled_levels(
         chunk = spectra[k : k + size].reshape(-1, h, w, 2)
         z = constrained_spectra(chunk, confidence)
         rows = slice(first + k, first + k + len(z))
-        for level, (block, (shape, positions, sample)) in enumerate(zip(shapes, grids, strict=True)):
-            if block == (1, 1):
-                pooled = z
-            else:
-                pooled = np.empty((len(z), *shape, 4), np.float32)
-                for b in range(len(z)):
-                    _pool(z[b], block, out=pooled[b])
-            flat = pooled.reshape(len(z), shape[0] * shape[1], 4)
+        pooled = [
+            z if block == (1, 1) else np.empty((len(z), *shape, 4), np.float32)
+            for block, (shape, _, _) in zip(shapes, grids, strict=True)
+        ]
+        for b in range(len(z)):  # every shape of one frequency's map while it is in the cache
+            for block, out in zip(shapes, pooled, strict=True):
+                if block != (1, 1):
+                    _pool(z[b], block, out=out[b])
+        for level, ((shape, positions, sample), blocks) in enumerate(zip(grids, pooled, strict=True)):
+            flat = blocks.reshape(len(z), shape[0] * shape[1], 4)
             # every block's power, then the counted ones' (gathering powers moves a quarter of the bytes)
             power = np.einsum("bpc,bpc->bp", flat, flat)
             raw[level][rows] = power[:, positions]
@@ -485,32 +487,41 @@ def _pooled_levels(
     with ThreadPoolExecutor(max_workers=POOL_THREADS, thread_name_prefix="scan") as pool:
 
         def pool_group(first: int) -> None:  # the group's spectra are let go before the next one's
-            spectra = _band_spectra(series, taper, bins[first : first + group])
+            spectra = _band_spectra(series, taper, bins[first : first + group], map_blocks=pool.map)
             # a short window's few frequencies are shared between the threads too
             size = min(_CHUNK, -(-len(spectra) // POOL_THREADS))
             list(pool.map(functools.partial(pool_chunk, spectra, first, size), range(0, len(spectra), size)))
 
         for first in range(0, len(bins), group):
             pool_group(first)
-    return [
-        replace(_summarised(level, shape, positions, r, colour_of(s)), block=block)
-        for level, (block, (shape, positions, _), r, s) in enumerate(
-            zip(shapes, grids, raw, sampled, strict=True)
-        )
-    ]
+
+        def summarised(level: int) -> _Level:
+            shape, positions, _ = grids[level]
+            found = _summarised(level, shape, positions, raw[level], colour_of(sampled[level]))
+            return replace(found, block=shapes[level])
+
+        return list(pool.map(summarised, range(len(shapes))))  # the levels' percentiles, side by side
 
 
 def _band_spectra(
-    series: NDArray[np.float32], taper: NDArray[np.float32], bins: NDArray[np.intp]
+    series: NDArray[np.float32],
+    taper: NDArray[np.float32],
+    bins: NDArray[np.intp],
+    *,
+    map_blocks: Callable[..., Iterator[None]] = map,
 ) -> NDArray[np.complex64]:
     """The tapered ``series``' (N, C) spectra at ``bins``: (B, C), a block of columns at a time (a block
-    stays in cache, and only those bins of its spectra are kept)."""
+    stays in cache, and only those bins of its spectra are kept); the blocks are independent, shared out
+    by ``map_blocks`` (a thread pool's ``map``: numpy and the FFT release the GIL)."""
     from scipy import fft
 
     spectra = np.empty((len(bins), series.shape[1]), np.complex64)
-    for c in range(0, series.shape[1], _COLUMNS):
+
+    def block(c: int) -> None:
         tapered = _tapered(series[:, c : c + _COLUMNS], taper)
-        spectra[:, c : c + _COLUMNS] = fft.rfft(tapered, axis=0, workers=2)[bins]
+        spectra[:, c : c + _COLUMNS] = fft.rfft(tapered, axis=0)[bins]
+
+    list(map_blocks(block, range(0, series.shape[1], _COLUMNS)))
     return spectra
 
 
@@ -602,6 +613,10 @@ def _finish(
         centres = _centres(lv, grid_shape)
         cy, cx = np.divmod(centres, w)
         tile_of = (cy * TILES // h) * TILES + cx * TILES // w
+        # the blocks in order of their tile, and where each tile's run starts: one gather and one
+        # reduction a chunk give every tile's largest power
+        by_tile = np.argsort(tile_of, kind="stable")
+        present, starts = np.unique(tile_of[by_tile], return_index=True)
         for k in range(0, bins, _CHUNK):
             power = lv.power(slice(k, k + _CHUNK))
             j = np.argmax(power, axis=1)
@@ -611,10 +626,9 @@ def _finish(
             statistic[idx] = peak[better]
             best_level[idx] = lv.level
             best_position[idx] = centres[j[better]]
-            for t in np.unique(tile_of):
-                tiles[t, k : k + len(power)] = np.maximum(
-                    tiles[t, k : k + len(power)], power[:, tile_of == t].max(axis=1)
-                )
+            largest = np.maximum.reduceat(power[:, by_tile], starts, axis=1)  # (chunk, tiles present)
+            rows = tiles[present, k : k + len(power)]
+            tiles[present, k : k + len(power)] = np.maximum(rows, largest.T)
     if not statistic.any():
         # No part of the picture has texture enough to show motion: nothing can stand out.
         calibration = Calibration(location=0.0, scale=1.0, bins_fitted=0, bins_searched=searched)

@@ -78,6 +78,40 @@ def test_a_long_windows_band_transformed_in_groups_gives_the_same_statistic(monk
     np.testing.assert_array_equal(grouped.z, whole.z)
 
 
+def test_the_law_is_fitted_on_each_tiles_largest_block_power(monkeypatch):
+    """The tiles the law is fitted on: at each frequency, the largest normalised power of the counted
+    blocks (every shape) whose centre lies in the tile, as a plain loop over the tiles gives it; and the
+    statistic is the largest of all."""
+    from workers.pipeline import significance
+
+    fitted = {}
+    fit = significance.fit_calibration
+
+    def spy(statistic, **kw):
+        fitted["tiles"] = kw["tiles"]
+        return fit(statistic, **kw)
+
+    monkeypatch.setattr(significance, "fit_calibration", spy)
+    flow = _vibrate(_noise(5), 9.0, 0.04, (slice(20, 28), slice(30, 34)))
+    scan = _scan(flow, _picture(5, flat_left=True))
+    tiles = significance.TILES
+    expected = np.zeros((tiles * tiles, len(scan.frequencies_hz)))
+    largest = np.zeros(len(scan.frequencies_hz))
+    for level in scan._levels:
+        if not level.positions.size:
+            continue
+        cy, cx = np.divmod(significance._centres(level, (H, W)), W)
+        tile_of = (cy * tiles // H) * tiles + cx * tiles // W
+        power = level.power(slice(None))
+        largest = np.maximum(largest, power.max(axis=1))
+        for t in range(tiles * tiles):
+            if (tile_of == t).any():
+                expected[t] = np.maximum(expected[t], power[:, tile_of == t].max(axis=1))
+    assert (~expected.any(axis=1)).sum() >= 1  # the flat half's tiles hold no block
+    np.testing.assert_array_equal(fitted["tiles"], expected[expected.any(axis=1)])
+    np.testing.assert_array_equal(scan.statistic, largest)
+
+
 def test_a_weak_small_vibration_is_found_where_and_at_what_it_moves():
     flow = _vibrate(_noise(7), 9.0, 0.04, (slice(20, 28), slice(30, 34)))  # below the noise per sample
     scan = _scan(flow, _picture(7))
