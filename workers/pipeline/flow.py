@@ -259,6 +259,49 @@ def pixel_columns(maps: NDArray[np.floating[Any]], pixels: NDArray[np.intp]) -> 
     return np.asarray(np.take(maps.reshape(len(maps), -1), columns, axis=1))
 
 
+def to_float16(maps: NDArray[np.floating[Any]]) -> NDArray[np.float16]:
+    """``maps.astype(np.float16)``, bit for bit, for a stack of maps (N, ...), each a view whose rows may
+    lie apart (a box of a picture's flow).
+
+    Converted by OpenCV, a map at a time: numpy converts results below float16's normal range (6e-5, most
+    of a still picture's flow) one value at a time, 5 to 20 times slower (1000 maps of a fork's box:
+    0.2 s against 0.02 s).
+
+    Parameters
+    ----------
+    maps : ndarray of float32 (or float16), shape (N, ...)
+
+    Returns
+    -------
+    ndarray of float16, same shape
+    """
+    return _converted(maps, np.float16, cv2.CV_16F)
+
+
+def as_float32(maps: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
+    """``np.asarray(maps, np.float32)`` for a stack of maps (N, ...): float16 maps (the front's kept flow)
+    converted by OpenCV, exactly (see :func:`to_float16`: numpy is as slow the other way)."""
+    if maps.dtype != np.float16:
+        return np.asarray(maps, np.float32)
+    return _converted(maps, np.float32, cv2.CV_32F)
+
+
+def _converted(maps: NDArray[Any], dtype: type[np.floating[Any]], depth: int) -> NDArray[Any]:
+    """``maps`` (N, ...) in ``dtype`` (OpenCV's ``depth``), converted by OpenCV a map at a time."""
+    if maps.ndim < 2 or maps.size < _MIN_CONVERTED * len(maps):
+        return maps.astype(dtype)  # (OpenCV takes a few values for a scalar)
+    out = np.empty(maps.shape, dtype)
+    for source, target in zip(maps, out, strict=True):
+        # one channel: OpenCV would multiply a second channel by the scalar's second component (0)
+        rows = (len(source), -1) if source.ndim > 1 else (1, -1)
+        target.reshape(rows)[...] = cv2.multiply(source.reshape(rows), 1.0, dtype=depth)
+    return out
+
+
+#: Maps of fewer values than this are converted by numpy.
+_MIN_CONVERTED = 64
+
+
 def needs_resampling(
     timestamps_s: NDArray[np.float64], sample_rate_hz: float, *, tolerance: float = 0.05
 ) -> bool:

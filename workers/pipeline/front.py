@@ -24,7 +24,7 @@ from workers.pipeline.codec import flow_level
 from workers.pipeline.confidence import Confidence, flow_confidence
 from workers.pipeline.detection import Candidates, find_candidates
 from workers.pipeline.errors import AnalysisError
-from workers.pipeline.flow import pixel_columns
+from workers.pipeline.flow import as_float32, pixel_columns, to_float16
 from workers.pipeline.look import LOOK_WIDTH_PX, Look, frame_noise
 from workers.pipeline.roi import Roi
 from workers.pipeline.significance import MAX_FALSE_ALARM, MIN_BINS, MotionScan, motion_scan
@@ -96,8 +96,8 @@ class Front:
         # copies in half precision (rounding 2^-11 of a value, far below the flow's noise): the whole
         # picture's flow can be let go, and a 1000-frame window's box holds 37 MiB instead of 74 (the
         # whole picture of a 3000-frame window 192 instead of 384)
-        kept = self.flow[:, y0:y1, x0:x1].astype(np.float16)
-        ring = pixel_columns(self.flow, self.ring.pixels).reshape(len(self.flow), -1, 2).astype(np.float16)
+        kept = to_float16(self.flow[:, y0:y1, x0:x1])
+        ring = to_float16(pixel_columns(self.flow, self.ring.pixels)).reshape(len(self.flow), -1, 2)
         return replace(self, flow=kept, flow_origin=(y0, x0), ring_flow=ring)
 
     def coarse_view(self, region: NDArray[np.bool_]) -> CoarseView:
@@ -158,7 +158,7 @@ def _band_power(
     nfft = fast_length(n)
     freqs = np.fft.rfftfreq(nfft, d=1.0 / sample_rate_hz)
     bins = np.flatnonzero(np.abs(freqs - frequency_hz) <= half_width_bins * sample_rate_hz / nfft)
-    flat = np.asarray(series.reshape(n, -1), np.float32)  # BLAS: float32 (the kept flow is float16)
+    flat = as_float32(series.reshape(n, -1))  # BLAS: float32 (the kept flow is float16)
     if flat.shape[1] == 0 or bins.size == 0:
         return np.zeros(flat.shape[1] // 2)
     phase = 2 * np.pi * np.outer(np.arange(n), bins) / nfft

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workers.pipeline.confidence import Confidence
-from workers.pipeline.flow import pixel_columns
+from workers.pipeline.flow import as_float32, pixel_columns
 from workers.pipeline.registration import register_translation
 from workers.pipeline.release_fit import FitHints, ReleaseFitter
 from workers.pipeline.ringdown import RingdownFit
@@ -95,7 +95,7 @@ def object_motion(
     if len(idx) > max_pixels:
         idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
     # (N, 2P): the pixels' u and v, each column's mean removed (one copy of the masked flow)
-    mat = np.asarray(pixel_columns(flow, idx), np.float32)
+    mat = as_float32(pixel_columns(flow, idx))
     mat -= mat.mean(axis=0, dtype=np.float64).astype(np.float32)
     weight = None if confidence is None else confidence.weight
     counts = (

@@ -65,3 +65,34 @@ def test_pixel_columns_are_the_fancy_index_of_the_pixels(channels: int) -> None:
     assert got.dtype == maps.dtype
     np.testing.assert_array_equal(got, expected)
     np.testing.assert_array_equal(pixel_columns(maps.reshape(7, 30, channels), pixels), expected)
+
+
+@pytest.mark.parametrize(
+    "shape",
+    [(5, 9, 12, 2), (4, 300), (3, 40), (1, 1, 1, 1), (0, 6), (7,)],
+    ids=lambda s: "x".join(map(str, s)),
+)
+def test_half_precision_is_numpys_bit_for_bit(shape: tuple[int, ...]) -> None:
+    """to_float16 and as_float32 give what numpy's casts give, bit for bit: values below float16's normal
+    range (a still picture's flow), ties, overflow to infinity, NaN; and a box cut out of maps."""
+    from workers.pipeline.flow import as_float32, to_float16
+
+    rng = np.random.default_rng(3)
+    scale = rng.choice(np.array([1e-9, 1e-6, 3e-5, 1.0, 7e4], np.float32), size=shape)
+    values = (rng.standard_normal(shape) * scale).astype(np.float32)
+    if values.size:
+        values.flat[0] = np.nan
+        values.flat[-1] = 2.9802322e-08  # a tie between 0 and float16's smallest value
+    with np.errstate(over="ignore"):
+        expected = values.astype(np.float16)
+        half = to_float16(values)
+        box = values[:, 2:7, 3:10] if len(shape) == 4 else None
+        boxed = None if box is None else (to_float16(box), box.astype(np.float16))
+    assert half.dtype == np.float16
+    assert half.shape == values.shape
+    np.testing.assert_array_equal(half.view(np.uint16), expected.view(np.uint16))
+    single = as_float32(half)
+    assert single.dtype == np.float32
+    np.testing.assert_array_equal(single, expected.astype(np.float32))
+    if boxed is not None:
+        np.testing.assert_array_equal(boxed[0].view(np.uint16), boxed[1].view(np.uint16))
