@@ -287,9 +287,14 @@ def as_float32(maps: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
 
 
 def _converted(maps: NDArray[Any], dtype: type[np.floating[Any]], depth: int) -> NDArray[Any]:
-    """``maps`` (N, ...) in ``dtype`` (OpenCV's ``depth``), converted by OpenCV a map at a time."""
-    if maps.ndim < 2 or maps.size < _MIN_CONVERTED * len(maps):
+    """``maps`` (N, ...) in ``dtype`` (OpenCV's ``depth``), converted by OpenCV: at once when they lie in
+    one block of memory, else a map at a time."""
+    if maps.ndim < 2 or maps.size == 0 or maps.size < _MIN_CONVERTED * len(maps):
         return maps.astype(dtype)  # (OpenCV takes a few values for a scalar)
+    if maps.flags.c_contiguous:
+        # one channel: OpenCV would multiply a second channel by the scalar's second component (0)
+        flat = maps.reshape(len(maps), -1)
+        return np.asarray(cv2.multiply(flat, 1.0, dtype=depth)).reshape(maps.shape)
     out = np.empty(maps.shape, dtype)
     for source, target in zip(maps, out, strict=True):
         # one channel: OpenCV would multiply a second channel by the scalar's second component (0)
