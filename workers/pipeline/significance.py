@@ -588,6 +588,53 @@ def _summarised(
     return _Level(level, shape, positions, raw, _own_levels(raw), colour)
 
 
+@dataclass(frozen=True)
+class _LevelPeaks:
+    """One level's largest normalised power at each frequency, where it lies, and each tile's largest.
+
+    Attributes
+    ----------
+    peak : ndarray of float32, shape (B,)
+    position : ndarray of int64, shape (B,)
+        Flattened grid index of the centre of the block holding ``peak``.
+    tiles : ndarray of intp, shape (T,)
+        The tiles the level's counted blocks lie in.
+    tile_peak : ndarray of float32, shape (T, B)
+        The largest power of each of those tiles' blocks at each frequency.
+    """
+
+    peak: NDArray[np.float32]
+    position: NDArray[np.int64]
+    tiles: NDArray[np.intp]
+    tile_peak: NDArray[np.float32]
+
+
+def _level_peaks(lv: _Level, *, grid_shape: tuple[int, int], bins: int) -> _LevelPeaks | None:
+    """The level's peaks (:class:`_LevelPeaks`), a chunk of frequencies at a time; None when no block of
+    it counts."""
+    if not lv.positions.size:
+        return None
+    h, w = grid_shape
+    centres = _centres(lv, grid_shape)
+    cy, cx = np.divmod(centres, w)
+    tile_of = (cy * TILES // h) * TILES + cx * TILES // w
+    # the blocks in order of their tile, and where each tile's run starts: one gather and one reduction
+    # a chunk give every tile's largest power
+    by_tile = np.argsort(tile_of, kind="stable")
+    present, starts = np.unique(tile_of[by_tile], return_index=True)
+    peak = np.empty(bins, np.float32)
+    position = np.empty(bins, np.int64)
+    tile_peak = np.empty((len(present), bins), np.float32)
+    for k in range(0, bins, _CHUNK):
+        power = lv.power(slice(k, k + _CHUNK))
+        j = np.argmax(power, axis=1)
+        rows = slice(k, k + len(power))
+        peak[rows] = power[np.arange(len(j)), j]
+        position[rows] = centres[j]
+        tile_peak[:, rows] = np.maximum.reduceat(power[:, by_tile], starts, axis=1).T
+    return _LevelPeaks(peak, position, present.astype(np.intp), tile_peak)
+
+
 def _finish(
     levels: list[_Level],
     *,
@@ -606,29 +653,17 @@ def _finish(
     tiles = np.zeros((TILES * TILES, bins))
     best_level = np.zeros(bins, np.int64)
     best_position = np.zeros(bins, np.int64)
-    h, w = grid_shape
-    for lv in levels:
-        if not lv.positions.size:
+    with ThreadPoolExecutor(max_workers=POOL_THREADS, thread_name_prefix="scan") as pool:
+        found = list(pool.map(functools.partial(_level_peaks, grid_shape=grid_shape, bins=bins), levels))
+    # in the levels' order: a tie goes to the earlier level, as it did chunk by chunk
+    for lv, peaks in zip(levels, found, strict=True):
+        if peaks is None:
             continue
-        centres = _centres(lv, grid_shape)
-        cy, cx = np.divmod(centres, w)
-        tile_of = (cy * TILES // h) * TILES + cx * TILES // w
-        # the blocks in order of their tile, and where each tile's run starts: one gather and one
-        # reduction a chunk give every tile's largest power
-        by_tile = np.argsort(tile_of, kind="stable")
-        present, starts = np.unique(tile_of[by_tile], return_index=True)
-        for k in range(0, bins, _CHUNK):
-            power = lv.power(slice(k, k + _CHUNK))
-            j = np.argmax(power, axis=1)
-            peak = power[np.arange(len(j)), j]
-            better = peak > statistic[k : k + _CHUNK]
-            idx = np.flatnonzero(better) + k
-            statistic[idx] = peak[better]
-            best_level[idx] = lv.level
-            best_position[idx] = centres[j[better]]
-            largest = np.maximum.reduceat(power[:, by_tile], starts, axis=1)  # (chunk, tiles present)
-            rows = tiles[present, k : k + len(power)]
-            tiles[present, k : k + len(power)] = np.maximum(rows, largest.T)
+        better = peaks.peak > statistic
+        statistic[better] = peaks.peak[better]
+        best_level[better] = lv.level
+        best_position[better] = peaks.position[better]
+        tiles[peaks.tiles] = np.maximum(tiles[peaks.tiles], peaks.tile_peak)
     if not statistic.any():
         # No part of the picture has texture enough to show motion: nothing can stand out.
         calibration = Calibration(location=0.0, scale=1.0, bins_fitted=0, bins_searched=searched)
