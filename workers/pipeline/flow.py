@@ -263,8 +263,8 @@ def to_float16(maps: NDArray[np.floating[Any]]) -> NDArray[np.float16]:
     """``maps.astype(np.float16)``, bit for bit, for a stack of maps (N, ...), each a view whose rows may
     lie apart (a box of a picture's flow).
 
-    Converted by OpenCV, a map at a time: numpy converts results below float16's normal range (6e-5, most
-    of a still picture's flow) one value at a time, 5 to 20 times slower (1000 maps of a fork's box:
+    Converted by OpenCV (:func:`_converted`): numpy converts results below float16's normal range (6e-5,
+    most of a still picture's flow) one value at a time, 5 to 20 times slower (1000 maps of a fork's box:
     0.2 s against 0.02 s).
 
     Parameters
@@ -287,19 +287,16 @@ def as_float32(maps: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
 
 
 def _converted(maps: NDArray[Any], dtype: type[np.floating[Any]], depth: int) -> NDArray[Any]:
-    """``maps`` (N, ...) in ``dtype`` (OpenCV's ``depth``), converted by OpenCV: at once when they lie in
-    one block of memory, else a map at a time."""
+    """``maps`` (N, ...) in ``dtype`` (OpenCV's ``depth``), written by OpenCV into a new array: at once when
+    they lie in one block of memory, else a map at a time (a box's rows lie apart)."""
     if maps.ndim < 2 or maps.size == 0 or maps.size < _MIN_CONVERTED * len(maps):
         return maps.astype(dtype)  # (OpenCV takes a few values for a scalar)
-    if maps.flags.c_contiguous:
-        # one channel: OpenCV would multiply a second channel by the scalar's second component (0)
-        flat = maps.reshape(len(maps), -1)
-        return np.asarray(cv2.multiply(flat, 1.0, dtype=depth)).reshape(maps.shape)
     out = np.empty(maps.shape, dtype)
-    for source, target in zip(maps, out, strict=True):
-        # one channel: OpenCV would multiply a second channel by the scalar's second component (0)
+    pairs = [(maps, out)] if maps.flags.c_contiguous else zip(maps, out, strict=True)
+    for source, target in pairs:
+        # rows of one channel: OpenCV would multiply a second channel by the scalar's second component (0)
         rows = (len(source), -1) if source.ndim > 1 else (1, -1)
-        target.reshape(rows)[...] = cv2.multiply(source.reshape(rows), 1.0, dtype=depth)
+        cv2.multiply(source.reshape(rows), 1.0, dst=target.reshape(rows), dtype=depth)
     return out
 
 
