@@ -18,6 +18,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 
+from eigenscope import _heap
 from eigenscope._help import clean_help
 
 #: Modules under eigenscope.commands, in help order.
@@ -143,5 +144,9 @@ def _reader_gone() -> int:
 
 
 def console_main() -> None:
-    """The ``eigenscope`` executable: :func:`main`, then exit with its status."""
-    raise SystemExit(main(sys.argv[1:]))
+    """The ``eigenscope`` executable: :func:`main`, then exit with its status (the heap settled first, so
+    that the interpreter's teardown does not go over it: :mod:`eigenscope._heap`)."""
+    _heap.for_this_process()
+    code = main(sys.argv[1:])
+    _heap.settle()
+    raise SystemExit(code)

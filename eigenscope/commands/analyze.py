@@ -85,8 +85,11 @@ def first_missing_folder(out: Path) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from eigenscope import _heap
     from eigenscope.commands._options import read_force_log_file
     from workers.runner import RunOptions, run_analysis
+
+    _heap.settle()  # the imports' objects, out of the collector's passes during the analysis
 
     params, excitation = _request(args)
     force_log = (
