@@ -14,9 +14,8 @@ Only a process that runs one command and then exits settles its heap: the ``eige
 :func:`eigenscope.cli.main` itself (a test, a notebook) keeps its collector as it was.
 
 Measured (``bench/devices.py``, 15 alternating rounds a run): ``eigenscope analyze`` of a 320 x 240 x 128
-clip 12.5-14.9 % faster (three runs; 14.4 % over the first two runs' 30 rounds), of the 640 x 480 x 256
-clip 6.8-10.8 % (two runs; 9.3 % over their 30 rounds). Settling at exit only saved 7.0 % at 320 x 240 x 128:
-the settle after the imports is the other half.
+clip 12.5-14.9 % faster (four runs), of the 640 x 480 x 256 clip 6.9-10.8 % (three runs; 9.4 % over their
+45 rounds). Settling at exit only saved 6.8-7.0 %: the settle after the imports is the other half.
 """
 
 from __future__ import annotations
