@@ -2,8 +2,11 @@
 
 A scene is rendered, written as an npz bundle and analysed once per test session: every later request for
 the same scene with the same configuration and excitation gets the same :class:`SceneRun` (tests read it,
-never change it). Test modules use this module directly (``from tests.scenes import run_scene``) or through
-the ``run_scene`` fixture of ``tests/accuracy/conftest.py``; nothing is imported from a conftest.
+never change it). Under pytest-xdist the session's workers share them through the scene folder: the
+first worker to ask renders or analyses under a file lock and stores the result there; another that
+asks for it meanwhile waits for it, then loads it (:func:`_made_once`). Test modules use this module
+directly (``from tests.scenes import run_scene``) or through the ``run_scene`` fixture of
+``tests/accuracy/conftest.py``; nothing is imported from a conftest.
 
 :data:`ACCURACY_ROWS` collects the ground-truth accuracy figures printed at the end of a run
 (``tests/conftest.py``, which hands each test's new rows to its report, so they reach the controller
@@ -12,12 +15,14 @@ under pytest-xdist too).
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import itertools
 import pickle
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -66,6 +71,25 @@ _CLIPS: dict[str, tuple[SyntheticClip, Path]] = {}
 _RUNS: dict[str, SceneRun] = {}
 _CUSTOM = itertools.count()
 
+_T = TypeVar("_T")
+
+
+def _made_once(folder: Path, key: str, make: Callable[[], _T]) -> _T:
+    """``make()``, made once among the processes that share ``folder`` (the session's xdist workers):
+    the first to ask makes it under a lock on ``folder/key.lock`` and stores it in ``folder/key.pickle``;
+    the others wait on the lock and load what it stored."""
+    folder.mkdir(parents=True, exist_ok=True)
+    stored = folder / f"{key}.pickle"
+    with open(folder / f"{key}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, by a process that died too
+        if stored.exists():
+            return pickle.loads(stored.read_bytes())  # written by this session's own workers
+        value = make()
+        partial = stored.with_suffix(".partial")
+        partial.write_bytes(pickle.dumps(value))
+        partial.replace(stored)
+        return value
+
 
 def _slim(clip: SyntheticClip) -> SyntheticClip:
     """``clip`` without its frames (the truth and the masks stay). Empty arrays of their own: a slice
@@ -81,11 +105,14 @@ def rendered(scene: Scene, folder: Path) -> tuple[SyntheticClip, Path]:
     """The scene's clip (frames dropped) and the npz bundle that holds it, rendered once per session."""
     key = _name(scene)
     if key not in _CLIPS:
-        clip = render(scene)
-        folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"scene-{scene.seed}-{key}.npz"
-        write_npz(path, clip.rgb, fps=clip.fps, depth=clip.depth, intrinsics=clip.intrinsics)
-        _CLIPS[key] = (_slim(clip), path)
+
+        def make() -> SyntheticClip:
+            clip = render(scene)
+            write_npz(path, clip.rgb, fps=clip.fps, depth=clip.depth, intrinsics=clip.intrinsics)
+            return _slim(clip)
+
+        _CLIPS[key] = (_made_once(folder, f"clip-{key}", make), path)
     return _CLIPS[key]
 
 
@@ -125,5 +152,6 @@ def run_scene(
         return SceneRun(clip=_slim(clip), analysis=_analyse(path, config, exc), path=path)
     key = _name(scene, config, exc)
     if key not in _RUNS:
-        _RUNS[key] = SceneRun(clip=own, analysis=_analyse(path, config, exc), path=path)
+        analysis = _made_once(folder, f"analysis-{key}", lambda: _analyse(path, config, exc))
+        _RUNS[key] = SceneRun(clip=own, analysis=analysis, path=path)
     return _RUNS[key]

@@ -1,11 +1,14 @@
 """Fixtures of the accuracy tier (``tests/accuracy``, marked ``accuracy`` by ``tests/conftest.py``): the
 ``run_scene`` fixture, :func:`tests.scenes.run_scene` with the session's scene folder (each scene is
-rendered and analysed once per session and shared). ``shared_dir`` (real footage) and the command line's
-``run_eigenscope`` and ``cli_clip``, which the unit tier uses too, are in ``tests/conftest.py``."""
+rendered and analysed once per session, by all the xdist workers together, and shared). ``shared_dir``
+(real footage) and the command line's ``run_eigenscope`` and ``cli_clip``, which the unit tier uses
+too, are in ``tests/conftest.py``."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -15,8 +18,15 @@ from tests.scenes import SceneRun
 
 
 @pytest.fixture(scope="session")
-def scene_folder(tmp_path_factory: pytest.TempPathFactory):
-    return tmp_path_factory.mktemp("scenes")
+def scene_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The session's scene folder: under pytest-xdist one for all its workers (the parent of each
+    worker's base folder is the session's), so that a scene is rendered and analysed once in all."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent
+    folder = base / "scenes"
+    folder.mkdir(exist_ok=True)
+    return folder
 
 
 @pytest.fixture
