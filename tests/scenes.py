@@ -83,7 +83,8 @@ def _made_once(folder: Path, key: str, make: Callable[[], _T]) -> _T:
     with open(folder / f"{key}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, by a process that died too
         if stored.exists():
-            return pickle.loads(stored.read_bytes())  # written by this session's own workers
+            stored_value: _T = pickle.loads(stored.read_bytes())  # written by this session's own workers
+            return stored_value
         value = make()
         partial = stored.with_suffix(".partial")
         partial.write_bytes(pickle.dumps(value))
