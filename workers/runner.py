@@ -89,29 +89,6 @@ def _ringdown(o: ObjectMeasurement) -> RingdownResult | None:
     )
 
 
-#: Stages from which the image library is loaded in the background: the stream of frames before them
-#: keeps both cores busy (an import there, holding the interpreter, slowed it by a quarter), while the
-#: registration after them mostly waits on OpenCV threads.
-_WARM_UP_STAGES = frozenset({"mechanics", "rendering", "done"})
-
-
-def _warming_up_for_images(
-    progress: ProgressCallback | None, warm_up: Callable[[], object]
-) -> ProgressCallback:
-    """``progress`` that also starts ``warm_up`` (once) when the analysis reaches the mechanics stage."""
-    started = False
-
-    def report(stage: str, fraction: float) -> None:
-        nonlocal started
-        if not started and stage in _WARM_UP_STAGES:
-            started = True
-            warm_up()
-        if progress is not None:
-            progress(stage, fraction)
-
-    return report
-
-
 @dataclass(frozen=True)
 class RunOptions:
     """How :func:`run_analysis` runs, apart from what it measures.
@@ -154,8 +131,10 @@ def run_analysis(
     Files are written to a temporary name and renamed, so a reader never sees half a result.
     ``depth_path`` is a video's depth companion (npz or zip of depth PNGs); ``options`` says where to
     unpack, how many flow threads to use and what the clip may hold (:class:`RunOptions`). The images are
-    drawn by :func:`workers.drawing.draw_all`; matplotlib is imported in the background from the
-    mechanics stage on (:func:`workers.drawing.warm_up`).
+    drawn by :func:`workers.drawing.draw_all`, which imports matplotlib when they are drawn: no earlier, in
+    a thread beside the measurement as it was, whose import and warm-up figure then held the interpreter
+    the registration needs (``eigenscope analyze`` of a 640 x 480 x 256 clip 3 % slower, its peak memory
+    28 MiB higher with matplotlib loaded beside the window's buffers; ``bench/README.md``).
 
     Raises
     ------
@@ -163,13 +142,11 @@ def run_analysis(
         Subclasses for bad clips (``ClipError``), bad parameters (``ParameterError``) and clips that
         cannot be analysed (``AnalysisError``); their messages are meant for the user.
     """
-    from workers.drawing import warm_up
     from workers.pipeline.analysis import analyze
     from workers.pipeline.clipio import ClipOverrides, open_clip
     from workers.pipeline.force import chosen_excitations
     from workers.pipeline.model import QualityNote
 
-    report = _warming_up_for_images(progress, warm_up)
     opts = options or RunOptions()
 
     params = parameters or AnalysisParameters()
@@ -194,16 +171,18 @@ def run_analysis(
     ) as reader:
         recorded, notes = recorded_force(reader, params, force_log)
         chosen = chosen_excitations(exc, recorded)
-        analysis = analyze(reader, config=config, excitation=chosen, progress=report)
+        analysis = analyze(reader, config=config, excitation=chosen, progress=progress)
     analysis.quality.extend(QualityNote("force_recording", n, "info") for n in notes)
-    report("rendering", 0.97)
+    if progress is not None:
+        progress("rendering", 0.97)
     result = write_result(
         analysis,
         out,
         excitation=requested,
         parameters=params,
     )
-    report("done", 1.0)
+    if progress is not None:
+        progress("done", 1.0)
     return result
 
 
