@@ -264,6 +264,16 @@ class LiveService:
     def logs(self) -> str:
         return "\n".join(f"--- {p.name} ---\n{p.log()}" for p in self.procs)
 
+    @contextlib.contextmanager
+    def logs_on_failure(self, tail: int = 6000) -> Iterator[None]:
+        """Any exception raised inside carries the end of every process's log as a note (pytest prints
+        it): a failure that depends on what the processes did says so."""
+        try:
+            yield
+        except BaseException as exc:
+            exc.add_note(f"service logs (last {tail} characters):\n{self.logs()[-tail:]}")
+            raise
+
     def wait_ready(self, timeout_s: float = 60.0) -> None:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:

@@ -90,3 +90,20 @@ def test_a_start_that_lost_its_port_is_tried_again_on_another() -> None:
     assert len(ports) == 2
     assert service.base_url.endswith(f":{ports[1]}")
     service.client.close()
+
+
+def test_a_failure_inside_logs_on_failure_carries_the_processes_logs(tmp_path: Path) -> None:
+    proc = h.Proc.start(
+        "talker",
+        [sys.executable, "-c", "print('the worker said this')"],
+        env={"PATH": "/usr/bin:/bin"},
+        log_dir=tmp_path,
+    )
+    proc.popen.wait(timeout=30)
+    service = h.LiveService(base_url="http://127.0.0.1:1", data_dir=tmp_path, env={}, procs=[proc])
+    try:
+        with pytest.raises(AssertionError) as caught, service.logs_on_failure():
+            raise AssertionError("the session never got its ready message")
+    finally:
+        service.client.close()
+    assert any("--- talker ---" in note and "the worker said this" in note for note in caught.value.__notes__)
