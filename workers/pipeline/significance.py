@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -516,9 +517,13 @@ def _band_spectra(
     from scipy import fft
 
     spectra = np.empty((len(bins), series.shape[1]), np.complex64)
+    kept = threading.local()  # each thread's tapered block, kept from block to block
 
     def block(c: int) -> None:
-        tapered = _tapered(series[:, c : c + _COLUMNS], taper)
+        columns = series[:, c : c + _COLUMNS]
+        if not hasattr(kept, "tapered"):
+            kept.tapered = np.empty((len(series), min(_COLUMNS, series.shape[1])), np.float32)
+        tapered = _tapered(columns, taper, out=kept.tapered[:, : columns.shape[1]])
         spectra[:, c : c + _COLUMNS] = fft.rfft(tapered, axis=0)[bins]
 
     list(map_blocks(block, range(0, series.shape[1], _COLUMNS)))
@@ -540,16 +545,19 @@ def tukey(n: int, alpha: float) -> NDArray[np.float32]:
     return taper.astype(np.float32)
 
 
-def _tapered(series: NDArray[np.float32], taper: NDArray[np.float32]) -> NDArray[np.float32]:
+def _tapered(
+    series: NDArray[np.float32], taper: NDArray[np.float32], *, out: NDArray[np.float32] | None = None
+) -> NDArray[np.float32]:
     """``series`` (N, C) times ``taper`` (N,), each column's taper-weighted mean removed first.
 
     A pixel's steady flow (a turning wheel's rim, a drifting camera's bias) is no oscillation; tapered
     with its mean, it becomes the taper's own spectrum, whose low bins stand far above any line there (a
     wheel's turning rate sat beside a skirt 7 times higher). Removing the mean weighted by the taper makes
     a constant vanish exactly. (Removing a straight line as well changed which of a narrow-band random
-    motion's peaks the coherence gate saw, and let one through: the level is removed, not the drift.)"""
+    motion's peaks the coherence gate saw, and let one through: the level is removed, not the drift.)
+    Written into ``out`` (N, C) when given."""
     level = (taper @ series) / float(taper.sum())
-    out = series - level[None, :]
+    out = np.subtract(series, level[None, :], out=out)
     out *= taper[:, None]
     return out
 
