@@ -5,7 +5,9 @@ module decides how a process runs them: :func:`draw_all` draws each figure in th
 after the other, while one helper thread encodes and writes the previous figure's PNG (encoding and
 writing release the GIL; matplotlib does not); the mode animation's frames are drawn the same way, the
 helper thread encoding them as a GIF. :func:`warm_up` imports matplotlib in a background thread
-while an analysis runs, so the figures after it do not pay for the import.
+where a process starts (the stream worker), so that its first figures do not pay for the import; an
+analysis imports it when it draws (:func:`workers.runner.run_analysis`: started beside the measurement,
+the import held the interpreter the registration needs).
 
 Drawing in a helper process, forking a child per render or a child forked as the command line starts,
 a cache of rendered text and leaving the command line with ``os._exit`` were each measured
@@ -102,9 +104,9 @@ def draw_all(analysis: Analysis, out_dir: str | Path, keys: Iterable[str] | None
 def warm_up() -> threading.Thread:
     """Import matplotlib and load its fonts in a background thread.
 
-    Importing matplotlib and its font cache costs about half a second; started while an analysis runs
-    (from its mechanics stage, see :func:`workers.runner.run_analysis`), it runs while the main thread
-    waits on OpenCV and FFTW (which release the GIL), so the images that follow do not pay for it.
+    Importing matplotlib and its font cache costs about half a second: a process that will draw later
+    and has nothing else to do now (the stream worker as it starts) pays it here. Not beside an analysis:
+    there it held the interpreter the measurement needs (``eigenscope analyze`` 7 % slower).
 
     Returns
     -------
