@@ -133,8 +133,8 @@ def run_analysis(
     unpack, how many flow threads to use and what the clip may hold (:class:`RunOptions`). The images are
     drawn by :func:`workers.drawing.draw_all`, which imports matplotlib when they are drawn: no earlier, in
     a thread beside the measurement as it was, whose import and warm-up figure then held the interpreter
-    the registration needs (``eigenscope analyze`` of a 640 x 480 x 256 clip 3 % slower, its peak memory
-    28 MiB higher with matplotlib loaded beside the window's buffers; ``bench/README.md``).
+    the registration needs (``eigenscope analyze`` of a 640 x 480 x 256 clip 7 % slower, its peak memory
+    36 MiB higher with matplotlib loaded beside the window's buffers; ``bench/README.md``).
 
     Raises
     ------
