@@ -209,6 +209,8 @@ class Session:
     attached: bool = False
     ever_attached: bool = False
     detached_at: float | None = None
+    #: The API relay the client is attached through (each WebSocket connection has its own).
+    relay: str | None = None
     last_input: float = field(default_factory=time.monotonic)
     started: float = field(default_factory=time.monotonic)
     _pending: _Pending | None = None
@@ -431,6 +433,7 @@ class Session:
                 self._end_reason = "end"
             elif kind == "_attach":
                 self.attached, self.ever_attached, self.detached_at = True, True, None
+                self.relay = ctl.get("relay")
                 next_frame = self._last_frame + 1 if self._pending is None else self._pending.frame + 1
                 self.send(
                     {
@@ -440,7 +443,9 @@ class Session:
                         "next_frame": next_frame,
                     }
                 )
-            elif kind == "_detach":
+            elif kind == "_detach" and ctl.get("relay") == self.relay:
+                # A connection the client has already replaced (it reconnected, and the new relay
+                # attached before the old one saw the client leave) detaches nothing.
                 self.attached, self.detached_at = False, time.monotonic()
             return
         self.messages += 1

@@ -116,3 +116,29 @@ def test_frames_queued_faster_than_the_worker_still_get_estimates_until_the_stre
     quiet = settings.model_copy(update={"stream_client_timeout_s": 0.5})
     kinds = [m["type"] for m in _session(store, quiet, transport, end=False)]
     assert kinds.count("estimate") >= 2, [(i, k) for i, k in enumerate(kinds) if k != "accepted"]
+
+
+def test_a_connection_the_client_replaced_detaches_nothing(
+    store: Store, settings: Settings, transport: LocalTransport, tmp_path: Path
+) -> None:
+    """The client reconnected: the new connection's relay attached before the old one saw the client
+    leave. The old relay's ``_detach`` leaves the stream attached; the current relay's detaches it."""
+    from api_schemas.stream import StreamCreate
+    from backend.stream_transport import Item
+    from workers.streams import Session
+
+    stream = _stream(store)
+    session = Session(stream.id, settings, store, Storage(tmp_path / "data"), transport)
+    request = StreamCreate.model_validate(stream.request)
+
+    def control(kind: str, relay: str) -> None:
+        session._handle(Item("control", b"", {"type": kind, "relay": relay}), request)
+
+    control("_attach", "r1")
+    control("_attach", "r2")
+    control("_detach", "r1")
+    assert session.attached
+    assert session.detached_at is None
+    control("_detach", "r2")
+    assert not session.attached
+    assert session.detached_at is not None
