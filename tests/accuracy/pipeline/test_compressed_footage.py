@@ -38,23 +38,21 @@ def clips(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("compressed")
 
 
-def _encoded(folder: Path, name: str, scene: Scene, codec: tuple[str, int, int]) -> Path:
-    path = folder / f"{name}-{codec[0]}-{codec[2]}.mp4"
-    if not path.exists():
-        encode(scene, path, codec=codec[0], bit_rate=codec[1], keyframe_every=codec[2])  # type: ignore[arg-type]
-    return path
-
-
-def _encoded_rendering(
-    folder: Path, name: str, rendered: Path, fps: float, codec: tuple[str, int, int]
+def _encoded(
+    folder: Path, name: str, scene: Scene, codec: tuple[str, int, int], *, rendered: Path | None = None
 ) -> Path:
-    """The frames of a scene's lossless rendering (the npz bundle of :func:`tests.scenes.run_scene`)
-    encoded as :func:`_encoded` encodes the scene, without rendering it a second time."""
+    """``scene`` encoded with ``codec`` (name, bit rate, keyframe interval) into ``folder``, once; from the
+    frames of its lossless rendering (the npz bundle of :func:`tests.scenes.run_scene`) when given,
+    without rendering it a second time."""
     path = folder / f"{name}-{codec[0]}-{codec[2]}.mp4"
-    if not path.exists():
+    if path.exists():
+        return path
+    if rendered is None:
+        encode(scene, path, codec=codec[0], bit_rate=codec[1], keyframe_every=codec[2])  # type: ignore[arg-type]
+    else:
         with np.load(rendered) as bundle:
             rgb = bundle["rgb"]
-        write_compressed(path, rgb, fps=fps, codec=codec[0], bit_rate=codec[1], keyframe_every=codec[2])
+        write_compressed(path, rgb, fps=scene.fps, codec=codec[0], bit_rate=codec[1], keyframe_every=codec[2])
     return path
 
 
@@ -255,7 +253,7 @@ def test_codec_parity_with_the_lossless_scene(
     scene = scene_for(case, seed=CASES.index(case))
     run = run_scene(scene)
     lossless = run.analysis
-    analysis = _analyse(_encoded_rendering(clips, f"parity-{case[0]}", run.path, scene.fps, codec))
+    analysis = _analyse(_encoded(clips, f"parity-{case[0]}", scene, codec, rendered=run.path))
     mask = run.clip.mask == 1
     assert analysis.objects, [q.message for q in analysis.quality]
     f_lossless = lossless.objects[0].eigenfrequency_hz
